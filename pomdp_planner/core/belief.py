@@ -1,0 +1,145 @@
+"""Bayes filter for the belief state (paper Eqs. 1 and 2), single and vectorised.
+
+Translation of the paper's formulas into our convention (``P[a, i, j] = P(j | i, a)``,
+``O[a, j, z] = P(z | j, a)``), done here once:
+
+* Eq. 1, prediction: ``b^a(s') = sum_s T(s', s, a) b(s)``  ->  ``b^a = b @ P[a]``.
+* ``eta(z | b, a) = sum_s' O(z, s', a) b^a(s')``           ->  ``eta = b^a @ O[a]``.
+* Eq. 2, update: ``tau(b, a, z)(s') = O(z, s', a) b^a(s') / eta(z | b, a)``
+  ->  ``tau = b^a * O[a][:, z] / eta[z]``.
+
+An observation with ``eta(z | b, a) <= ETA_MIN`` is impossible under the belief: the single
+update raises :class:`ImpossibleObservation`, which carries ``eta`` and the predicted belief
+so that a caller (e.g. the belief filter node) can choose a recovery.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .model import POMDP
+
+#: Observations whose probability under the belief is at most this are impossible.
+ETA_MIN = 1e-300
+
+
+class ImpossibleObservation(ArithmeticError):
+    """``eta(z | b, a) == 0``: the observation cannot occur under the current belief.
+
+    Attributes: ``action``, ``observation``, ``eta`` (its probability) and ``predicted``
+    (the predicted belief ``b^a`` of Eq. 1, a natural fallback belief).
+    """
+
+    def __init__(self, action: int, observation: int, eta: float, predicted: np.ndarray):
+        self.action = action
+        self.observation = observation
+        self.eta = eta
+        self.predicted = predicted
+        super().__init__(
+            f"observation {observation} has probability {eta:.3g} under the belief after action "
+            f"{action} (priority {action + 1}): Bayes update undefined"
+        )
+
+
+class BeliefError(ValueError):
+    """A belief, action or observation given to the filter is invalid (message says which)."""
+
+
+def check_belief(model: POMDP, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
+    """Return ``b`` as a float array after checking it lies on the simplex of ``model``."""
+    b = np.asarray(b, dtype=float)
+    if b.shape != (model.S,):
+        raise BeliefError(f"{field}: expected {model.S} entries, got shape {b.shape}")
+    if not np.all(np.isfinite(b)):
+        raise BeliefError(f"{field}: contains non-finite values")
+    if np.any(b < -atol):
+        raise BeliefError(f"{field}: entry {int(np.argmin(b))} is negative ({b.min():.3g})")
+    total = b.sum()
+    if abs(total - 1.0) > atol:
+        raise BeliefError(f"{field}: sums to {total:.9g}, not 1 (tolerance {atol:g})")
+    b = np.clip(b, 0.0, None)
+    return b / b.sum()
+
+
+def check_action(model: POMDP, a: int) -> int:
+    """Check a 0-based action index (the message shows the 1..A priority too)."""
+    if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < model.A:
+        raise BeliefError(f"action: index {a!r} out of range 0..{model.A - 1} (priorities 1..{model.A})")
+    return int(a)
+
+
+def check_observation(model: POMDP, z: int) -> int:
+    """Check a 0-based observation index."""
+    if isinstance(z, bool) or not isinstance(z, (int, np.integer)) or not 0 <= z < model.Z:
+        raise BeliefError(f"observation: index {z!r} out of range 0..{model.Z - 1}")
+    return int(z)
+
+
+def uniform_belief(model: POMDP) -> np.ndarray:
+    return np.full(model.S, 1.0 / model.S)
+
+
+# ----------------------------------------------------------------- single belief
+def predict(model: POMDP, b: np.ndarray, a: int) -> np.ndarray:
+    """Eq. 1: predicted belief ``b^a = b @ P[a]``."""
+    return np.asarray(b, dtype=float) @ model.P[check_action(model, a)]
+
+
+def observation_probabilities(model: POMDP, b: np.ndarray, a: int) -> np.ndarray:
+    """``eta(. | b, a)``, the distribution of the next observation, shape ``(Z,)``."""
+    return predict(model, b, a) @ model.O[check_action(model, a)]
+
+
+def update(model: POMDP, b: np.ndarray, a: int, z: int) -> np.ndarray:
+    """Eq. 2: posterior ``tau(b, a, z)``; raises :class:`ImpossibleObservation` if ``eta = 0``."""
+    a = check_action(model, a)
+    z = check_observation(model, z)
+    ba = predict(model, b, a)
+    unnorm = ba * model.O[a, :, z]
+    eta = float(unnorm.sum())
+    if not eta > ETA_MIN:
+        raise ImpossibleObservation(a, z, eta, ba)
+    return unnorm / eta
+
+
+# ----------------------------------------------------------------- many beliefs
+def predict_all(model: POMDP, B: np.ndarray) -> np.ndarray:
+    """Eq. 1 for every action and a batch of beliefs: ``B (..., S)`` -> ``(..., A, S)``."""
+    B = np.asarray(B, dtype=float)
+    return np.einsum("...i,aij->...aj", B, model.P)
+
+
+def posteriors_all(model: POMDP, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. 1-2 for all actions and observations of a batch of beliefs.
+
+    Returns ``(tau, eta)`` with ``tau`` of shape ``(..., A, Z, S)`` and ``eta`` of shape
+    ``(..., A, Z)``. Where ``eta <= ETA_MIN`` the posterior is undefined and ``tau`` is set
+    to the predicted belief (it carries zero weight in any expectation).
+    """
+    ba = predict_all(model, B)  # (..., A, S)
+    unnorm = ba[..., :, None, :] * np.swapaxes(model.O, 1, 2)  # (..., A, Z, S)
+    eta = unnorm.sum(axis=-1)
+    ok = eta > ETA_MIN
+    tau = np.where(ok[..., None], unnorm / np.where(ok, eta, 1.0)[..., None], ba[..., :, None, :])
+    return tau, eta
+
+
+def update_batch(model: POMDP, B: np.ndarray, a: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 2 for a batch: ``B (N, S)``, actions ``a (N,)``, observations ``z (N,)``.
+
+    Returns ``(posteriors, eta)``; rows with ``eta <= ETA_MIN`` keep the predicted belief
+    and the caller decides what to do with them (their ``eta`` is returned).
+    """
+    B = np.asarray(B, dtype=float)
+    a = np.asarray(a, dtype=int)
+    z = np.asarray(z, dtype=int)
+    if np.any((a < 0) | (a >= model.A)):
+        raise BeliefError(f"action: indices out of range 0..{model.A - 1}")
+    if np.any((z < 0) | (z >= model.Z)):
+        raise BeliefError(f"observation: indices out of range 0..{model.Z - 1}")
+    ba = np.einsum("ni,nij->nj", B, model.P[a])
+    unnorm = ba * model.O[a, :, z]
+    eta = unnorm.sum(axis=-1)
+    ok = eta > ETA_MIN
+    post = np.where(ok[:, None], unnorm / np.where(ok, eta, 1.0)[:, None], ba)
+    return post, eta

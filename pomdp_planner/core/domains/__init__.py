@@ -1,0 +1,1 @@
+"""Problem generators (domains) from the paper."""
