@@ -6,5 +6,12 @@ Nothing under this package imports rclpy (a test enforces it).
 from .belief import ImpossibleObservation, predict, update
 from .model import POMDP, ModelError, action_of_priority, priority_of
 
-__all__ = ["POMDP", "ModelError", "ImpossibleObservation", "predict", "update",
-           "priority_of", "action_of_priority"]
+__all__ = [
+           "POMDP",
+           "ImpossibleObservation",
+           "ModelError",
+           "action_of_priority",
+           "predict",
+           "priority_of",
+           "update",
+]

@@ -17,8 +17,8 @@ The expected reward is ``rho(b, a) = b . r[:, a] - w[a] f(b)`` (paper Eq. 3).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -91,7 +91,7 @@ class POMDP:
     """
 
     P: np.ndarray
-    O: np.ndarray  # noqa: E741 - the paper's name
+    O: np.ndarray
     r: np.ndarray
     gamma: float
     uncertainty: Uncertainty | str = "none"
@@ -107,7 +107,7 @@ class POMDP:
         set_ = object.__setattr__
         try:
             P = np.asarray(self.P, dtype=float)
-            O = np.asarray(self.O, dtype=float)  # noqa: E741
+            O = np.asarray(self.O, dtype=float)
             r = np.asarray(self.r, dtype=float)
         except (TypeError, ValueError) as exc:
             raise ModelError(f"model matrices must be numeric arrays of consistent shape: {exc}") from None

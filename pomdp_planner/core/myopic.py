@@ -97,7 +97,7 @@ class MyopicBounds:
         return self.lower(B, rho), self.upper(B, rho)
 
 
-def trivial_bounds(model: POMDP) -> "TrivialBounds":
+def trivial_bounds(model: POMDP) -> TrivialBounds:
     """Bounds that prune nothing (lower = 0, upper = A-1): exhaustive search."""
     return TrivialBounds(model)
 

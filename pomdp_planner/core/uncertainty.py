@@ -11,8 +11,8 @@ Names accepted in model files: ``"shannon"``, ``"renyi2"`` and ``"none"``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -21,7 +21,7 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.special import logsumexp
@@ -63,7 +63,7 @@ def tracking_observations(S: int, A: int, q: float) -> np.ndarray:
     """Observation matrices ``O`` (A x S x S) of Eq. 9, identical for every action."""
     if not 0.0 < q <= 1.0:
         raise ModelError(f"generator.q: observation accuracy must be in (0, 1], got {q}")
-    O = np.zeros((S, S))  # noqa: E741
+    O = np.zeros((S, S))
     if S == 1:
         O[0, 0] = 1.0
     else:

@@ -97,14 +97,14 @@ def _model_from_dict(doc: Any) -> POMDP:
         except (TypeError, ValueError) as exc:
             raise ModelError(f"generator: S, A must be integers and q a number ({exc})") from None
         P = tracking_transitions(gS, gA, gen.get("x"), gen.get("y"))
-        O = tracking_observations(gS, gA, q)  # noqa: E741
+        O = tracking_observations(gS, gA, q)
         metadata["generator"] = dict(gen)
     else:
         for key in ("transition", "observation"):
             if key not in doc:
                 raise ModelError(f"{key}: missing (give transition and observation, or generator)")
         P = _array(doc, "transition", 3)
-        O = _array(doc, "observation", 3)  # noqa: E741
+        O = _array(doc, "observation", 3)
     for key, n, got in (("states", S, P.shape[1]), ("actions", A, P.shape[0]), ("observations", Z, O.shape[2])):
         if n is not None and n != got:
             raise ModelError(f"{key}: declares {n} but the matrices have {got}")

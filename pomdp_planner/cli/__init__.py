@@ -1,0 +1,48 @@
+"""The ``pomdp-planner`` command line (also ``python -m pomdp_planner``).
+
+Each subcommand is a module ``pomdp_planner.cli.<name>`` exposing ``register(subparsers)``,
+which adds its parser and sets ``func`` (called with the parsed arguments, returning an exit
+code). Pure core only: nothing here imports rclpy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from ..core.model import ModelError
+
+#: Subcommand modules, in the order ``--help`` lists them.
+SUBCOMMANDS = [
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pomdp-planner",
+        description="Information-acquisition POMDPs with myopic policy bounds (Lauri et al.). "
+        "Actions are shown as tracking priorities 1..A (1 = greatest priority).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in SUBCOMMANDS:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ModelError as exc:
+        print(f"pomdp-planner: error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
