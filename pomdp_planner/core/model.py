@@ -135,15 +135,24 @@ class POMDP:
             raise ModelError(f"discount: must satisfy 0 <= gamma < 1, got {gamma}")
         unc = self.uncertainty
         if isinstance(unc, str):
-            unc = get_uncertainty(unc)
-        w = np.zeros(A) if self.w is None else np.asarray(self.w, dtype=float)
+            try:
+                unc = get_uncertainty(unc)
+            except ValueError as exc:
+                raise ModelError(str(exc)) from None
+        try:
+            w = np.zeros(A) if self.w is None else np.asarray(self.w, dtype=float)
+        except (TypeError, ValueError):
+            raise ModelError(f"uncertainty.weights: must be numbers, got {self.w!r}") from None
         if w.ndim == 0:
             w = np.full(A, float(w))
         if w.shape != (A,):
             raise ModelError(f"uncertainty.weights: expected {A} weights (one per action), got shape {w.shape}")
         if not np.all(np.isfinite(w)):
             raise ModelError(f"uncertainty.weights[{int(np.argmax(~np.isfinite(w)))}]: weight is not finite")
-        eps = float(self.epsilon)
+        try:
+            eps = float(self.epsilon)
+        except (TypeError, ValueError):
+            raise ModelError(f"uncertainty.epsilon: must be a number, got {self.epsilon!r}") from None
         if not (0.0 < eps < 1.0 / S or (S == 1 and 0.0 < eps <= 1.0)):
             raise ModelError(f"uncertainty.epsilon: must satisfy 0 < epsilon < 1/S = {1.0 / S:.6g}, got {eps}")
         set_(self, "P", _frozen(P))

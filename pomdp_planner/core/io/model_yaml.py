@@ -96,7 +96,12 @@ def _model_from_dict(doc: Any) -> POMDP:
             raise ModelError(f"generator.{exc.args[0]}: missing") from None
         except (TypeError, ValueError) as exc:
             raise ModelError(f"generator: S, A must be integers and q a number ({exc})") from None
-        P = tracking_transitions(gS, gA, gen.get("x"), gen.get("y"))
+        try:
+            gx = None if gen.get("x") is None else np.asarray(gen["x"], dtype=float)
+            gy = None if gen.get("y") is None else np.asarray(gen["y"], dtype=float)
+        except (TypeError, ValueError):
+            raise ModelError("generator.x/y: must be lists of numbers") from None
+        P = tracking_transitions(gS, gA, gx, gy)
         O = tracking_observations(gS, gA, q)
         metadata["generator"] = dict(gen)
     else:
@@ -117,7 +122,10 @@ def _model_from_dict(doc: Any) -> POMDP:
         extra = set(rg) - {"kind", "c_a", "c_p", "c_d", "k_r"}
         if extra:
             raise ModelError(f"reward_generator: unknown field(s) {sorted(extra)}")
-        kw = {k: float(v) for k, v in rg.items() if k != "kind"}
+        try:
+            kw = {k: float(v) for k, v in rg.items() if k != "kind"}
+        except (TypeError, ValueError):
+            raise ModelError("reward_generator: c_a, c_p, c_d, k_r must be numbers") from None
         r = comparison_reward(P.shape[1], P.shape[0], **kw)
         metadata["reward_generator"] = dict(rg)
     elif "reward" in doc:
