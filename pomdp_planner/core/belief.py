@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import POMDP
+from .model import POMDP, ModelError
 
 #: Observations whose probability under the belief is at most this are impossible.
 ETA_MIN = 1e-300
@@ -143,3 +143,32 @@ def update_batch(model: POMDP, B: np.ndarray, a: np.ndarray, z: np.ndarray) -> t
     ok = eta > ETA_MIN
     post = np.where(ok[:, None], unnorm / np.where(ok, eta, 1.0)[:, None], ba)
     return post, eta
+
+
+def start_belief(model: POMDP) -> np.ndarray | None:
+    """The model's initial belief from ``metadata["start"]``, or ``None`` if it has none.
+
+    Accepted forms (YAML ``start:`` field, or a Cassandra ``start:`` line after import): a
+    list of ``S`` probabilities, the word ``uniform``, or the name of a state (all mass on
+    it). Raises :class:`~pomdp_planner.core.model.ModelError` naming ``start`` otherwise.
+    """
+    start = model.metadata.get("start")
+    if start is None:
+        return None
+    if isinstance(start, str):
+        if start == "uniform":
+            return uniform_belief(model)
+        if model.state_names is not None and start in model.state_names:
+            b = np.zeros(model.S)
+            b[model.state_names.index(start)] = 1.0
+            return b
+        raise ModelError(f"start: expected a list of {model.S} probabilities, 'uniform' or a state name, "
+                         f"got {start!r}")
+    try:
+        b = np.asarray(start, dtype=float)
+    except (TypeError, ValueError):
+        raise ModelError(f"start: expected a list of {model.S} numbers, got {start!r}") from None
+    try:
+        return check_belief(model, b, field="start")
+    except BeliefError as exc:
+        raise ModelError(str(exc)) from None

@@ -1,0 +1,528 @@
+"""Cassandra ``.POMDP`` files (the pomdp-solve format, also read by SARSOP and pomdp-py).
+
+Export (:func:`export_pomdp`, :func:`save_pomdp_file`) writes the *linear* part of the model:
+``discount``, ``values: reward``, the ``states``/``actions``/``observations`` headers, ``start``
+(when the model has one in ``metadata``), ``T:`` and ``O:`` matrices and the state reward as
+``R: a : s : * : * r(s,a)``. The uncertainty term ``-w_a f(b)`` of the paper's Eq. 3 cannot
+be expressed in the format: export then warns (``warnings.warn``) and says so in a comment.
+
+Import (:func:`parse_pomdp`, :func:`load_pomdp_file`) reads the format as pomdp-solve
+documents it: the header (``discount``, ``values: reward|cost``, ``states``/``actions``/
+``observations`` as a count or a list of names), ``start:`` (a probability vector, ``uniform``,
+a single state, ``start include: ...``, ``start exclude: ...``), ``T:``/``O:`` entries in
+element, row and matrix form (with ``uniform`` and ``identity``), ``R:`` entries in element,
+row and matrix form, wildcards ``*``, names or 0-based indices, and ``#`` comments. Later
+entries overwrite earlier ones. The file's ``R(s, a, s', z)`` is reduced to our ``r(s, a)``
+by expectation, ``r(s,a) = sum_{s',z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``; ``values: cost``
+negates it. The model has no uncertainty term (``function: none``). Errors are
+:class:`~pomdp_planner.core.model.ModelError` with the line number and what is wrong.
+
+Conventions: ``T: a : start : end p`` is ``P(end | start, a)``, our ``P[a, start, end]``;
+``O: a : end : obs p`` is ``P(obs | end, a)``, our ``O[a, end, obs]``. Indices are 0-based in
+both. Our action index ``a`` is the tracking priority ``a + 1``.
+
+Names. The format's identifiers start with a letter followed by letters, digits, ``_`` or
+``-``; a bare number in a header is a *count* (``states: 5``). Export therefore keeps every
+name that is a valid identifier and not a keyword of the format, and renames the others by
+this rule (:func:`safe_names`): characters outside ``[A-Za-z0-9_-]`` become ``_``; a name
+that then does not start with a letter, or is a keyword, gets the prefix ``s_``/``a_``/``o_``
+(states/actions/observations); clashes get ``_2``, ``_3``, ... appended. So ``['5']`` is
+written ``states: s_5`` and can never be read as a count. When a name is renamed, the file
+records the original names in a comment line ``# pomdp_planner: {...JSON...}`` which this
+importer uses to restore them (other readers ignore comments).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..belief import start_belief
+from ..model import POMDP, STOCHASTIC_ATOL, ModelError
+
+#: Words with a meaning in the format; a state/action/observation may not be called so.
+KEYWORDS = frozenset({
+    "discount", "values", "states", "actions", "observations", "start", "include", "exclude",
+    "T", "O", "R", "uniform", "identity", "reward", "cost", "reset",
+})
+#: Words that begin a new section of the file (end a list of names or numbers).
+_SECTIONS = frozenset({"discount", "values", "states", "actions", "observations", "start", "T", "O", "R"})
+_IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_META = re.compile(r"^#\s*pomdp_planner:\s*(\{.*\})\s*$")
+_PREFIX = {"states": "s_", "actions": "a_", "observations": "o_"}
+
+
+# ---------------------------------------------------------------------------- names
+def is_safe_name(name: str) -> bool:
+    """True if ``name`` can be written as-is in a ``.POMDP`` header."""
+    return bool(_IDENT.match(name)) and name not in KEYWORDS
+
+
+def safe_names(names: tuple[str, ...] | list[str], kind: str) -> list[str]:
+    """Rename ``names`` (of ``kind`` states/actions/observations) to valid, unique identifiers.
+
+    Valid names are kept; see the module docstring for the rule applied to the others.
+    """
+    prefix = _PREFIX[kind]
+    out: list[str] = []
+    used: set[str] = {n for n in names if is_safe_name(n)}
+    for n in names:
+        if is_safe_name(n):
+            out.append(n)
+            continue
+        base = re.sub(r"[^A-Za-z0-9_\-]", "_", n)
+        if not base or not base[0].isalpha() or base in KEYWORDS:
+            base = prefix + base
+        cand, k = base, 2
+        while cand in used:
+            cand, k = f"{base}_{k}", k + 1
+        used.add(cand)
+        out.append(cand)
+    return out
+
+
+# ---------------------------------------------------------------------------- export
+def _num(x: float) -> str:
+    """Shortest round-trip text of a float, always with a decimal point (``1.0e-05``)."""
+    s = repr(float(x))
+    if "e" in s and "." not in s.split("e")[0]:
+        mant, exp = s.split("e")
+        s = f"{mant}.0e{exp}"
+    elif "." not in s and "e" not in s:
+        s += ".0"
+    return s
+
+
+def export_pomdp(model: POMDP) -> str:
+    """The ``.POMDP`` text of ``model`` (linear part of the reward only; warns otherwise)."""
+    S, A, Z = model.S, model.A, model.Z
+    lines = [
+        f"# Cassandra .POMDP file exported by pomdp_planner from model '{model.name}'",
+        "# T: a : start : end = P(end | start, a);  O: a : end : obs = P(obs | end, a);  0-based indices.",
+        "# Action index a is the tracking priority a + 1 (action 0 = priority 1 = greatest priority).",
+    ]
+    if model.uncertainty.name != "none" and np.any(model.w != 0.0):
+        msg = (f"model '{model.name}': the uncertainty term -w_a f(b) (f = {model.uncertainty.name}, "
+               f"w = {model.w.tolist()}) cannot be expressed in a .POMDP file; only the linear "
+               "reward r(s, a) is exported")
+        warnings.warn(msg, stacklevel=2)
+        lines.append(f"# WARNING: {msg}.")
+    headers: dict[str, list[str] | int] = {}
+    originals: dict[str, list[str]] = {}
+    for kind, names, n in (("states", model.state_names, S), ("actions", model.action_names, A),
+                           ("observations", model.observation_names, Z)):
+        if names is None:
+            headers[kind] = n
+            continue
+        safe = safe_names(names, kind)
+        headers[kind] = safe
+        if safe != list(names):
+            originals[kind] = list(names)
+            renamed = ", ".join(f"{o!r} -> {s}" for o, s in zip(names, safe, strict=True) if o != s)
+            lines.append(f"# {kind} renamed to valid .POMDP identifiers: {renamed}")
+    meta = {"name": model.name, **originals}
+    lines.append("# pomdp_planner: " + json.dumps(meta))
+    lines += ["", f"discount: {_num(model.gamma)}", "values: reward"]
+    for kind in ("states", "actions", "observations"):
+        h = headers[kind]
+        lines.append(f"{kind}: {h}" if isinstance(h, int) else f"{kind}: {' '.join(h)}")
+
+    def ref(kind: str, i: int) -> str:
+        h = headers[kind]
+        return str(i) if isinstance(h, int) else h[i]
+
+    b0 = start_belief(model)
+    if b0 is not None:
+        lines.append("start: " + " ".join(_num(p) for p in b0))
+    lines.append("")
+    for a in range(A):
+        lines.append(f"T: {ref('actions', a)}")
+        lines += [" ".join(_num(p) for p in row) for row in model.P[a]]
+        lines.append("")
+    for a in range(A):
+        lines.append(f"O: {ref('actions', a)}")
+        lines += [" ".join(_num(p) for p in row) for row in model.O[a]]
+        lines.append("")
+    for a in range(A):
+        for s in range(S):
+            lines.append(f"R: {ref('actions', a)} : {ref('states', s)} : * : * {_num(model.r[s, a])}")
+    return "\n".join(lines) + "\n"
+
+
+def save_pomdp_file(model: POMDP, path: str | Path) -> None:
+    """Write ``model`` to ``path`` as a ``.POMDP`` file (see :func:`export_pomdp`)."""
+    Path(path).write_text(export_pomdp(model))
+
+
+# ---------------------------------------------------------------------------- import
+@dataclass(frozen=True)
+class _Tok:
+    text: str
+    line: int
+
+
+def _tokenize(text: str) -> tuple[list[_Tok], dict]:
+    toks: list[_Tok] = []
+    meta: dict = {}
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        m = _META.match(raw.strip())
+        if m:
+            try:
+                parsed = json.loads(m.group(1))
+            except json.JSONDecodeError:
+                parsed = None
+            if isinstance(parsed, dict):
+                meta = parsed
+        code = raw.split("#", 1)[0]
+        toks.extend(_Tok(t, lineno) for t in re.findall(r":|[^\s:]+", code))
+    return toks, meta
+
+
+class _Parser:
+    def __init__(self, text: str, source: str):
+        self.toks, self.meta = _tokenize(text)
+        self.pos = 0
+        self.source = source
+        self.gamma: float | None = None
+        self.sign = 1.0
+        self.sizes: dict[str, int] = {}
+        self.names: dict[str, list[str] | None] = {}
+        self.start: np.ndarray | None = None
+
+    # -- token helpers
+    def error(self, msg: str, tok: _Tok | None = None) -> ModelError:
+        if tok is None:
+            tok = self.toks[self.pos] if self.pos < len(self.toks) else None
+        where = f"line {tok.line}" if tok is not None else "end of file"
+        return ModelError(f"{self.source}: {where}: {msg}")
+
+    def peek(self) -> _Tok | None:
+        return self.toks[self.pos] if self.pos < len(self.toks) else None
+
+    def next(self, what: str) -> _Tok:
+        tok = self.peek()
+        if tok is None:
+            last = self.toks[-1] if self.toks else None
+            raise self.error(f"unexpected end of file, expected {what}", last)
+        self.pos += 1
+        return tok
+
+    def colon(self, after: str) -> None:
+        tok = self.next(f"':' after {after}")
+        if tok.text != ":":
+            raise self.error(f"expected ':' after {after}, got {tok.text!r}", tok)
+
+    def number(self, what: str) -> float:
+        tok = self.next(what)
+        if not _NUMBER.match(tok.text):
+            raise self.error(f"expected {what} (a number), got {tok.text!r}", tok)
+        return float(tok.text)
+
+    def numbers(self, n: int, what: str) -> np.ndarray:
+        out = np.empty(n)
+        for k in range(n):
+            tok = self.peek()
+            if tok is None or not _NUMBER.match(tok.text):
+                got = "end of file" if tok is None else repr(tok.text)
+                raise self.error(f"{what}: expected {n} numbers, got {k} before {got}", tok or self.toks[-1])
+            out[k] = float(tok.text)
+            self.pos += 1
+        tok = self.peek()
+        if tok is not None and _NUMBER.match(tok.text):
+            raise self.error(f"{what}: more than the expected {n} numbers", tok)
+        return out
+
+    def until_section(self) -> list[_Tok]:
+        out = []
+        while (tok := self.peek()) is not None and tok.text not in _SECTIONS:
+            out.append(tok)
+            self.pos += 1
+        return out
+
+    # -- header
+    def need(self, kind: str, tok: _Tok) -> int:
+        if kind not in self.sizes:
+            raise self.error(f"'{kind}:' must be declared before this line", tok)
+        return self.sizes[kind]
+
+    def index(self, kind: str, tok: _Tok) -> list[int]:
+        """A reference to a state/action/observation: ``*``, a 0-based index or a name."""
+        n = self.need(kind, tok)
+        t = tok.text
+        if t == "*":
+            return list(range(n))
+        if t.isdigit():
+            i = int(t)
+            if i >= n:
+                raise self.error(f"{kind[:-1]} index {i} out of range 0..{n - 1}", tok)
+            return [i]
+        names = self.names.get(kind)
+        if names is not None and t in names:
+            return [names.index(t)]
+        known = f"; known names: {' '.join(names)}" if names else " (declared as a count: use 0-based indices)"
+        raise self.error(f"unknown {kind[:-1]} {t!r}{known}", tok)
+
+    def ref(self, kind: str) -> list[int]:
+        return self.index(kind, self.next(f"a {kind[:-1]} (name, index or *)"))
+
+    def header_list(self, kind: str, tok: _Tok) -> None:
+        if kind in self.sizes:
+            raise self.error(f"'{kind}:' declared twice", tok)
+        self.colon(kind)
+        items = self.until_section()
+        if not items:
+            raise self.error(f"{kind}: expected a count or a list of names", tok)
+        if len(items) == 1 and items[0].text.isdigit():
+            n = int(items[0].text)
+            if n < 1:
+                raise self.error(f"{kind}: count must be at least 1, got {n}", items[0])
+            self.sizes[kind], self.names[kind] = n, None
+            return
+        names = []
+        for it in items:
+            if _NUMBER.match(it.text) or it.text in ("*", ":") or it.text in KEYWORDS:
+                what = "a bare number" if _NUMBER.match(it.text) else "reserved"
+                raise self.error(f"{kind}: name {it.text!r} is {what}; give one count or names that start "
+                                 "with a letter", it)
+            if it.text in names:
+                raise self.error(f"{kind}: name {it.text!r} appears twice", it)
+            names.append(it.text)
+        self.sizes[kind], self.names[kind] = len(names), names
+
+    def start_line(self, tok: _Tok) -> None:
+        S = self.need("states", tok)
+        mode = self.peek()
+        if mode is not None and mode.text in ("include", "exclude"):
+            self.pos += 1
+            self.colon(f"start {mode.text}")
+            items = self.until_section()
+            if not items:
+                raise self.error(f"start {mode.text}: expected a list of states", mode)
+            chosen = np.zeros(S, dtype=bool)
+            for it in items:
+                chosen[self.index("states", it)] = True
+            if mode.text == "exclude":
+                chosen = ~chosen
+            if not chosen.any():
+                raise self.error("start exclude: excludes every state", mode)
+            self.start = chosen / chosen.sum()
+            return
+        self.colon("start")
+        items = self.until_section()
+        if len(items) == 1 and items[0].text == "uniform":
+            self.start = np.full(S, 1.0 / S)
+        elif len(items) == S and all(_NUMBER.match(it.text) for it in items):
+            b = np.array([float(it.text) for it in items])
+            if np.any(b < 0) or abs(b.sum() - 1.0) > STOCHASTIC_ATOL:
+                raise self.error(f"start: probabilities must be non-negative and sum to 1 (sum {b.sum():.9g})", tok)
+            self.start = b
+        elif len(items) == 1:
+            b = np.zeros(S)
+            b[self.index("states", items[0])] = 1.0
+            self.start = b
+        else:
+            raise self.error(f"start: expected {S} probabilities, 'uniform' or one state, got {len(items)} items",
+                             tok)
+
+    # -- parameters
+    def probs(self, values: np.ndarray, what: str, tok: _Tok) -> np.ndarray:
+        if np.any(values < 0.0) or np.any(values > 1.0 + STOCHASTIC_ATOL):
+            bad = values[(values < 0.0) | (values > 1.0 + STOCHASTIC_ATOL)].flat[0]
+            raise self.error(f"{what}: probability {bad:g} is outside [0, 1]", tok)
+        return values
+
+    def stochastic(self, key: str, tok: _Tok, S: int, n: int, P: np.ndarray, lines: np.ndarray) -> None:
+        """``T:`` (key "T", target P of shape A x S x S) or ``O:`` (A x S x Z) in all forms."""
+        what = "T" if key == "T" else "O"
+        col = "states" if key == "T" else "observations"
+        self.colon(what)
+        acts = self.ref("actions")
+        nxt = self.peek()
+        if nxt is not None and nxt.text == ":":
+            self.pos += 1
+            rows = self.ref("states")
+            nxt = self.peek()
+            if nxt is not None and nxt.text == ":":  # element form
+                self.pos += 1
+                cols = self.ref(col)
+                p = self.probs(np.array([self.number(f"{what}: probability")]), f"{what}: entry", tok)[0]
+                P[np.ix_(acts, rows, cols)] = p
+            else:  # row form
+                if nxt is not None and nxt.text == "uniform":
+                    self.pos += 1
+                    row = np.full(n, 1.0 / n)
+                else:
+                    row = self.probs(self.numbers(n, f"{what}: row"), f"{what}: row", tok)
+                P[np.ix_(acts, rows)] = row
+            lines[np.ix_(acts, rows)] = tok.line
+            return
+        if nxt is not None and nxt.text in ("uniform", "identity"):
+            self.pos += 1
+            if nxt.text == "uniform":
+                M = np.full((S, n), 1.0 / n)
+            else:
+                if n != S:
+                    raise self.error(f"{what}: 'identity' needs as many observations as states ({n} != {S})", nxt)
+                M = np.eye(S)
+        else:
+            M = self.probs(self.numbers(S * n, f"{what}: matrix"), f"{what}: matrix", tok).reshape(S, n)
+        P[acts] = M
+        lines[acts] = tok.line
+
+    def reward(self, tok: _Tok, S: int, Z: int, blocks: dict) -> None:
+        self.colon("R")
+        acts = self.ref("actions")
+        self.colon("R: action")
+        starts = self.ref("states")
+        nxt = self.peek()
+        if nxt is not None and nxt.text == ":":
+            self.pos += 1
+            ends = self.ref("states")
+            nxt = self.peek()
+            if nxt is not None and nxt.text == ":":  # element form
+                self.pos += 1
+                obs = self.ref("observations")
+                v = self.number("R: value")
+                whole = len(ends) == S and len(obs) == Z
+                for a in acts:
+                    for s in starts:
+                        if whole:
+                            blocks[a, s] = v
+                        else:
+                            self._block(blocks, a, s, S, Z)[np.ix_(ends, obs)] = v
+                return
+            row = self.numbers(Z, "R: row (one value per observation)")
+            for a in acts:
+                for s in starts:
+                    self._block(blocks, a, s, S, Z)[ends, :] = row
+            return
+        M = self.numbers(S * Z, "R: matrix (end states x observations)").reshape(S, Z)
+        for a in acts:
+            for s in starts:
+                blocks[a, s] = M.copy()
+
+    @staticmethod
+    def _block(blocks: dict, a: int, s: int, S: int, Z: int) -> np.ndarray:
+        blk = blocks.get((a, s), 0.0)
+        if not isinstance(blk, np.ndarray):
+            blk = np.full((S, Z), float(blk))
+            blocks[a, s] = blk
+        return blk
+
+    # -- driver
+    def parse(self) -> POMDP:
+        P = O = None
+        P_lines = O_lines = None
+        blocks: dict = {}
+        while (tok := self.peek()) is not None:
+            self.pos += 1
+            t = tok.text
+            if t == "discount":
+                self.colon("discount")
+                g = self.number("discount")
+                if not 0.0 <= g < 1.0:
+                    raise self.error(f"discount: must satisfy 0 <= discount < 1 (infinite horizon), got {g}", tok)
+                self.gamma = g
+            elif t == "values":
+                self.colon("values")
+                v = self.next("'reward' or 'cost'")
+                if v.text not in ("reward", "cost"):
+                    raise self.error(f"values: expected 'reward' or 'cost', got {v.text!r}", v)
+                self.sign = 1.0 if v.text == "reward" else -1.0
+            elif t in ("states", "actions", "observations"):
+                if P is not None:
+                    raise self.error(f"'{t}:' must come before the T:, O: and R: entries", tok)
+                self.header_list(t, tok)
+            elif t == "start":
+                self.start_line(tok)
+            elif t in ("T", "O", "R"):
+                S = self.need("states", tok)
+                A = self.need("actions", tok)
+                Z = self.need("observations", tok)
+                if P is None:
+                    P, O = np.zeros((A, S, S)), np.zeros((A, S, Z))
+                    P_lines, O_lines = np.zeros((A, S), dtype=int), np.zeros((A, S), dtype=int)
+                if t == "T":
+                    self.stochastic("T", tok, S, S, P, P_lines)
+                elif t == "O":
+                    self.stochastic("O", tok, S, Z, O, O_lines)
+                else:
+                    self.reward(tok, S, Z, blocks)
+            else:
+                expected = "discount, values, states, actions, observations, start, T, O or R"
+                raise self.error(f"unexpected {t!r} (expected one of {expected})", tok)
+        if self.gamma is None:
+            raise ModelError(f"{self.source}: 'discount:' is missing")
+        for kind in ("states", "actions", "observations"):
+            if kind not in self.sizes:
+                raise ModelError(f"{self.source}: '{kind}:' is missing")
+        if P is None:
+            raise ModelError(f"{self.source}: no T: or O: entries")
+        self.check_rows("T", "transition", P, P_lines, "start state", "states")
+        self.check_rows("O", "observation", O, O_lines, "end state", "observations")
+        S, A = self.sizes["states"], self.sizes["actions"]
+        r = np.zeros((S, A))
+        for (a, s), blk in blocks.items():
+            if isinstance(blk, np.ndarray):
+                W = P[a, s][:, None] * O[a]
+                r[s, a] = float((W * blk).sum() / W.sum())
+            else:
+                r[s, a] = blk
+        r = self.sign * r
+        return self.build(P, O, r)
+
+    def check_rows(self, key: str, field: str, M: np.ndarray, lines: np.ndarray, row_label: str, over: str) -> None:
+        sums = M.sum(axis=-1)
+        bad = np.argwhere(np.abs(sums - 1.0) > STOCHASTIC_ATOL)
+        if bad.size == 0:
+            return
+        a, s = bad[0]
+        an = self.names["actions"][a] if self.names["actions"] else str(a)
+        sn = self.names["states"][s] if self.names["states"] else str(s)
+        if lines[a, s] == 0:
+            raise ModelError(f"{self.source}: {key}: no probabilities given for action {an}, {row_label} {sn} "
+                             f"({field} row sums to {sums[a, s]:.9g})")
+        raise ModelError(f"{self.source}: line {lines[a, s]}: {key}: {field} row for action {an}, {row_label} {sn} "
+                         f"sums to {sums[a, s]:.9g} over {over}, not 1 (after the last {key}: entry touching it, "
+                         f"on this line)")
+
+    def build(self, P: np.ndarray, O: np.ndarray, r: np.ndarray) -> POMDP:
+        names = dict(self.names)
+        for kind in ("states", "actions", "observations"):
+            orig = self.meta.get(kind)
+            if (isinstance(orig, list) and names[kind] is not None and len(orig) == len(names[kind])
+                    and all(isinstance(x, str) for x in orig) and safe_names(orig, kind) == names[kind]):
+                names[kind] = orig
+        name = self.meta.get("name") if isinstance(self.meta.get("name"), str) else None
+        if name is None:
+            name = Path(self.source).stem if self.source not in ("", "<string>") else "pomdp"
+        metadata: dict = {"source_format": "cassandra"}
+        if self.start is not None:
+            metadata["start"] = self.start.tolist()
+        try:
+            return POMDP(P=P, O=O, r=r, gamma=self.gamma, uncertainty="none", name=name,
+                         state_names=names["states"], action_names=names["actions"],
+                         observation_names=names["observations"], metadata=metadata)
+        except ModelError as exc:
+            raise ModelError(f"{self.source}: {exc}") from None
+
+
+def parse_pomdp(text: str, source: str = "<string>") -> POMDP:
+    """Parse the text of a ``.POMDP`` file into a :class:`POMDP` (linear reward, no uncertainty)."""
+    return _Parser(text, source).parse()
+
+
+def load_pomdp_file(path: str | Path) -> POMDP:
+    """Load a Cassandra ``.POMDP`` file (see :func:`parse_pomdp`)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot read .POMDP file ({exc.strerror})") from None
+    return parse_pomdp(text, source=str(path))
