@@ -1,0 +1,477 @@
+"""Branch-and-bound tree search with myopic policy bounds (paper Sec. V, Algorithm 1).
+
+Depth and node counting follow the paper's Table II (Sec. VI-A): a search of *depth* ``d``
+builds the tree of ``d`` action-observation levels below the root. Level 0 is the root
+``b0``; level ``i`` holds the beliefs reachable after ``i`` decisions, at most
+``N_i = (A Z)^i`` of them, so a complete tree has ``sum_{i=0}^d (A Z)^i`` belief nodes
+(:func:`complete_tree_nodes`). Beliefs at level ``d`` are leaves, valued ``max_a rho(b, a)``
+over *all* actions. In the notation of Algorithm 1 our depth ``d`` is ``Search(b0, d + 1)``
+(the algorithm's ``d = 1`` is the leaf).
+
+At every non-leaf node ``b`` the actions expanded are ``A ∩ [lower(b), upper(b)]`` from a
+:class:`~pomdp_planner.core.myopic.MyopicBounds`; the exhaustive baseline is the *same code*
+with :class:`~pomdp_planner.core.myopic.TrivialBounds` (``[0, A-1]``), the action filter being
+the only difference. If a bounds object ever returns ``lower > upper`` at a node (impossible
+for valid bounds, possible for arbitrary ``g, h``) the node keeps all actions, rather than none.
+
+Node counting: ``nodes_expanded[i]`` is the number of belief nodes in the tree of depth
+``i + 1`` (root, internal nodes and leaves; what Table II counts), ``nodes_pruned[i]`` the
+complete-tree count minus it, and the percentage pruned is ``100 (1 - expanded / complete)``.
+The B&B tree of depth ``d`` contains the tree of every smaller depth (bounds depend on the
+belief only), so one search gives the counts of all depths ``1..d``.
+
+Observation branches with ``eta(z | b, a) <= ETA_SKIP`` (the filter's ``ETA_MIN``) are not
+generated: they are impossible, contribute ``eta * V = 0`` to the Q value, and count as
+*not expanded* (so, for models with zero observation probabilities, even exhaustive search
+"prunes" relative to the complete-tree formula; the tracking models reach every branch from
+a full-support belief because ``P > 0``).
+
+Speed: the tree is processed level by level on arrays of beliefs, in chunks (depth-first over
+chunks, so memory stays bounded at any depth). The leaf level, which dominates, needs no
+posterior beliefs: for a batch of parents with predicted beliefs ``b^a``, with
+``u = b^a ∘ O[a][:, z]`` and ``eta = sum u``,
+``eta * V(leaf) = max_a' (u · r_a' - w_a' eta f(u / eta))`` where ``u · r_a'``, ``eta`` and
+
+* Renyi: ``eta f = -eta log(sum_s u_s^2 / eta^2)``, ``sum_s u_s^2 = (b^a)^2 @ O[a]^2``;
+* Shannon: ``eta f = eta log eta - sum_s u_s log u_s`` with
+  ``sum_s u_s log u_s = (b^a log b^a) @ O[a] + b^a @ (O[a] log O[a])``
+
+are all matrix products. Branches with tiny ``eta < ETA_FUSED_MIN`` (where ``u_s^2`` could
+underflow) are recomputed from the normalised posterior, so no division blows up.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .belief import ETA_MIN, check_belief
+from .model import POMDP, priority_of
+from .myopic import MyopicBounds, TrivialBounds
+
+#: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
+ETA_SKIP = ETA_MIN
+#: Below this ``eta`` the fused leaf formulas are replaced by the normalised computation.
+ETA_FUSED_MIN = 1e-100
+#: Default memory budget (bytes) for one chunk of the leaf level.
+DEFAULT_CHUNK_BYTES = 32 * 2**20
+
+Bounds = MyopicBounds | TrivialBounds
+
+
+def complete_level_sizes(A: int, Z: int, depth: int) -> tuple[int, ...]:
+    """``N_i = (A Z)^i`` for ``i = 0..depth``: beliefs at each level of a complete tree (Table II)."""
+    return tuple((A * Z) ** i for i in range(depth + 1))
+
+
+def complete_tree_nodes(A: int, Z: int, depth: int) -> int:
+    """``sum_{i=0}^depth (A Z)^i``: belief nodes of the complete tree of ``depth`` (Sec. VI-A)."""
+    return sum(complete_level_sizes(A, Z, depth))
+
+
+class _DeadlineExceeded(Exception):
+    """Raised inside a depth when the wall-clock deadline passes (never escapes the planner)."""
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """The outcome of :meth:`Planner.search` or :meth:`Planner.plan`.
+
+    ``action`` is 0-based (``priority = action + 1`` is the paper's tracking priority).
+    ``q_values[a]`` is the depth-``depth`` estimate ``Q(b0, a)`` of Algorithm 1, ``nan`` for
+    actions pruned at the root. ``nodes_expanded[i]`` / ``nodes_pruned[i]`` refer to the
+    tree of depth ``i + 1`` (see the module docstring). ``certified`` means the root bounds
+    agree, so the action is the optimal one under the theory's assumptions (Proposition 1).
+    """
+
+    action: int
+    priority: int
+    q_values: np.ndarray
+    depth: int
+    nodes_expanded: tuple[int, ...]
+    nodes_pruned: tuple[int, ...]
+    certified: bool
+    root_bounds: tuple[int, int] | None
+    time_used: float
+    deadline_hit: bool
+    value: float = math.nan
+    level_sizes: tuple[int, ...] = ()
+    used_bounds: bool = True
+    depth_times: tuple[float, ...] = field(default=())
+
+    @property
+    def complete_nodes(self) -> tuple[int, ...]:
+        """Complete-tree node counts for depths ``1..depth`` (formula)."""
+        return tuple(e + p for e, p in zip(self.nodes_expanded, self.nodes_pruned, strict=True))
+
+    @property
+    def percent_pruned(self) -> tuple[float, ...]:
+        """``100 (1 - expanded / complete)`` per depth ``1..depth`` (Table II's figure)."""
+        return tuple(100.0 * p / (e + p) for e, p in zip(self.nodes_expanded, self.nodes_pruned, strict=True))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary; actions as priorities ``1..A``, ``nan`` Q values as ``None``."""
+        q = [None if not math.isfinite(x) else float(x) for x in np.asarray(self.q_values, dtype=float)]
+        return {
+            "action": int(self.priority),
+            "q_values": q,
+            "value": float(self.value) if math.isfinite(self.value) else None,
+            "depth": int(self.depth),
+            "nodes_expanded": [int(x) for x in self.nodes_expanded],
+            "nodes_pruned": [int(x) for x in self.nodes_pruned],
+            "nodes_complete": [int(x) for x in self.complete_nodes],
+            "percent_pruned": [round(x, 4) for x in self.percent_pruned],
+            "certified": bool(self.certified),
+            "root_bounds": None if self.root_bounds is None else [int(x) + 1 for x in self.root_bounds],
+            "used_bounds": bool(self.used_bounds),
+            "time_used": float(self.time_used),
+            "deadline_hit": bool(self.deadline_hit),
+        }
+
+
+def _xlogx(x: np.ndarray) -> np.ndarray:
+    return np.where(x > 0.0, x * np.log(np.where(x > 0.0, x, 1.0)), 0.0)
+
+
+class Planner:
+    """Anytime branch-and-bound planner (Algorithm 1) and its exhaustive baseline.
+
+    ``bounds`` is a :class:`MyopicBounds` (or anything with its ``actions(B, rho)``
+    interface); ``None`` means :class:`TrivialBounds`, i.e. only exhaustive search.
+    ``chunk_bytes`` bounds the memory of one leaf-level chunk.
+    """
+
+    def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES):
+        self.model = model
+        self.trivial = TrivialBounds(model)
+        self.bounds = self.trivial if bounds is None else bounds
+        if getattr(self.bounds, "model", model) is not model:
+            bm = self.bounds.model
+            if (bm.S, bm.A, bm.Z) != (model.S, model.A, model.Z):
+                raise ValueError("bounds: built for a model of different size")
+        self.bounds_solution: Any = None
+        S, A, Z = model.S, model.A, model.Z
+        P, O, r = model.P, model.O, model.r
+        self._P = np.ascontiguousarray(P)
+        self._O = np.ascontiguousarray(O)
+        self._OT = np.ascontiguousarray(np.swapaxes(O, 1, 2))  # (A, Z, S)
+        # W[a] = [O[a] | O[a][:, z] * r[:, a'] for (z, a')] : (S, Z + Z*A)
+        OR = (O[:, :, :, None] * r[None, :, None, :]).reshape(A, S, Z * A)
+        self._W = np.ascontiguousarray(np.concatenate([O, OR], axis=2))
+        self._O2 = np.ascontiguousarray(O * O)
+        self._OlogO = np.ascontiguousarray(_xlogx(O))
+        self._w = np.asarray(model.w, dtype=float)
+        self._gamma = float(model.gamma)
+        self._kind = model.uncertainty.name if model.uncertainty.name in ("none", "renyi2", "shannon") else "generic"
+        if self._kind != "none" and not np.any(self._w):
+            self._kind = "none"
+        # leaf chunk: about (Z + 3 Z A + 4 Z + 2 S) floats per (parent, action)
+        per_parent = 8 * (Z * (1 + 3 * A + 4) + 2 * S)
+        self._leaf_chunk = max(64, int(chunk_bytes // per_parent))
+        self._expand_chunk = max(16, int(chunk_bytes // (8 * A * Z * (S + 4))))
+
+    # ------------------------------------------------------------ construction
+    @classmethod
+    def from_model(cls, model: POMDP, variant: str | None = "tight", strict: bool = False, **kwargs: Any) -> Planner:
+        """Planner with bounds from ``core.bounds.solve_bounds(model, variant)``.
+
+        ``variant=None`` gives an exhaustive-only planner. If the bounds LP is infeasible,
+        ``strict=True`` raises ``ValueError``; otherwise the planner falls back to
+        :class:`TrivialBounds` (exhaustive search, always correct) and keeps the solution in
+        ``planner.bounds_solution`` so the caller can report its ``message``.
+        """
+        if variant is None:
+            return cls(model, None, **kwargs)
+        from .bounds import solve_bounds  # imported lazily: optional until the bounds module lands
+
+        sol = solve_bounds(model, variant=variant)
+        myopic = getattr(sol, "myopic", None)
+        if not getattr(sol, "feasible", False) or myopic is None:
+            if strict:
+                raise ValueError(f"bounds: variant {variant!r} infeasible: {getattr(sol, 'message', '')}")
+            planner = cls(model, None, **kwargs)
+        else:
+            planner = cls(model, myopic, **kwargs)
+        planner.bounds_solution = sol
+        return planner
+
+    @property
+    def has_bounds(self) -> bool:
+        """Whether the planner has informative bounds (not :class:`TrivialBounds`)."""
+        return not isinstance(self.bounds, TrivialBounds)
+
+    # ----------------------------------------------------------------- public
+    def root_bounds(self, belief: np.ndarray) -> tuple[int, int]:
+        """0-based ``(lower, upper)`` myopic bound actions at ``belief``."""
+        b = check_belief(self.model, belief)
+        lo, up = self.bounds.actions(b[None, :], self.model.rho(b[None, :]))
+        return int(lo[0]), int(up[0])
+
+    def search(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> SearchResult:
+        """Algorithm 1 to ``depth`` action-observation levels (``Search(b, depth + 1)``).
+
+        Always searches the full requested depth (also when the root bounds agree; then
+        only one root action is expanded). ``use_bounds=False`` is the exhaustive search.
+        """
+        depth = self._check_depth(depth, "depth")
+        b = check_belief(self.model, belief)
+        t0 = time.perf_counter()
+        bounds = self.bounds if use_bounds else self.trivial
+        q, sizes = self._run(b, depth, bounds, None)
+        t = time.perf_counter() - t0
+        return self._result(b, q, sizes, depth, bounds, t, False, (t,))
+
+    def plan(self, belief: np.ndarray, max_depth: int, time_budget: float | None = None,
+             use_bounds: bool = True) -> SearchResult:
+        """Anytime search: iterative deepening ``1, 2, ..., max_depth`` under a deadline.
+
+        The deadline (``time_budget`` seconds from the call) is checked between chunks inside
+        a depth; an interrupted depth is discarded and the result of the deepest completed
+        depth is returned (``deadline_hit=True``). Depth 1 always completes. If the bounds
+        agree at the root the action is certified: the planner returns at once after the
+        (tiny) depth-1 search of that single action, so the other Q values are ``nan``.
+        """
+        max_depth = self._check_depth(max_depth, "max_depth")
+        if time_budget is not None:
+            time_budget = float(time_budget)
+            if not time_budget >= 0.0:
+                raise ValueError(f"time_budget: must be a non-negative number of seconds, got {time_budget}")
+        b = check_belief(self.model, belief)
+        t0 = time.perf_counter()
+        deadline = None if time_budget is None else t0 + time_budget
+        bounds = self.bounds if use_bounds else self.trivial
+        best: tuple[np.ndarray, list[int], int] | None = None
+        hit = False
+        times: list[float] = []
+        certified = use_bounds and self._certified(b, bounds)
+        last = 1 if certified else max_depth
+        for d in range(1, last + 1):
+            ts = time.perf_counter()
+            try:
+                q, sizes = self._run(b, d, bounds, None if d == 1 else deadline)
+            except _DeadlineExceeded:
+                hit = True
+                break
+            best = (q, sizes, d)
+            times.append(time.perf_counter() - ts)
+            if deadline is not None and d < last and time.perf_counter() >= deadline:
+                hit = True
+                break
+        assert best is not None  # depth 1 runs without a deadline
+        q, sizes, d = best
+        return self._result(b, q, sizes, d, bounds, time.perf_counter() - t0, hit, tuple(times))
+
+    def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
+        """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
+
+        Much cheaper than :meth:`search` at the same depth (the leaf level only needs
+        ``eta``); ``nodes_expanded`` of depth ``i`` is ``sum(level_sizes[:i + 1])``.
+        """
+        depth = self._check_depth(depth, "depth")
+        b = check_belief(self.model, belief)
+        bounds = self.bounds if use_bounds else self.trivial
+        sizes = [1] + [0] * depth
+        rho = self.model.rho(b[None, :])
+        self._count(b[None, :], self._allowed(bounds, b[None, :], rho), depth, 0, sizes, bounds)
+        return tuple(sizes)
+
+    # --------------------------------------------------------------- internals
+    @staticmethod
+    def _check_depth(depth: int, name: str) -> int:
+        if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
+            raise ValueError(f"{name}: must be an integer >= 1, got {depth!r}")
+        return int(depth)
+
+    def _certified(self, b: np.ndarray, bounds: Bounds) -> bool:
+        if isinstance(bounds, TrivialBounds):
+            return self.model.A == 1
+        lo, up = bounds.actions(b[None, :], self.model.rho(b[None, :]))
+        return bool(lo[0] == up[0])
+
+    def _allowed(self, bounds: Bounds, B: np.ndarray, rho: np.ndarray) -> np.ndarray:
+        """Boolean ``(n, A)``: actions in ``[lower(b), upper(b)]`` (all if the bounds cross)."""
+        A = self.model.A
+        if isinstance(bounds, TrivialBounds):
+            return np.ones((B.shape[0], A), dtype=bool)
+        lo, up = bounds.actions(B, rho)
+        lo = np.asarray(lo)[:, None]
+        up = np.asarray(up)[:, None]
+        ar = np.arange(A)[None, :]
+        return ((ar >= lo) & (ar <= up)) | (lo > up)
+
+    def _result(self, b: np.ndarray, q: np.ndarray, sizes: Sequence[int], depth: int, bounds: Bounds,
+                t: float, hit: bool, times: tuple[float, ...]) -> SearchResult:
+        A, Z = self.model.A, self.model.Z
+        finite = np.isfinite(q)
+        action = int(np.argmax(np.where(finite, q, -np.inf)))
+        q = np.where(finite, q, np.nan)
+        q.setflags(write=False)
+        expanded = tuple(int(sum(sizes[: i + 2])) for i in range(depth))
+        pruned = tuple(complete_tree_nodes(A, Z, i + 1) - expanded[i] for i in range(depth))
+        if isinstance(bounds, TrivialBounds):
+            rb = None
+            certified = A == 1
+        else:
+            lo, up = bounds.actions(b[None, :], self.model.rho(b[None, :]))
+            rb = (int(lo[0]), int(up[0]))
+            certified = rb[0] == rb[1]
+        return SearchResult(
+            action=action, priority=int(priority_of(action)), q_values=q, depth=int(depth),
+            nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
+            time_used=float(t), deadline_hit=bool(hit), value=float(q[action]),
+            level_sizes=tuple(int(x) for x in sizes), used_bounds=not isinstance(bounds, TrivialBounds),
+            depth_times=times,
+        )
+
+    def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None) -> tuple[np.ndarray, list[int]]:
+        B = b[None, :]
+        rho = self.model.rho(B)
+        allowed = self._allowed(bounds, B, rho)
+        sizes = [1] + [0] * depth
+        Q = self._values(B, rho, allowed, depth, 0, sizes, bounds, deadline)
+        return Q[0], sizes
+
+    @staticmethod
+    def _check_deadline(deadline: float | None) -> None:
+        if deadline is not None and time.perf_counter() > deadline:
+            raise _DeadlineExceeded
+
+    def _values(self, B: np.ndarray, rho: np.ndarray, allowed: np.ndarray, remaining: int, level: int,
+                sizes: list[int], bounds: Bounds, deadline: float | None) -> np.ndarray:
+        """``Q(b, a)`` (``-inf`` where not allowed) for nodes ``B`` with ``remaining`` levels below."""
+        n, A = B.shape[0], self.model.A
+        Q = np.empty((n, A))
+        if remaining == 1:
+            step = self._leaf_chunk
+            for s in range(0, n, step):
+                self._check_deadline(deadline)
+                Q[s:s + step], cnt = self._leaf_q(B[s:s + step], rho[s:s + step], allowed[s:s + step])
+                sizes[level + 1] += cnt
+            return Q
+        step = self._expand_chunk
+        for s in range(0, n, step):
+            self._check_deadline(deadline)
+            Bp, al = B[s:s + step], allowed[s:s + step]
+            m = Bp.shape[0]
+            Bc, key, eta = self._expand(Bp, al)
+            sizes[level + 1] += Bc.shape[0]
+            rho_c = self.model.rho(Bc)
+            Qc = self._values(Bc, rho_c, self._allowed(bounds, Bc, rho_c), remaining - 1, level + 1, sizes,
+                              bounds, deadline)
+            Vc = Qc.max(axis=1)
+            acc = np.bincount(key, weights=eta * Vc, minlength=m * A).reshape(m, A)
+            Q[s:s + step] = np.where(al, rho[s:s + step] + self._gamma * acc, -np.inf)
+        return Q
+
+    def _expand(self, B: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Children of ``B`` under allowed actions and possible observations (Eqs. 1-2).
+
+        Returns posteriors ``(m, S)``, key ``parent * A + action`` and ``eta`` of each child.
+        """
+        A = self.model.A
+        parts_b, parts_k, parts_e = [], [], []
+        all_allowed = bool(allowed.all())
+        for a in range(A):
+            if all_allowed:
+                idx = None
+                Ba = B @ self._P[a]
+            else:
+                idx = np.flatnonzero(allowed[:, a])
+                if idx.size == 0:
+                    continue
+                Ba = B[idx] @ self._P[a]
+            unnorm = Ba[:, None, :] * self._OT[a][None, :, :]  # (m, Z, S)
+            eta = unnorm.sum(axis=2)
+            pi, zi = np.nonzero(eta > ETA_SKIP)
+            e = eta[pi, zi]
+            parts_b.append(unnorm[pi, zi] / e[:, None])
+            parent = pi if idx is None else idx[pi]
+            parts_k.append(parent * A + a)
+            parts_e.append(e)
+        if not parts_b:
+            S = self.model.S
+            return np.empty((0, S)), np.empty(0, dtype=np.intp), np.empty(0)
+        return np.concatenate(parts_b), np.concatenate(parts_k), np.concatenate(parts_e)
+
+    def _leaf_q(self, B: np.ndarray, rho: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int]:
+        """``Q(b, a) = rho(b, a) + gamma sum_z eta max_a' rho(tau(b,a,z), a')`` for leaf parents.
+
+        Fused formulas (module docstring): no posterior belief is formed. Returns ``Q``
+        (``-inf`` where not allowed) and the number of leaves (branches with ``eta > ETA_SKIP``).
+        """
+        n = B.shape[0]
+        A, Z = self.model.A, self.model.Z
+        Q = np.full((n, A), -np.inf)
+        count = 0
+        all_allowed = bool(allowed.all())
+        w = self._w
+        for a in range(A):
+            if all_allowed:
+                idx = slice(None)
+                Ba = B @ self._P[a]
+            else:
+                idx = np.flatnonzero(allowed[:, a])
+                if idx.size == 0:
+                    continue
+                Ba = B[idx] @ self._P[a]
+            X = Ba @ self._W[a]
+            eta = X[:, :Z]
+            ur = X[:, Z:].reshape(-1, Z, A)
+            ok = eta > ETA_SKIP
+            if self._kind == "none":
+                val = ur.max(axis=2)
+            elif self._kind == "generic":
+                val = self._leaf_generic(Ba, a, eta, ok)
+            else:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    if self._kind == "renyi2":
+                        sq = (Ba * Ba) @ self._O2[a]
+                        etaf = -eta * np.log(sq / (eta * eta))
+                    else:  # shannon
+                        ulogu = _xlogx(Ba) @ self._O[a] + Ba @ self._OlogO[a]
+                        etaf = eta * np.log(eta) - ulogu
+                val = ur[:, :, 0] - w[0] * etaf
+                for k in range(1, A):
+                    np.maximum(val, ur[:, :, k] - w[k] * etaf, out=val)
+                tiny = ok & (eta < ETA_FUSED_MIN)
+                if tiny.any():
+                    val[tiny] = self._leaf_generic(Ba, a, eta, tiny)[tiny]
+            val = np.where(ok, val, 0.0)
+            count += int(np.count_nonzero(ok))
+            Q[idx, a] = rho[idx, a] + self._gamma * val.sum(axis=1)
+        return Q, count
+
+    def _leaf_generic(self, Ba: np.ndarray, a: int, eta: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """``eta max_a' rho(tau, a')`` from explicit posteriors, for the entries in ``mask``."""
+        out = np.zeros(eta.shape)
+        pi, zi = np.nonzero(mask)
+        if pi.size:
+            unnorm = Ba[pi] * self._OT[a][zi]
+            e = eta[pi, zi]
+            tau = unnorm / unnorm.sum(axis=1, keepdims=True)
+            out[pi, zi] = e * self.model.rho(tau).max(axis=1)
+        return out
+
+    def _count(self, B: np.ndarray, allowed: np.ndarray, remaining: int, level: int, sizes: list[int],
+               bounds: Bounds) -> None:
+        if remaining == 1:
+            step = self._leaf_chunk
+            for s in range(0, B.shape[0], step):
+                Bp, al = B[s:s + step], allowed[s:s + step]
+                for a in range(self.model.A):
+                    idx = np.flatnonzero(al[:, a])
+                    if idx.size:
+                        eta = (Bp[idx] @ self._P[a]) @ self._O[a]
+                        sizes[level + 1] += int(np.count_nonzero(eta > ETA_SKIP))
+            return
+        step = self._expand_chunk
+        for s in range(0, B.shape[0], step):
+            Bc, _, _ = self._expand(B[s:s + step], allowed[s:s + step])
+            sizes[level + 1] += Bc.shape[0]
+            rho_c = self.model.rho(Bc)
+            self._count(Bc, self._allowed(bounds, Bc, rho_c), remaining - 1, level + 1, sizes, bounds)
