@@ -1,0 +1,569 @@
+"""Structural assumptions of the paper (Sec. III, Assumption 1): checks with certificates.
+
+The myopic policy bounds (Theorem 1, Corollary 1, Theorem 2) are only guaranteed when the
+model satisfies Assumption 1 (Krishnamurthy & Pareek 2015). This module checks it, in our
+convention ``P[a, i, j] = P(next = j | prev = i, a)``, ``O[a, j, z] = P(z | next = j, a)``,
+0-based. The paper's indices are translated here, once (see also docs/THEORY.md):
+
+* (A1) ``T^a`` and ``O^a`` are TP2: every 2x2 minor ``M[i,k] M[j,l] - M[i,l] M[j,k]`` with
+  ``i < j``, ``k < l`` is non-negative. A minor of ``M^T`` is a minor of ``M``, so it does not
+  matter whether ``T^a`` is read with previous states as rows or columns; what matters is that
+  both indices keep their natural (increasing) order. We check ``P[a]`` (rows = previous
+  state, columns = next state) and ``O[a]`` (rows = next state, columns = observation).
+* (A2) The paper's ``d^{j,a,z}_{m,n} = O^a_{z,j} O^{a+1}_{z,j+1} T^a_{m,j} T^{a+1}_{n,j+1}
+  - O^a_{z,j+1} O^{a+1}_{z,j} T^a_{m,j+1} T^{a+1}_{n,j}`` uses ``T^a_{m,j}`` as the probability
+  of moving from ``m`` to ``j``, i.e. ``P[a, m, j]``. Derivation, from what it must guarantee
+  (Lemma 1 (L2), ``tau(b, a+1, z) >=_r tau(b, a, z)``): with ``tau_a(j) ∝ O[a,j,z] (b P[a])_j``,
+  the adjacent likelihood-ratio condition
+  ``tau_{a+1}(j+1) tau_a(j) - tau_{a+1}(j) tau_a(j+1) >= 0`` is, up to the positive factor
+  ``eta(z|b,a) eta(z|b,a+1)``, the quadratic form ``b^T d b`` with::
+
+      d[m, n] = O[a,j,z] O[a+1,j+1,z] P[a,m,j] P[a+1,n,j+1]
+              - O[a,j+1,z] O[a+1,j,z] P[a,m,j+1] P[a+1,n,j]
+
+  and ``b^T d b = b^T D b / 2`` with ``D = d + d^T``. So (A2) asks that every ``D^{j,a,z}``
+  (``j = 0..S-2``, ``a = 0..A-2``, ``z = 0..Z-1``) be copositive (``x^T D x >= 0`` for
+  ``x >= 0``). Three answers, cheapest first: elementwise non-negativity (A2', sufficient);
+  ``D = PSD + N`` with ``N >= 0`` elementwise, an SDP solved with Clarabel (sufficient; exact
+  for S <= 4 by Diananda's theorem); a search for ``x >= 0`` with ``x^T D x < 0``
+  (a counter-certificate: closed form on all 2-element supports, then projected gradient on
+  the simplex from random and eigenvector starts).
+* (A3) ``sum_{z <= zbar} sum_j [T^a_{ij} O^a_{zj} - T^{a+1}_{ij} O^{a+1}_{zj}] >= 0`` is, with
+  ``T^a_{ij} = P[a, i, j]`` and ``O^a_{zj} = O[a, j, z]``,
+  ``cumsum_z (P[a] @ O[a])[i, :] >= cumsum_z (P[a+1] @ O[a+1])[i, :]``. Row ``i`` of
+  ``P[a] @ O[a]`` is ``eta(. | e_i, a)``, so (A3) says: from every state, the predicted
+  observation under ``a+1`` first-order stochastically dominates that under ``a``; since
+  ``eta(. | b, a)`` is linear in ``b``, that is Lemma 1 (L1) for every belief.
+
+Tolerances are absolute (minors, entries of ``D``, ``x^T D x`` for ``x`` on the simplex and
+the A3 margins are compared with ``-tol``). Actions are 0-based here; user-facing text names
+the action pair ``(a, a+1)`` by tracking priorities ``(a+1, a+2)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .model import POMDP
+
+#: Default largest S for which the (A2) SDP certificate is attempted.
+SDP_MAX_STATES = 16
+#: Largest number of 2x2 minors (per matrix) computed in one numpy block.
+_MINOR_BLOCK = 4_000_000
+#: Largest number of ``D`` entries materialised at once.
+_D_BLOCK = 4_000_000
+
+# Status codes of each D^{j,a,z}.
+PROVEN_ELEMENTWISE = 0
+PROVEN_SDP = 1
+REFUTED = 2
+UNKNOWN = 3
+UNKNOWN_SDP_SKIPPED = 4
+STATUS_NAMES = {
+    PROVEN_ELEMENTWISE: "proven (A2': elementwise non-negative)",
+    PROVEN_SDP: "proven (SDP certificate D = PSD + N)",
+    REFUTED: "refuted (x >= 0 with x^T D x < 0)",
+    UNKNOWN: "unknown (no certificate, no counterexample found)",
+    UNKNOWN_SDP_SKIPPED: "unknown (SDP skipped above S = {cap}; no counterexample found)",
+}
+
+
+def _status(holds: bool, refuted: bool = False) -> str:
+    return "holds" if holds else ("fails" if refuted else "unknown")
+
+
+# =============================================================================== (A1)
+@dataclass(frozen=True)
+class TP2Report:
+    """(A1): worst 2x2 minor over all ``P[a]`` and ``O[a]``.
+
+    ``where`` names the matrix (``"transition"`` / ``"observation"``), the 0-based action and
+    the rows ``(i, j)`` and columns ``(k, l)`` of the worst minor.
+    """
+
+    holds: bool
+    worst_minor: float
+    matrix: str
+    action: int
+    rows: tuple[int, int]
+    cols: tuple[int, int]
+    num_negative: int
+    tol: float
+
+    @property
+    def status(self) -> str:
+        return _status(self.holds, refuted=not self.holds)
+
+    def to_dict(self) -> dict:
+        return {
+            "status": self.status, "worst_minor": self.worst_minor, "matrix": self.matrix,
+            "priority": self.action + 1, "rows": list(self.rows), "cols": list(self.cols),
+            "num_negative_minors": self.num_negative, "tol": self.tol,
+        }
+
+
+def tp2_minors(M: np.ndarray) -> np.ndarray:
+    """All 2x2 minors of a matrix (or stack ``(..., n, m)``), shape ``(..., n(n-1)/2, m(m-1)/2)``.
+
+    Entry ``[p, q]`` is the minor with rows ``triu_indices(n, 1)[*][p]`` and columns
+    ``triu_indices(m, 1)[*][q]``. Memory grows like ``n^2 m^2 / 4``; :func:`worst_tp2_minor`
+    works in blocks.
+    """
+    M = np.asarray(M, dtype=float)
+    i, j = np.triu_indices(M.shape[-2], 1)
+    k, l = np.triu_indices(M.shape[-1], 1)
+    Mi, Mj = M[..., i, :], M[..., j, :]
+    return Mi[..., :, k] * Mj[..., :, l] - Mi[..., :, l] * Mj[..., :, k]
+
+
+def worst_tp2_minor(M: np.ndarray, tol: float = 1e-9) -> tuple[float, tuple[int, int], tuple[int, int], int]:
+    """Smallest 2x2 minor of ``M``, its rows ``(i, j)``, columns ``(k, l)`` and the number of
+    minors below ``-tol``. Vectorised over blocks of row pairs (memory-bounded)."""
+    M = np.asarray(M, dtype=float)
+    n, m = M.shape
+    if n < 2 or m < 2:
+        return 0.0, (0, 0), (0, 0), 0
+    ri, rj = np.triu_indices(n, 1)
+    k, l = np.triu_indices(m, 1)
+    Mk, Ml = M[:, k], M[:, l]  # (n, C)
+    step = max(1, _MINOR_BLOCK // max(1, k.size))
+    best, where, count = np.inf, (0, 0, 0), 0
+    for start in range(0, ri.size, step):
+        i, j = ri[start:start + step], rj[start:start + step]
+        minors = Mk[i] * Ml[j] - Ml[i] * Mk[j]  # (block, C)
+        count += int(np.count_nonzero(minors < -tol))
+        flat = int(np.argmin(minors))
+        p, q = divmod(flat, k.size)
+        if minors[p, q] < best:
+            best, where = float(minors[p, q]), (int(i[p]), int(j[p]), q)
+    q = where[2]
+    return best, (where[0], where[1]), (int(k[q]), int(l[q])), count
+
+
+def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
+    """(A1): TP2 of every ``P[a]`` (rows previous state) and ``O[a]`` (rows next state).
+
+    Identical matrices (e.g. an observation model shared by all actions) are checked once.
+    """
+    worst = (np.inf, "transition", 0, (0, 0), (0, 0))
+    total = 0
+    for label, stack in (("transition", model.P), ("observation", model.O)):
+        seen: list[tuple[np.ndarray, tuple]] = []
+        for a in range(stack.shape[0]):
+            M = stack[a]
+            cached = next((res for prev, res in seen if np.array_equal(prev, M)), None)
+            res = cached if cached is not None else worst_tp2_minor(M, tol)
+            if cached is None:
+                seen.append((M, res))
+            value, rows, cols, count = res
+            total += count
+            if value < worst[0]:
+                worst = (value, label, a, rows, cols)
+    value, label, a, rows, cols = worst
+    value = 0.0 if not np.isfinite(value) else value
+    return TP2Report(holds=value >= -tol, worst_minor=value, matrix=label, action=a, rows=rows,
+                     cols=cols, num_negative=total, tol=tol)
+
+
+# =============================================================================== (A2)
+def copositivity_matrices(model: POMDP, a: int, j: np.ndarray | slice | None = None) -> np.ndarray:
+    """The matrices ``D^{j,a,z} = d + d^T`` of (A2) for one action pair ``(a, a+1)`` (0-based).
+
+    Returns shape ``(len(j), Z, S, S)`` for the requested ``j`` in ``0..S-2`` (all by default),
+    with ``d[m, n] = O[a,j,z] O[a+1,j+1,z] P[a,m,j] P[a+1,n,j+1]
+    - O[a,j+1,z] O[a+1,j,z] P[a,m,j+1] P[a+1,n,j]`` (module docstring for the derivation).
+    """
+    if not 0 <= a < model.A - 1:
+        raise ValueError(f"action pair: a must be in 0..{model.A - 2}, got {a}")
+    js = np.arange(model.S - 1)[slice(None) if j is None else j]
+    js = np.atleast_1d(js)
+    Pa, Pb, Oa, Ob = model.P[a], model.P[a + 1], model.O[a], model.O[a + 1]
+    alpha = Oa[js] * Ob[js + 1]  # (J, Z): O[a,j,z] O[a+1,j+1,z]
+    beta = Oa[js + 1] * Ob[js]  # (J, Z): O[a,j+1,z] O[a+1,j,z]
+    d = (np.einsum("jz,mj,nj->jzmn", alpha, Pa[:, js], Pb[:, js + 1])
+         - np.einsum("jz,mj,nj->jzmn", beta, Pa[:, js + 1], Pb[:, js]))
+    return d + np.swapaxes(d, -1, -2)
+
+
+def _project_simplex(X: np.ndarray) -> np.ndarray:
+    """Euclidean projection of each row (last axis) onto the probability simplex."""
+    n = X.shape[-1]
+    U = -np.sort(-X, axis=-1)
+    css = np.cumsum(U, axis=-1) - 1.0
+    ind = np.arange(1, n + 1)
+    cond = U - css / ind > 0
+    rho = n - 1 - np.argmax(cond[..., ::-1], axis=-1)
+    theta = np.take_along_axis(css, rho[..., None], axis=-1) / (rho[..., None] + 1.0)
+    return np.maximum(X - theta, 0.0)
+
+
+def _pair_counterexamples(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact minimum of ``x^T D x`` over all ``x >= 0`` supported on 1 or 2 indices, closed form.
+
+    For a support ``{m, n}`` with ``D_mm, D_nn >= 0`` the 2x2 block is copositive iff
+    ``D_mn >= -sqrt(D_mm D_nn)``; otherwise ``x = (sqrt(D_nn), sqrt(D_mm))`` gives
+    ``x^T D x = 2 sqrt(D_mm D_nn) (sqrt(D_mm D_nn) + D_mn) < 0``. Returns, per matrix of the
+    batch ``(B, S, S)``, the best ``x`` (normalised to the simplex) and its value.
+    """
+    B, S, _ = D.shape
+    diag = np.diagonal(D, axis1=1, axis2=2)
+    sq = np.sqrt(np.maximum(diag, 0.0))
+    # candidate for every pair (m, n): x_m = sqrt(D_nn), x_n = sqrt(D_mm); for a negative
+    # diagonal entry the vertex e_m is the (better or equal) candidate, handled below.
+    m, n = np.triu_indices(S, 1)
+    xm, xn = sq[:, n], sq[:, m]
+    tot = xm + xn
+    ok = tot > 0
+    xm = np.where(ok, xm / np.where(ok, tot, 1.0), 0.5)
+    xn = np.where(ok, xn / np.where(ok, tot, 1.0), 0.5)
+    vals = xm**2 * diag[:, m] + 2 * xm * xn * D[:, m, n] + xn**2 * diag[:, n] if m.size else np.zeros((B, 0))
+    X = np.zeros((B, S))
+    best = diag.min(axis=1)
+    arg_v = diag.argmin(axis=1)
+    X[np.arange(B), arg_v] = 1.0
+    if m.size:
+        p = vals.argmin(axis=1)
+        pv = vals[np.arange(B), p]
+        better = pv < best
+        rows = np.nonzero(better)[0]
+        X[rows] = 0.0
+        X[rows, m[p[rows]]] = xm[rows, p[rows]]
+        X[rows, n[p[rows]]] = xn[rows, p[rows]]
+        best = np.where(better, pv, best)
+    return X, best
+
+
+def _search_counterexamples(D: np.ndarray, rng: np.random.Generator, starts: int = 16,
+                            iters: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    """Heuristic minimisation of ``x^T D x`` on the simplex for a batch ``(B, S, S)``.
+
+    Projected gradient descent from random Dirichlet starts and from the clipped positive and
+    negative parts of the eigenvector of the most negative eigenvalue of ``D`` and of ``D``
+    restricted to that part's support. Returns the best ``x`` per matrix and its value.
+    """
+    B, S, _ = D.shape
+    w, V = np.linalg.eigh(D)
+    v = V[:, :, 0]  # most negative eigenvalue's eigenvector
+    cand = [np.maximum(v, 0.0), np.maximum(-v, 0.0)]
+    for part in list(cand):
+        mask = part > 0
+        Dm = np.where(mask[:, :, None] & mask[:, None, :], D, 0.0)
+        Dm = Dm + np.where(mask, 0.0, np.abs(D).max() + 1.0)[:, :, None] * np.eye(S)  # push others up
+        _, Vm = np.linalg.eigh(Dm)
+        vm = Vm[:, :, 0]
+        cand += [np.maximum(vm, 0.0) * mask, np.maximum(-vm, 0.0) * mask]
+    C = np.stack(cand, axis=1)  # (B, c, S)
+    sums = C.sum(axis=-1, keepdims=True)
+    C = np.where(sums > 0, C / np.where(sums > 0, sums, 1.0), 1.0 / S)
+    X = np.concatenate([C, rng.dirichlet(np.ones(S), size=(B, starts))], axis=1)
+    lip = 2.0 * np.maximum(np.abs(w).max(axis=1), 1e-300)[:, None, None]
+    for _ in range(iters):
+        G = 2.0 * np.einsum("bmn,bkn->bkm", D, X)
+        X = _project_simplex(X - G / lip)
+    vals = np.einsum("bkm,bmn,bkn->bk", X, D, X)
+    k = vals.argmin(axis=1)
+    return X[np.arange(B), k], vals[np.arange(B), k]
+
+
+def psd_plus_nonnegative(D: np.ndarray, tol: float = 1e-7) -> tuple[bool, float]:
+    """SDP certificate of copositivity: is ``D = PSD + N`` with ``N >= 0`` elementwise?
+
+    Solves ``max t  s.t.  D/s - N - t I  PSD,  N >= 0`` with Clarabel (``s = max|D|``), then
+    verifies the returned ``N`` (clipped to ``N >= 0``): the certificate holds if
+    ``lambda_min(D/s - N) >= -tol``. Returns ``(certified, t)``. Exact for S <= 4 (Diananda),
+    sufficient beyond (e.g. the 5x5 Horn matrix is copositive but not PSD + N).
+    """
+    import clarabel
+
+    D = np.asarray(D, dtype=float)
+    n = D.shape[0]
+    scale = float(np.abs(D).max())
+    if scale == 0.0:
+        return True, 0.0
+    Dn = D / scale
+    # Clarabel's PSD triangle: upper triangle stacked column by column, off-diagonals * sqrt(2).
+    r, c = np.triu_indices(n)
+    order = np.lexsort((r, c))
+    r, c = r[order], c[order]
+    p = r.size
+    wts = np.where(r == c, 1.0, np.sqrt(2.0))
+    A_nn = sp.hstack([sp.csc_matrix((p, 1)), -sp.identity(p, format="csc")])
+    A_psd = sp.hstack([sp.csc_matrix((r == c).astype(float)[:, None]), sp.diags(wts, format="csc")])
+    A = sp.vstack([A_nn, A_psd]).tocsc()
+    b = np.concatenate([np.zeros(p), wts * Dn[r, c]])
+    q = np.zeros(p + 1)
+    q[0] = -1.0
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solver = clarabel.DefaultSolver(sp.csc_matrix((p + 1, p + 1)), q, A, b,
+                                    [clarabel.NonnegativeConeT(p), clarabel.PSDTriangleConeT(n)], settings)
+    sol = solver.solve()
+    x = np.asarray(sol.x, dtype=float)
+    if x.size != p + 1 or not np.all(np.isfinite(x)):
+        return False, -np.inf
+    N = np.zeros((n, n))
+    N[r, c] = np.maximum(x[1:], 0.0)
+    N = N + np.triu(N, 1).T
+    lam = float(np.linalg.eigvalsh(Dn - N).min())
+    return lam >= -tol, float(x[0])
+
+
+@dataclass(frozen=True)
+class CopositivityReport:
+    """(A2): the verdict for every ``D^{j,a,z}``.
+
+    ``codes[a, j, z]`` is one of the status codes of :data:`STATUS_NAMES`; ``min_entry`` the
+    smallest entry of each ``D`` (A2' margin); ``refutations`` maps ``(a, j, z)`` to
+    ``(x, x^T D x)`` with ``x`` on the simplex (a belief at which Lemma 1 (L2) fails).
+    """
+
+    codes: np.ndarray
+    min_entry: np.ndarray
+    refutations: dict = field(repr=False)
+    sdp_max_states: int
+    tol: float
+
+    @property
+    def holds(self) -> bool:
+        return bool(np.all(self.codes <= PROVEN_SDP))
+
+    @property
+    def refuted(self) -> bool:
+        return bool(np.any(self.codes == REFUTED))
+
+    @property
+    def status(self) -> str:
+        return _status(self.holds, self.refuted)
+
+    def counts(self) -> dict[str, int]:
+        keys = {PROVEN_ELEMENTWISE: "proven_elementwise", PROVEN_SDP: "proven_sdp", REFUTED: "refuted",
+                UNKNOWN: "unknown", UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped"}
+        return {name: int(np.count_nonzero(self.codes == code)) for code, name in keys.items()}
+
+    def worst_refutation(self) -> tuple[tuple[int, int, int], np.ndarray, float] | None:
+        if not self.refutations:
+            return None
+        key = min(self.refutations, key=lambda k: self.refutations[k][1])
+        x, val = self.refutations[key]
+        return key, x, val
+
+    def status_of(self, a: int, j: int, z: int) -> str:
+        return STATUS_NAMES[int(self.codes[a, j, z])].format(cap=self.sdp_max_states)
+
+    def to_dict(self, max_listed: int = 50) -> dict:
+        """JSON-ready: counts by verdict, the worst A2' entry and up to ``max_listed``
+        undecided or refuted ``(j, a, z)`` (states/observations 0-based, actions as priorities)."""
+        out: dict = {"status": self.status, "counts": self.counts(), "sdp_max_states": self.sdp_max_states,
+                     "tol": self.tol}
+        if self.min_entry.size:
+            a, j, z = np.unravel_index(int(np.argmin(self.min_entry)), self.min_entry.shape)
+            out["worst_entry"] = {"value": float(self.min_entry[a, j, z]), "priorities": [int(a) + 1, int(a) + 2],
+                                  "j": int(j), "z": int(z)}
+        listed = []
+        for a, j, z in np.argwhere(self.codes >= REFUTED)[:max_listed]:
+            item = {"priorities": [int(a) + 1, int(a) + 2], "j": int(j), "z": int(z),
+                    "verdict": self.status_of(a, j, z)}
+            if (a, j, z) in self.refutations:
+                x, val = self.refutations[(a, j, z)]
+                item["x"] = [float(v) for v in x]
+                item["xDx"] = float(val)
+            listed.append(item)
+        out["not_proven"] = listed
+        out["not_proven_total"] = int(np.count_nonzero(self.codes >= REFUTED))
+        return out
+
+
+def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
+                       seed: int = 0, search: bool = True) -> CopositivityReport:
+    """(A2): copositivity of every ``D^{j,a,z}``, cheapest test first.
+
+    1. A2': ``min(D) >= -tol`` proves it.
+    2. 1- and 2-element supports in closed form can refute it (exact on those faces).
+    3. For ``S <= sdp_max_states``, the Clarabel SDP ``D = PSD + N`` can prove it.
+    4. Projected-gradient search on the simplex can refute it (``search=False`` skips it).
+    Anything left is unknown. All ``D`` are built with einsum in memory-bounded blocks.
+    """
+    S, A, Z = model.S, model.A, model.Z
+    shape = (max(A - 1, 0), max(S - 1, 0), Z)
+    codes = np.full(shape, PROVEN_ELEMENTWISE, dtype=np.int8)
+    min_entry = np.zeros(shape)
+    refutations: dict = {}
+    rng = np.random.default_rng(seed)
+    jstep = max(1, _D_BLOCK // max(1, Z * S * S))
+    for a in range(shape[0]):
+        for j0 in range(0, shape[1], jstep):
+            D = copositivity_matrices(model, a, slice(j0, j0 + jstep))  # (J, Z, S, S)
+            J = D.shape[0]
+            mins = D.min(axis=(-2, -1))
+            min_entry[a, j0:j0 + J] = mins
+            todo = np.argwhere(mins < -tol)  # (k, 2): (j - j0, z)
+            if todo.size == 0:
+                continue
+            Dt = D[todo[:, 0], todo[:, 1]]
+            X, vals = _pair_counterexamples(Dt)
+            undecided = []
+            for k, (jj, z) in enumerate(todo):
+                key = (a, j0 + int(jj), int(z))
+                if vals[k] < -tol:
+                    codes[key] = REFUTED
+                    refutations[key] = (X[k], float(vals[k]))
+                    continue
+                if S <= sdp_max_states:
+                    if psd_plus_nonnegative(Dt[k])[0]:
+                        codes[key] = PROVEN_SDP
+                        continue
+                    codes[key] = UNKNOWN
+                else:
+                    codes[key] = UNKNOWN_SDP_SKIPPED
+                undecided.append(k)
+            if search and undecided:
+                idx = np.asarray(undecided)
+                Xs, vs = _search_counterexamples(Dt[idx], rng)
+                for k, x, v in zip(idx, Xs, vs, strict=True):
+                    if v < -tol:
+                        key = (a, j0 + int(todo[k, 0]), int(todo[k, 1]))
+                        codes[key] = REFUTED
+                        refutations[key] = (x, float(v))
+    return CopositivityReport(codes=codes, min_entry=min_entry, refutations=refutations,
+                              sdp_max_states=sdp_max_states, tol=tol)
+
+
+# =============================================================================== (A3)
+@dataclass(frozen=True)
+class DominanceReport:
+    """(A3): ``margins[a, i, zbar] = CDF_a(zbar | e_i) - CDF_{a+1}(zbar | e_i)`` of the predicted
+    observation, for ``zbar = 0..Z-2`` (at ``zbar = Z-1`` both CDFs are 1)."""
+
+    margins: np.ndarray
+    tol: float
+
+    @property
+    def worst(self) -> tuple[float, int, int, int]:
+        """``(margin, a, i, zbar)`` of the smallest margin (0-based)."""
+        if self.margins.size == 0:
+            return 0.0, 0, 0, 0
+        a, i, z = np.unravel_index(int(np.argmin(self.margins)), self.margins.shape)
+        return float(self.margins[a, i, z]), int(a), int(i), int(z)
+
+    @property
+    def holds(self) -> bool:
+        return self.worst[0] >= -self.tol
+
+    @property
+    def status(self) -> str:
+        return _status(self.holds, refuted=not self.holds)
+
+    def to_dict(self) -> dict:
+        m, a, i, z = self.worst
+        return {"status": self.status, "worst_margin": m, "priorities": [a + 1, a + 2], "state": i, "zbar": z,
+                "num_violations": int(np.count_nonzero(self.margins < -self.tol)), "tol": self.tol}
+
+
+def observation_cdf_margins(model: POMDP) -> np.ndarray:
+    """``cumsum_z (P[a] @ O[a]) - cumsum_z (P[a+1] @ O[a+1])``, shape ``(A-1, S, Z-1)`` (A3)."""
+    C = np.cumsum(model.P @ model.O, axis=-1)[..., :-1]
+    return C[:-1] - C[1:]
+
+
+def check_dominance(model: POMDP, tol: float = 1e-9) -> DominanceReport:
+    """(A3): from every state, ``eta(. | e_i, a+1)`` first-order dominates ``eta(. | e_i, a)``."""
+    return DominanceReport(margins=observation_cdf_margins(model), tol=tol)
+
+
+# =========================================================================== report
+@dataclass(frozen=True)
+class AssumptionReport:
+    """Assumption 1 for one model: (A1) TP2, (A2) copositivity, (A3) dominance."""
+
+    model_name: str
+    S: int
+    A: int
+    Z: int
+    tp2: TP2Report
+    copositivity: CopositivityReport
+    dominance: DominanceReport
+    seconds: dict
+
+    @property
+    def holds(self) -> bool:
+        """True iff A1 holds, every ``D^{j,a,z}`` is proven copositive, and A3 holds."""
+        return self.tp2.holds and self.copositivity.holds and self.dominance.holds
+
+    @property
+    def status(self) -> dict[str, str]:
+        return {"A1": self.tp2.status, "A2": self.copositivity.status, "A3": self.dominance.status}
+
+    def to_dict(self) -> dict:
+        return {
+            "model": self.model_name, "S": self.S, "A": self.A, "Z": self.Z, "holds": self.holds,
+            "status": self.status, "index_convention": "states and observations 0-based; actions as "
+            "tracking priorities 1..A (pair (a, a+1) of the paper = priorities (a, a+1))",
+            "A1_tp2": self.tp2.to_dict(), "A2_copositivity": self.copositivity.to_dict(),
+            "A3_dominance": self.dominance.to_dict(), "seconds": dict(self.seconds),
+        }
+
+    def summary(self) -> str:
+        """A readable report: which assumption holds, which fails, worst margins, consequences."""
+        lines = [f"Assumption 1 (paper Sec. III) for {self.model_name} (S={self.S}, A={self.A}, Z={self.Z}); "
+                 "actions are priorities 1..A, states/observations 0-based:"]
+        t = self.tp2
+        where = f"{t.matrix} priority {t.action + 1}, rows {t.rows}, cols {t.cols}"
+        lines.append(f"  (A1) TP2 of transitions and observations: {t.status.upper()} "
+                     f"(worst 2x2 minor {t.worst_minor:.3g} at {where}"
+                     + (f"; {t.num_negative} negative minors)" if not t.holds else ")"))
+        c = self.copositivity
+        n = c.counts()
+        total = int(c.codes.size)
+        parts = [f"{n['proven_elementwise']} elementwise (A2')"]
+        if n["proven_sdp"]:
+            parts.append(f"{n['proven_sdp']} by SDP")
+        detail = f"{total} matrices D^(j,a,z): proven {' + '.join(parts)}"
+        if n["refuted"]:
+            detail += f", refuted {n['refuted']}"
+        if n["unknown"]:
+            detail += f", unknown {n['unknown']}"
+        if n["unknown_sdp_skipped"]:
+            detail += f", unknown {n['unknown_sdp_skipped']} (SDP skipped above S={c.sdp_max_states})"
+        lines.append(f"  (A2) copositivity: {c.status.upper()} ({detail})")
+        if c.min_entry.size:
+            a, j, z = np.unravel_index(int(np.argmin(c.min_entry)), c.min_entry.shape)
+            lines.append(f"       smallest entry of any D: {c.min_entry[a, j, z]:.3g} at priorities "
+                         f"({a + 1},{a + 2}), j={j}, z={z}")
+        worst = c.worst_refutation()
+        if worst is not None:
+            (a, j, z), x, val = worst
+            xs = np.array2string(np.asarray(x), precision=3, suppress_small=True, max_line_width=200)
+            lines.append(f"       counterexample: priorities ({a + 1},{a + 2}), j={j}, z={z}: belief x={xs} "
+                         f"gives x^T D x = {val:.3g} < 0, so tau(x, {a + 2}, {z}) is not MLR-above "
+                         f"tau(x, {a + 1}, {z}) (Lemma 1 (L2) fails)")
+        m, a, i, z = self.dominance.worst
+        lines.append(f"  (A3) observation dominance: {self.dominance.status.upper()} (worst margin {m:.3g} at "
+                     f"priorities ({a + 1},{a + 2}), state {i}, zbar {z})")
+        if self.holds:
+            lines.append("  => Assumption 1 holds: Theorem 2's myopic policy bounds are valid wherever the LP "
+                         "for g/h is feasible, and branch-and-bound pruning with them is exact.")
+        else:
+            bad = [k for k, v in self.status.items() if v != "holds"]
+            verdict = "violated" if any(self.status[k] == "fails" for k in bad) else "not proven"
+            lines.append(f"  => Assumption 1 is {verdict}"
+                         f" ({', '.join(f'{k} {self.status[k]}' for k in bad)}): the myopic policy bounds are NOT "
+                         "guaranteed; the planner falls back to exhaustive search unless told otherwise.")
+        return "\n".join(lines)
+
+
+def check_assumptions(model: POMDP, *, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
+                      seed: int = 0, search: bool = True) -> AssumptionReport:
+    """Check Assumption 1 (A1)-(A3) of the paper for ``model`` (see the module docstring)."""
+    t0 = time.perf_counter()
+    tp2 = check_tp2(model, tol)
+    t1 = time.perf_counter()
+    cop = check_copositivity(model, tol=tol, sdp_max_states=sdp_max_states, seed=seed, search=search)
+    t2 = time.perf_counter()
+    dom = check_dominance(model, tol)
+    t3 = time.perf_counter()
+    return AssumptionReport(model_name=model.name, S=model.S, A=model.A, Z=model.Z, tp2=tp2, copositivity=cop,
+                            dominance=dom, seconds={"A1": t1 - t0, "A2": t2 - t1, "A3": t3 - t2, "total": t3 - t0})
