@@ -16,6 +16,8 @@ from ..core.model import ModelError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMANDS = [
+    "export",
+    "simulate",
 ]
 
 

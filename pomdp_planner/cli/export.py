@@ -1,0 +1,50 @@
+"""``pomdp-planner export MODEL --format pomdp|yaml [-o FILE]``: write a model in another format.
+
+``pomdp`` is Cassandra's ``.POMDP`` (linear reward only: the uncertainty term is dropped, with
+a warning on stderr); ``yaml`` is our explicit model file (matrices written out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+
+import yaml
+
+from ..core.io.cassandra import export_pomdp
+from ..core.io.model_yaml import model_to_dict
+from ._common import add_json_argument, add_model_argument, emit_json, load_model_arg
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("export", help="write a model as Cassandra .POMDP or explicit YAML",
+                              description=__doc__.split("\n\n")[0].replace("``", ""))
+    add_model_argument(p)
+    p.add_argument("--format", choices=("pomdp", "yaml"), default="pomdp",
+                   help="pomdp: Cassandra .POMDP (linear reward only); yaml: explicit model file")
+    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    add_json_argument(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    model = load_model_arg(args)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if args.format == "pomdp":
+            text = export_pomdp(model)
+        else:
+            text = yaml.safe_dump(model_to_dict(model), sort_keys=False, default_flow_style=None)
+    messages = [str(w.message) for w in caught]
+    for m in messages:
+        print(f"pomdp-planner: warning: {m}", file=sys.stderr)
+    if args.output:
+        with open(args.output, "w") as f:
+            f.write(text)
+    if args.json:
+        emit_json({"model": model.name, "format": args.format, "output": args.output, "warnings": messages,
+                   "text": None if args.output else text})
+    elif not args.output:
+        sys.stdout.write(text)
+    return 0

@@ -1,0 +1,296 @@
+"""Closed-loop simulation of a policy on a POMDP (the true state is hidden from the policy).
+
+One step ``t`` of :func:`simulate` (paper Sec. II, Eqs. 1-3):
+
+1. the policy sees only the belief ``b_t`` and picks an action ``a_t`` (0-based);
+2. rewards: ``rho(b_t, a_t)`` (Eq. 3, the belief reward a planner maximises) and the state
+   reward ``r(s_t, a_t)`` of the hidden true state;
+3. the true state moves, ``s_{t+1} ~ P[a_t, s_t, :]``, and an observation is drawn,
+   ``z_{t+1} ~ O[a_t, s_{t+1}, :]``;
+4. the belief is updated, ``b_{t+1} = tau(b_t, a_t, z_{t+1})`` (Eq. 2, ``core/belief.py``).
+
+The discounted return is ``sum_t gamma^t rho(b_t, a_t)``. Observations are sampled from the
+model, so an impossible observation can only happen when the initial belief excludes the
+true initial state (both can be given independently). Then the belief is re-initialised to
+the normalised likelihood ``O[a_t, :, z]`` of the observation and the step is flagged
+``recovered``.
+
+Policies are callables ``belief -> 0-based action`` or objects with ``.act(belief)``. The
+registry :data:`POLICIES` maps a name to a factory ``factory(model, options) -> policy``
+(``options`` a dict of keyword options, e.g. ``{"seed": 0}``; factories ignore options they
+do not use). Other modules add their policies with :func:`register_policy` at import time;
+the modules listed in :data:`POLICY_MODULES` are imported on demand by :func:`make_policy`
+and :func:`policy_names`, so ``pomdp-planner simulate --policy NAME`` finds them.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from .belief import ImpossibleObservation, check_belief, start_belief, uniform_belief, update
+from .model import POMDP, ModelError
+from .uncertainty import SHANNON
+
+
+class PolicyObject(Protocol):
+    def act(self, belief: np.ndarray) -> int: ...
+
+
+Policy = Callable[[np.ndarray], int] | PolicyObject
+PolicyFactory = Callable[[POMDP, Mapping[str, Any]], Policy]
+
+
+# ------------------------------------------------------------------------- policies
+class RandomPolicy:
+    """Uniformly random actions from its own seeded generator (ignores the belief)."""
+
+    def __init__(self, model: POMDP, seed: int | None = None):
+        self.num_actions = model.A
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, belief: np.ndarray) -> int:
+        return int(self.rng.integers(self.num_actions))
+
+
+class MyopicPolicy:
+    """Greedy one-step policy ``argmax_a rho(b, a)`` (Eq. 3; ties: smallest index = priority)."""
+
+    def __init__(self, model: POMDP):
+        self.model = model
+
+    def act(self, belief: np.ndarray) -> int:
+        return int(np.argmax(self.model.rho(belief)))
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    factory: PolicyFactory
+    help: str
+
+
+#: name -> (factory(model, options) -> policy, one-line help). Extend with :func:`register_policy`.
+POLICIES: dict[str, PolicyEntry] = {
+    "random": PolicyEntry(lambda model, opts: RandomPolicy(model, opts.get("seed")),
+                          "uniformly random actions (seeded by --seed)"),
+    "myopic": PolicyEntry(lambda model, opts: MyopicPolicy(model), "greedy argmax_a rho(b, a) (Eq. 3)"),
+}
+
+#: Modules that register further policies when imported (missing ones are skipped).
+POLICY_MODULES = ("pomdp_planner.core.search", "pomdp_planner.core.bounds", "pomdp_planner.core.reference")
+_plugins_loaded = False
+
+
+def register_policy(name: str, factory: PolicyFactory, help: str = "") -> None:
+    """Add (or replace) policy ``name``: ``factory(model, options) -> policy``."""
+    POLICIES[name] = PolicyEntry(factory, help)
+
+
+def _load_plugins() -> None:
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    for mod in POLICY_MODULES:
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:  # the module exists but something it imports is missing
+                raise
+
+
+def policy_names() -> list[str]:
+    """Names of all registered policies (after importing :data:`POLICY_MODULES`)."""
+    _load_plugins()
+    return sorted(POLICIES)
+
+
+def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
+    """Build the registered policy ``name`` for ``model`` (``options`` go to its factory)."""
+    _load_plugins()
+    if name not in POLICIES:
+        raise ModelError(f"policy: unknown policy {name!r} (known: {', '.join(sorted(POLICIES))})")
+    return POLICIES[name].factory(model, options)
+
+
+def _as_callable(policy: Policy) -> Callable[[np.ndarray], int]:
+    act = getattr(policy, "act", None)
+    if callable(act):
+        return act
+    if callable(policy):
+        return policy
+    raise TypeError(f"policy: expected a callable belief -> action or an object with .act(), got {policy!r}")
+
+
+# ------------------------------------------------------------------------- simulation
+@dataclass(frozen=True, eq=False)
+class SimulationTrace:
+    """Everything that happened in one closed-loop run of ``steps`` steps (0-based indices).
+
+    ``states[t]`` = ``s_t`` (true state when acting), ``next_states[t]`` = ``s_{t+1}``,
+    ``actions[t]`` = ``a_t``, ``observations[t]`` = ``z_{t+1}``, ``beliefs[t]`` = ``b_t``
+    (shape ``(steps + 1, S)``, ``beliefs[0]`` the initial belief), ``entropies[t]`` = Shannon
+    entropy (nats) of ``b_{t+1}``, ``rewards[t]`` = ``rho(b_t, a_t)``, ``state_rewards[t]`` =
+    ``r(s_t, a_t)``, ``recovered[t]`` = the observation was impossible under ``b_t`` (see the
+    module docstring).
+    """
+
+    model_name: str
+    gamma: float
+    seed: int | None
+    policy: str
+    states: np.ndarray
+    next_states: np.ndarray
+    actions: np.ndarray
+    observations: np.ndarray
+    beliefs: np.ndarray
+    entropies: np.ndarray
+    rewards: np.ndarray
+    state_rewards: np.ndarray
+    recovered: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        return int(self.actions.size)
+
+    @property
+    def discounts(self) -> np.ndarray:
+        return self.gamma ** np.arange(self.steps)
+
+    @property
+    def discounted_return(self) -> float:
+        """``sum_t gamma^t rho(b_t, a_t)``."""
+        return float(self.discounts @ self.rewards)
+
+    @property
+    def discounted_state_return(self) -> float:
+        """``sum_t gamma^t r(s_t, a_t)``."""
+        return float(self.discounts @ self.state_rewards)
+
+    @property
+    def mean_reward(self) -> float:
+        return float(self.rewards.mean()) if self.steps else float("nan")
+
+    @property
+    def mean_state_reward(self) -> float:
+        return float(self.state_rewards.mean()) if self.steps else float("nan")
+
+    def summary(self) -> dict:
+        return {
+            "steps": self.steps,
+            "mean_reward": self.mean_reward,
+            "mean_state_reward": self.mean_state_reward,
+            "discounted_return": self.discounted_return,
+            "discounted_state_return": self.discounted_state_return,
+            "mean_entropy": float(self.entropies.mean()) if self.steps else float("nan"),
+            "recovered_steps": int(self.recovered.sum()),
+        }
+
+    def to_dict(self, state_names: tuple[str, ...] | None = None,
+                observation_names: tuple[str, ...] | None = None) -> dict:
+        """JSON-ready record; actions as tracking priorities ``1..A`` (key ``priority``)."""
+        rows = []
+        for t in range(self.steps):
+            row = {
+                "step": t,
+                "state": int(self.states[t]),
+                "next_state": int(self.next_states[t]),
+                "priority": int(self.actions[t]) + 1,
+                "observation": int(self.observations[t]),
+                "belief": self.beliefs[t + 1].tolist(),
+                "entropy": float(self.entropies[t]),
+                "reward": float(self.rewards[t]),
+                "state_reward": float(self.state_rewards[t]),
+                "recovered": bool(self.recovered[t]),
+            }
+            if state_names is not None:
+                row["state_name"] = state_names[self.states[t]]
+                row["next_state_name"] = state_names[self.next_states[t]]
+            if observation_names is not None:
+                row["observation_name"] = observation_names[self.observations[t]]
+            rows.append(row)
+        return {
+            "model": self.model_name,
+            "policy": self.policy,
+            "seed": self.seed,
+            "gamma": self.gamma,
+            "initial_belief": self.beliefs[0].tolist(),
+            "steps": rows,
+            "summary": self.summary(),
+        }
+
+
+def _sample(rng: np.random.Generator, p: np.ndarray) -> int:
+    """Inverse-CDF sample from ``p`` (rows sum to 1 only within the model's tolerance)."""
+    c = np.cumsum(p)
+    return int(min(np.searchsorted(c, rng.random() * c[-1], side="right"), p.size - 1))
+
+
+def simulate(model: POMDP, policy: Policy | str, steps: int, seed: int | None = None,
+             initial_state: int | None = None, initial_belief: np.ndarray | None = None) -> SimulationTrace:
+    """Run ``policy`` in closed loop for ``steps`` steps (see the module docstring).
+
+    ``policy``: a callable ``belief -> action`` (0-based), an object with ``.act(belief)``, or
+    the name of a registered policy (built with ``options {"seed": seed}``).
+    ``initial_belief``: default the model's ``start`` (metadata), else uniform.
+    ``initial_state``: default sampled from the initial belief. Same seed, same run.
+    """
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise ValueError(f"steps: must be a non-negative integer, got {steps!r}")
+    rng = np.random.default_rng(seed)
+    policy_name = policy if isinstance(policy, str) else getattr(policy, "name", type(policy).__name__)
+    if isinstance(policy, str):
+        policy = make_policy(policy, model, seed=None if seed is None else seed + 1)
+    act = _as_callable(policy)
+    if initial_belief is None:
+        b = start_belief(model)
+        b = uniform_belief(model) if b is None else b
+    else:
+        b = check_belief(model, initial_belief, field="initial_belief")
+    if initial_state is None:
+        s = _sample(rng, b)
+    else:
+        if isinstance(initial_state, bool) or not isinstance(initial_state, (int, np.integer)) \
+                or not 0 <= initial_state < model.S:
+            raise ValueError(f"initial_state: index {initial_state!r} out of range 0..{model.S - 1}")
+        s = int(initial_state)
+
+    S = model.S
+    states = np.empty(steps, dtype=int)
+    next_states = np.empty(steps, dtype=int)
+    actions = np.empty(steps, dtype=int)
+    observations = np.empty(steps, dtype=int)
+    beliefs = np.empty((steps + 1, S))
+    rewards = np.empty(steps)
+    state_rewards = np.empty(steps)
+    recovered = np.zeros(steps, dtype=bool)
+    beliefs[0] = b
+    for t in range(steps):
+        a = act(b.copy())
+        if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < model.A:
+            raise ValueError(f"policy returned {a!r} at step {t}: expected a 0-based action in 0..{model.A - 1}")
+        a = int(a)
+        rewards[t] = model.rho(b)[a]
+        state_rewards[t] = model.r[s, a]
+        s_next = _sample(rng, model.P[a, s])
+        z = _sample(rng, model.O[a, s_next])
+        try:
+            b = update(model, b, a, z)
+        except ImpossibleObservation:
+            lik = model.O[a, :, z]
+            b = lik / lik.sum()
+            recovered[t] = True
+        states[t], next_states[t], actions[t], observations[t] = s, s_next, a, z
+        beliefs[t + 1] = b
+        s = s_next
+    entropies = SHANNON.value(beliefs[1:])
+    return SimulationTrace(
+        model_name=model.name, gamma=model.gamma, seed=seed, policy=str(policy_name), states=states,
+        next_states=next_states, actions=actions, observations=observations, beliefs=beliefs,
+        entropies=np.asarray(entropies, dtype=float).reshape(steps), rewards=rewards,
+        state_rewards=state_rewards, recovered=recovered,
+    )
