@@ -1,0 +1,79 @@
+# Two-command set-up (README.md, "Quick start"): `make demo` and `make test` on a machine with
+# only Python 3.11 (+ pip, venv). Both create .venv if missing and install what is missing:
+#   $(DEPS_STAMP) third-party packages from requirements.txt (ROS wheels, numpy, ..., pytest)
+#   $(PKG_STAMP)  the package itself, `pip install .` (not editable: an editable install gets
+#                 no data_files, so `ros2 run` could not see it); redone only when a file of
+#                 the package changes or is added/removed.
+# A second `make test` therefore installs nothing.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := help
+
+VENV ?= .venv
+# The ROS wheels are built for CPython 3.11.
+PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3)
+BIN := $(VENV)/bin
+DEPS_STAMP := $(VENV)/.stamp-deps
+PKG_STAMP := $(VENV)/.stamp-package
+SOURCE_LIST := $(VENV)/.package-files
+PIP := $(BIN)/python -m pip --disable-pip-version-check
+
+# Files that end up in the installed package (setup.py: packages, data_files).
+PKG_SOURCES := setup.py setup.cfg package.xml $(sort $(shell find pomdp_planner config resource -type f \
+	! -path '*/__pycache__/*' ! -name '*.pyc' 2>/dev/null))
+
+# The list of those files is rewritten only when it changes, so that deleting or renaming a file
+# (which makes no file newer than the stamp) reinstalls the package as well.
+ifneq ($(wildcard $(VENV)/.),)
+_ := $(shell printf '%s\n' $(PKG_SOURCES) > $(SOURCE_LIST).new; \
+	cmp -s $(SOURCE_LIST).new $(SOURCE_LIST) && rm -f $(SOURCE_LIST).new || mv -f $(SOURCE_LIST).new $(SOURCE_LIST))
+endif
+
+# For the tests: wrong ROS message field types raise instead of serialising garbage, and the
+# installed-layout test fails (instead of skipping) when the package is not installed.
+TEST_ENV := ROS_PYTHON_CHECK_FIELDS=1 POMDP_PLANNER_REQUIRE_INSTALLED=1
+PYTEST_ARGS ?=
+
+DEMO_CMD := $(BIN)/pomdp-planner simulate config/models/tracking_s3_info.yaml --steps 30 --seed 1 --policy myopic
+
+.PHONY: help setup demo test lint clean
+
+help:
+	@echo "make demo   set up .venv (if needed) and run the demo"
+	@echo "make test   set up .venv (if needed), then ruff and the whole test suite"
+	@echo "make lint   ruff only"
+	@echo "make clean  remove .venv and build output"
+
+setup: $(PKG_STAMP)
+
+demo: $(PKG_STAMP)
+	$(DEMO_CMD)
+
+test: $(PKG_STAMP)
+	$(BIN)/ruff check .
+	$(TEST_ENV) $(BIN)/python -m pytest $(PYTEST_ARGS)
+
+lint: $(DEPS_STAMP)
+	$(BIN)/ruff check .
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(DEPS_STAMP): requirements.txt | $(BIN)/python
+	$(PIP) install -r requirements.txt
+	touch $@
+
+$(SOURCE_LIST): | $(BIN)/python
+	printf '%s\n' $(PKG_SOURCES) > $@
+
+# Built from a clean tree: a stale build/lib would put deleted modules back into the wheel.
+$(PKG_STAMP): $(DEPS_STAMP) $(SOURCE_LIST) $(PKG_SOURCES)
+	rm -rf build pomdp_planner.egg-info
+	$(PIP) install --no-build-isolation .
+	rm -rf build pomdp_planner.egg-info
+	touch $@
+
+clean:
+	rm -rf $(VENV) build install log dist pomdp_planner.egg-info .pytest_cache .ruff_cache .hypothesis
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +

@@ -1,0 +1,100 @@
+"""Build script of the ament_python package ``pomdp_planner``.
+
+Works for both install paths (README.md, "Install"):
+
+* colcon (``colcon build``): the standard ament_python layout; ``setup.cfg`` sends the console
+  scripts to ``lib/pomdp_planner`` where ``ros2 run`` looks for them.
+* pip (``pip install .``, used by ``make demo``/``make test``): pip ignores ``setup.cfg``'s
+  script directories, so console scripts land in ``<prefix>/bin``. For wheel builds only we
+  add tiny forwarders ``lib/pomdp_planner/<exe>`` that exec ``<prefix>/bin/<exe>``; with
+  ``AMENT_PREFIX_PATH=<prefix>`` ``ros2 run pomdp_planner <exe>`` then finds every executable.
+"""
+
+import os
+import re
+import sys
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+PACKAGE = "pomdp_planner"
+
+#: The command line (``pomdp-planner``). Plain literal: test/test_package_layout.py reads it with ast.
+CLI_EXECUTABLES = {"pomdp-planner": "pomdp_planner.cli:main"}
+
+#: The ROS 2 node executables (``ros2 run pomdp_planner <name>``). Plain literal, as above.
+NODE_EXECUTABLES = {
+    "target_simulator": "pomdp_planner.nodes.target_simulator:main",
+    "belief_filter": "pomdp_planner.nodes.belief_filter:main",
+    "planner": "pomdp_planner.nodes.planner:main",
+    "closed_loop": "pomdp_planner.nodes.closed_loop:main",
+}
+
+HERE = Path(__file__).resolve().parent
+FORWARDER_DIR = Path("build") / "ros_forwarders"  # generated, never committed
+FORWARDER = """#!/bin/sh
+# Forwarder for `ros2 run` after a pip install: runs <prefix>/bin/<this file's name>.
+exec "$(dirname "$0")/../../bin/$(basename "$0")" "$@"
+"""
+
+
+def _version() -> str:
+    text = (HERE / PACKAGE / "__init__.py").read_text()
+    return re.search(r'^__version__ = "([^"]+)"', text, re.M).group(1)
+
+
+def _config_files() -> list[tuple[str, list[str]]]:
+    """Every file under ``config/``, keeping sub-folders, into ``share/<pkg>/config/...``."""
+    groups: dict[str, list[str]] = {}
+    for path in sorted((HERE / "config").rglob("*")):
+        if path.is_file() and "__pycache__" not in path.parts:
+            rel = path.relative_to(HERE)
+            groups.setdefault(str(Path("share", PACKAGE, rel.parent)), []).append(str(rel))
+    return sorted(groups.items())
+
+
+def _wheel_forwarders(executables) -> list[tuple[str, list[str]]]:
+    """``lib/<pkg>/<exe>`` forwarders, for wheel builds only (see the module docstring).
+
+    They are written at build time into ``build/ros_forwarders`` rather than committed, so the
+    list above is the only place an executable is named. Only for ``bdist_wheel`` and
+    ``editable_wheel``: colcon runs ``setup.py develop``/``install``, which already put the real
+    scripts into ``lib/<pkg>`` (setup.cfg), and a forwarder installed as data would overwrite
+    them. (``pip install -e .`` installs no data files at all: use ``pip install .``.)
+    """
+    if not {"bdist_wheel", "editable_wheel"} & set(sys.argv):
+        return []
+    out = HERE / FORWARDER_DIR
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    for exe in sorted(executables):
+        path = out / exe
+        path.write_text(FORWARDER)
+        path.chmod(0o755)  # the executable bit survives the wheel
+        files.append(str(FORWARDER_DIR / exe))
+    return [(f"lib/{PACKAGE}", files)]
+
+
+EXECUTABLES = {**CLI_EXECUTABLES, **NODE_EXECUTABLES}
+
+os.chdir(HERE)  # data_files are relative to this directory
+setup(
+    name=PACKAGE,
+    version=_version(),
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"], exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        *_config_files(),
+        *_wheel_forwarders(EXECUTABLES),
+    ],
+    python_requires=">=3.11",
+    install_requires=["numpy", "scipy", "clarabel", "PyYAML"],
+    extras_require={"test": ["pytest", "hypothesis", "ruff"]},
+    zip_safe=True,
+    maintainer="pomdp_planner maintainers",
+    maintainer_email="maintainers@example.com",
+    description="Information-acquisition POMDPs with myopic policy bounds (Lauri et al.), with ROS 2 nodes",
+    license="Apache-2.0",
+    entry_points={"console_scripts": [f"{name} = {target}" for name, target in sorted(EXECUTABLES.items())]},
+)
