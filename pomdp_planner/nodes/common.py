@@ -1,0 +1,211 @@
+"""Shared pieces of the nodes: model paths, QoS profiles, parameter descriptors, diagnostics, main().
+
+Model paths (parameter ``model_file``, and the per-sensor ``observation_model_files``): an
+absolute path is used as is; a relative one is looked up, first hit wins, under
+
+1. the installed package share directory (``get_package_share_directory('pomdp_planner')``,
+   where ``config/`` is installed), then
+2. the source tree this module was imported from (running from a checkout), then
+3. the current directory.
+
+So ``config/models/tracking_s8_info.yaml`` works both installed and from source.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ..core.belief import BeliefError, check_belief, uniform_belief
+from ..core.io.model_yaml import load_model
+from ..core.model import POMDP, ModelError
+
+PACKAGE = "pomdp_planner"
+SOURCE_ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
+
+#: Latest value for late joiners (belief, action): reliable, transient-local, depth 1.
+LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Observations and true states: reliable, transient-local, the last 20 (a late filter catches up).
+STREAM_QOS = QoSProfile(depth=20, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class NodeConfigError(ValueError):
+    """A node parameter makes the node unable to start (message names the parameter)."""
+
+
+def resolve_path(path: str, field: str = "model_file") -> Path:
+    """Resolve a (possibly relative) model path as the module docstring says."""
+    if not path:
+        raise NodeConfigError(f"{field}: empty path")
+    p = Path(path).expanduser()
+    if p.is_absolute():
+        if not p.is_file():
+            raise NodeConfigError(f"{field}: file {p} does not exist")
+        return p
+    candidates = []
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+        try:
+            candidates.append(Path(get_package_share_directory(PACKAGE)) / p)
+        except PackageNotFoundError:
+            pass
+    except ImportError:  # pragma: no cover - ament_index_python ships with rclpy
+        pass
+    candidates += [SOURCE_ROOT / p, Path.cwd() / p]
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise NodeConfigError(f"{field}: {path!r} not found (looked in {', '.join(str(c.parent) for c in candidates)})")
+
+
+def load_node_model(path: str, field: str = "model_file") -> POMDP:
+    try:
+        return load_model(resolve_path(path, field))
+    except ModelError as exc:
+        raise NodeConfigError(f"{field}: {exc}") from None
+
+
+def load_observation_models(model: POMDP, files: Sequence[str] | None, num_sensors: int) -> list[np.ndarray]:
+    """One observation array ``O (A x S x Z_k)`` per sensor; ``""`` (or no list) = the model's own."""
+    files = list(files or [])
+    if not files:
+        files = [""] * num_sensors
+    if len(files) != num_sensors:
+        raise NodeConfigError(
+            f"observation_model_files: {len(files)} entries for {num_sensors} observation_topics "
+            "(give one per topic, '' for the model's own)"
+        )
+    out = []
+    for k, f in enumerate(files):
+        if not f:
+            out.append(model.O)
+            continue
+        O = load_node_model(f, f"observation_model_files[{k}]").O
+        if O.shape[:2] != (model.A, model.S):
+            raise NodeConfigError(
+                f"observation_model_files[{k}]: observation model has shape {O.shape}, expected "
+                f"{model.A} x {model.S} x Z"
+            )
+        out.append(O)
+    return out
+
+
+def initial_distribution(model: POMDP, values: Sequence[float] | None) -> np.ndarray:
+    """Parameter ``initial_distribution`` if set, else the model file's ``start`` vector, else uniform."""
+    try:
+        if values is not None and len(values) > 0:
+            return check_belief(model, np.asarray(values, dtype=float), field="initial_distribution")
+        start = model.metadata.get("start")
+        if isinstance(start, (list, tuple)) and len(start) == model.S:
+            return check_belief(model, np.asarray(start, dtype=float), field="model start")
+    except BeliefError as exc:
+        raise NodeConfigError(str(exc)) from None
+    return uniform_belief(model)
+
+
+def shannon_entropy(b: np.ndarray) -> float:
+    b = np.asarray(b, dtype=float)
+    nz = b[b > 0.0]
+    return float(-(nz * np.log(nz)).sum())
+
+
+# ----------------------------------------------------------------- parameters
+def descriptor(description: str, *, read_only: bool = False, float_range: tuple[float, float] | None = None,
+               int_range: tuple[int, int] | None = None, type_: int | None = None,
+               constraints: str = "") -> ParameterDescriptor:
+    d = ParameterDescriptor(description=description, read_only=read_only, additional_constraints=constraints)
+    if type_ is not None:
+        d.type = type_
+    if float_range is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(float_range[0]),
+                                                     to_value=float(float_range[1]), step=0.0)]
+    if int_range is not None:
+        d.integer_range = [IntegerRange(from_value=int(int_range[0]), to_value=int(int_range[1]), step=1)]
+    return d
+
+
+def declare_optional_array(node: Node, name: str, kind: str, description: str) -> None:
+    """Declare a read-only, statically typed array parameter without a default (``kind``: string/double)."""
+    ptype, ros_type = {
+        "string": (Parameter.Type.STRING_ARRAY, ParameterType.PARAMETER_STRING_ARRAY),
+        "double": (Parameter.Type.DOUBLE_ARRAY, ParameterType.PARAMETER_DOUBLE_ARRAY),
+    }[kind]
+    node.declare_parameter(name, ptype, descriptor(description, read_only=True, type_=ros_type))
+
+
+def optional_array(node: Node, name: str) -> list | None:
+    """Value of a statically typed array parameter declared without a default (None if unset)."""
+    if not node.has_parameter(name):
+        return None
+    value = node.get_parameter_or(name, None)
+    value = None if value is None else value.value
+    return None if value is None else list(value)
+
+
+# ----------------------------------------------------------------- diagnostics
+def status(name: str, hardware_id: str, level: bytes, message: str, values: dict) -> DiagnosticStatus:
+    return DiagnosticStatus(
+        level=level, name=name, message=message, hardware_id=hardware_id,
+        values=[KeyValue(key=str(k), value=_fmt(v)) for k, v in values.items()],
+    )
+
+
+def _fmt(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+# ----------------------------------------------------------------- main
+def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
+    """The Jazzy idiom: init, build nodes, spin a MultiThreadedExecutor, clean exit on Ctrl-C/SIGTERM.
+
+    Returns the process exit code: 0 on a normal or signalled shutdown, 1 if a node could not
+    start (bad parameter or model file; the reason is printed, without traceback).
+    """
+    rclpy.init(args=args)
+    nodes: list[Node] = []
+    executor = None
+    code = 0
+    try:
+        for make in factories:
+            nodes.append(make())
+        executor = MultiThreadedExecutor()
+        for n in nodes:
+            executor.add_node(n)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except NodeConfigError as exc:
+        print(f"[FATAL] pomdp_planner: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        # A second Ctrl-C during teardown must not print a traceback either.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def main_for(factories: Sequence[Callable[[], Node]]) -> None:
+    sys.exit(run_nodes(factories, args=sys.argv))

@@ -1,0 +1,163 @@
+"""Message layouts of the node topics (std_msgs only) and their strict decoders.
+
+Pairing of actions and observations is by design, not by timing: every message carries the
+decision epoch it belongs to, and every observation carries the action it was taken under.
+
+* **action** (``std_msgs/Int64MultiArray``), data ``[epoch, action_priority]``, one dimension
+  labelled ``"epoch,action_priority"`` (size 2). ``epoch = t`` means "the action that moves the
+  system from epoch ``t-1`` to epoch ``t``"; the planner computes it from the belief of epoch
+  ``t-1``. ``action_priority`` is the paper's tracking priority 1..A.
+* **observation** (``std_msgs/Int64MultiArray``), data ``[epoch, action_priority,
+  observation]``, one dimension labelled ``"epoch,action_priority,observation"`` (size 3). The
+  observation is 0-based (``0..Z-1``) and was generated after the transition of epoch ``t``
+  under ``action_priority`` (the action the simulator actually applied).
+* **true_state** (``std_msgs/Int64MultiArray``), data ``[epoch, state]``, label ``"epoch,state"``
+  (0-based state after the transition of epoch ``t``; epoch 0 is the initial state).
+* **belief** (``std_msgs/Float64MultiArray``), data ``b(0..S-1)`` (a point of the simplex), two
+  dimensions: ``("state", S, S)`` and ``("epoch=<t>", 1, 1)``. The array is ``S x 1``, the
+  single column is labelled by the epoch the belief is valid for (after the observations of
+  epoch ``t``; ``t = 0`` is the prior). The data stay a plain probability vector for generic
+  tools; the epoch rides in the layout so that belief and epoch arrive in one message.
+
+Decoders raise :class:`MessageError` with a message that names the field and the problem.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension, MultiArrayLayout
+
+ACTION_LABEL = "epoch,action_priority"
+OBSERVATION_LABEL = "epoch,action_priority,observation"
+TRUE_STATE_LABEL = "epoch,state"
+BELIEF_STATE_LABEL = "state"
+_EPOCH_LABEL_RE = re.compile(r"^epoch=(\d+)$")
+
+
+class MessageError(ValueError):
+    """A message on a node topic does not follow the documented layout."""
+
+
+@dataclass(frozen=True)
+class ActionMsg:
+    epoch: int
+    priority: int
+
+
+@dataclass(frozen=True)
+class ObservationMsg:
+    epoch: int
+    priority: int
+    observation: int
+
+
+@dataclass(frozen=True)
+class BeliefMsg:
+    epoch: int
+    belief: np.ndarray
+
+
+def _record(label: str, values: Sequence[int]) -> Int64MultiArray:
+    msg = Int64MultiArray()
+    msg.layout = MultiArrayLayout(
+        dim=[MultiArrayDimension(label=label, size=len(values), stride=len(values))], data_offset=0
+    )
+    msg.data = [int(v) for v in values]
+    return msg
+
+
+def _decode_record(msg: Int64MultiArray, label: str, what: str) -> list[int]:
+    names = label.split(",")
+    data = list(msg.data)
+    if len(data) != len(names):
+        raise MessageError(f"{what}: expected {len(names)} integers [{label}], got {len(data)}")
+    dims = list(msg.layout.dim)
+    # The label is the protocol: accept it, or no layout at all (hand-typed messages).
+    if dims and (len(dims) != 1 or dims[0].label != label):
+        got = ",".join(d.label for d in dims)
+        raise MessageError(f"{what}: layout label {got!r} is not {label!r}")
+    if data[0] < 0:
+        raise MessageError(f"{what}: epoch must be >= 0, got {data[0]}")
+    return data
+
+
+def encode_action(epoch: int, priority: int) -> Int64MultiArray:
+    return _record(ACTION_LABEL, (epoch, priority))
+
+
+def decode_action(msg: Int64MultiArray, num_actions: int) -> ActionMsg:
+    epoch, priority = _decode_record(msg, ACTION_LABEL, "action")
+    if not 1 <= priority <= num_actions:
+        raise MessageError(f"action: action_priority {priority} out of range 1..{num_actions}")
+    return ActionMsg(epoch, priority)
+
+
+def encode_observation(epoch: int, priority: int, observation: int) -> Int64MultiArray:
+    return _record(OBSERVATION_LABEL, (epoch, priority, observation))
+
+
+def decode_observation(msg: Int64MultiArray, num_actions: int, num_observations: int) -> ObservationMsg:
+    epoch, priority, z = _decode_record(msg, OBSERVATION_LABEL, "observation")
+    if not 1 <= priority <= num_actions:
+        raise MessageError(f"observation: action_priority {priority} out of range 1..{num_actions}")
+    if not 0 <= z < num_observations:
+        raise MessageError(f"observation: observation {z} out of range 0..{num_observations - 1}")
+    return ObservationMsg(epoch, priority, z)
+
+
+def encode_true_state(epoch: int, state: int) -> Int64MultiArray:
+    return _record(TRUE_STATE_LABEL, (epoch, state))
+
+
+def decode_true_state(msg: Int64MultiArray) -> tuple[int, int]:
+    epoch, state = _decode_record(msg, TRUE_STATE_LABEL, "true_state")
+    return epoch, state
+
+
+def encode_belief(epoch: int, belief: np.ndarray) -> Float64MultiArray:
+    b = np.asarray(belief, dtype=float)
+    msg = Float64MultiArray()
+    msg.layout = MultiArrayLayout(
+        dim=[
+            MultiArrayDimension(label=BELIEF_STATE_LABEL, size=b.size, stride=b.size),
+            MultiArrayDimension(label=f"epoch={int(epoch)}", size=1, stride=1),
+        ],
+        data_offset=0,
+    )
+    msg.data = [float(x) for x in b]
+    return msg
+
+
+def decode_belief(msg: Float64MultiArray, num_states: int, atol: float = 1e-6) -> BeliefMsg:
+    """Decode and validate a belief message (length, finiteness, simplex, epoch label)."""
+    dims = list(msg.layout.dim)
+    if len(dims) != 2 or dims[0].label != BELIEF_STATE_LABEL:
+        raise MessageError(
+            f"belief: layout must be [('{BELIEF_STATE_LABEL}', S), ('epoch=<t>', 1)], got "
+            f"{[(d.label, d.size) for d in dims]}"
+        )
+    m = _EPOCH_LABEL_RE.match(dims[1].label)
+    if m is None:
+        raise MessageError(f"belief: second dimension label {dims[1].label!r} is not 'epoch=<t>'")
+    if msg.layout.data_offset != 0:
+        raise MessageError(f"belief: data_offset must be 0, got {msg.layout.data_offset}")
+    data = list(msg.data)
+    if len(data) != num_states or dims[0].size != num_states:
+        raise MessageError(
+            f"belief: expected {num_states} probabilities, got {len(data)} (layout size {dims[0].size})"
+        )
+    b = np.array(data, dtype=float)
+    if not all(math.isfinite(x) for x in data):
+        raise MessageError(f"belief: entry {int(np.argmax(~np.isfinite(b)))} is not finite")
+    if np.any(b < -atol):
+        raise MessageError(f"belief: entry {int(np.argmin(b))} is negative ({b.min():.3g})")
+    total = float(b.sum())
+    if abs(total - 1.0) > atol:
+        raise MessageError(f"belief: sums to {total:.9g}, not 1")
+    b = np.clip(b, 0.0, None)
+    return BeliefMsg(int(m.group(1)), b / b.sum())

@@ -1,0 +1,136 @@
+"""Launch-free test support for the ROS 2 node tests (see /work/shared/ROS_NOTES.md).
+
+One ``rclpy`` Context per test, discovery OFF (nodes of one context still talk, nothing leaks
+between tests), one MultiThreadedExecutor spinning in a daemon thread, waits on a condition
+variable that the recording callbacks notify (no fixed sleeps).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_msgs.msg import Float64MultiArray, Int64MultiArray  # noqa: E402
+
+from pomdp_planner.nodes.messages import decode_belief  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+S3 = str(REPO / "config" / "models" / "tracking_s3_info.yaml")
+S8 = str(REPO / "config" / "models" / "tracking_s8_info.yaml")
+
+
+class Recorder(Node):
+    """Subscribes to the loop's topics and records every message (thread-safe)."""
+
+    def __init__(self, context: Context, cond: threading.Condition, obs_topics=("observation",)):
+        super().__init__("test_recorder", context=context)
+        self.cond = cond
+        self.actions: list[tuple[int, int]] = []
+        self.observations: dict[str, list[tuple[int, int, int]]] = {t: [] for t in obs_topics}
+        self.beliefs: list = []
+        self.true_states: list[tuple[int, int]] = []
+        self.diagnostics: list = []
+        # Transient-local like the publishers, but a deep history: every message is recorded.
+        deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.create_subscription(Int64MultiArray, "action", self._rec(self.actions, tuple), deep)
+        for t in obs_topics:
+            self.create_subscription(Int64MultiArray, t, self._rec(self.observations[t], tuple), deep)
+        self.create_subscription(Int64MultiArray, "true_state", self._rec(self.true_states, tuple), deep)
+        self.create_subscription(Float64MultiArray, "belief", self._rec(self.beliefs, None), deep)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._rec(self.diagnostics, None), 50)
+
+    def _rec(self, store: list, conv):
+        def cb(msg):
+            with self.cond:
+                store.append(conv(msg.data) if conv else msg)
+                self.cond.notify_all()
+        return cb
+
+    def diag_values(self, name_prefix: str) -> list[dict]:
+        """All diagnostic statuses whose name starts with ``name_prefix``, as dicts (+ level, message)."""
+        out = []
+        with self.cond:
+            msgs = list(self.diagnostics)
+        for arr in msgs:
+            for st in arr.status:
+                if st.name.startswith(name_prefix):
+                    d = {kv.key: kv.value for kv in st.values}
+                    d["_level"] = st.level
+                    d["_message"] = st.message
+                    out.append(d)
+        return out
+
+    def decoded_beliefs(self, S: int):
+        with self.cond:
+            msgs = list(self.beliefs)
+        return [decode_belief(m, S) for m in msgs]
+
+
+class RosHarness:
+    def __init__(self):
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
+        os.environ["ROS_PYTHON_CHECK_FIELDS"] = "1"
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.cond = threading.Condition()
+        self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
+        self.nodes: list[Node] = []
+        self._thread: threading.Thread | None = None
+
+    def add(self, node: Node) -> Node:
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def recorder(self, obs_topics=("observation",)) -> Recorder:
+        return self.add(Recorder(self.context, self.cond, obs_topics))
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # executor shut down during teardown
+            pass
+
+    def wait_until(self, predicate: Callable[[], bool], timeout: float = 10.0) -> bool:
+        """Wait (on the recorder's condition, re-checking at least every 50 ms) until ``predicate()``."""
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while not predicate():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self.cond.wait(min(left, 0.05))
+        return True
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=2.0)
+        for n in self.nodes:
+            n.destroy_node()
+        self.context.try_shutdown()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+
+
+def make_harness():
+    h = RosHarness()
+    try:
+        yield h
+    finally:
+        h.close()

@@ -1,0 +1,179 @@
+"""Bad input on the node topics, reordered/delayed delivery, several sensors (launch-free)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from nodes_support import S3, make_harness, rclpy
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension
+
+from pomdp_planner.core.belief import update
+from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.nodes import common
+from pomdp_planner.nodes.belief_filter import BeliefFilter
+from pomdp_planner.nodes.messages import encode_belief, encode_observation
+
+harness = pytest.fixture(make_harness)
+
+
+def _filter(h, model_file=S3, **params):
+    overrides = [Parameter("model_file", value=model_file)] + [Parameter(k, value=v) for k, v in params.items()]
+    return h.add(BeliefFilter(context=h.context, parameter_overrides=overrides))
+
+
+def _publisher(h, topic="observation"):
+    node = h.add(rclpy.node.Node(f"test_pub_{len(h.nodes)}", context=h.context))
+    return node.create_publisher(Int64MultiArray, topic, common.STREAM_QOS)
+
+
+def _latest_diag(rec, prefix="belief_filter"):
+    vals = rec.diag_values(prefix)
+    return vals[-1] if vals else {}
+
+
+def _counts_reach(rec, key, n, prefix="belief_filter"):
+    return lambda: any(int(d.get(key, -1)) >= n for d in rec.diag_values(prefix))
+
+
+@pytest.fixture
+def perfect_sensor_model(tmp_path):
+    """S = Z = 2, static state, perfect sensor: observation 1 is impossible under the prior [1, 0]."""
+    doc = {
+        "name": "perfect_sensor", "discount": 0.9, "states": 2, "actions": 2, "observations": 2,
+        "transition": [[[1, 0], [0, 1]], [[1, 0], [0, 1]]],
+        "observation": [[[1, 0], [0, 1]], [[0.5, 0.5], [0.5, 0.5]]],
+        "reward": [[0, 0], [0, 0]],
+    }
+    path = tmp_path / "perfect.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return str(path)
+
+
+def test_filter_bad_observations_counted_and_node_keeps_running(harness, perfect_sensor_model):
+    h = harness
+    _filter(h, perfect_sensor_model, initial_distribution=[1.0, 0.0])
+    rec = h.recorder()
+    pub = _publisher(h)
+    h.start()
+    assert h.wait_until(lambda: len(rec.beliefs) >= 1)  # the latched prior (epoch 0)
+    # out of range observation, out of range action, wrong length, wrong label: dropped
+    pub.publish(encode_observation(1, 1, 2))
+    pub.publish(encode_observation(1, 3, 0))
+    pub.publish(Int64MultiArray(data=[1, 1]))
+    bad_label = encode_observation(1, 1, 0)
+    bad_label.layout.dim = [MultiArrayDimension(label="z,a,t", size=3, stride=3)]
+    pub.publish(bad_label)
+    assert h.wait_until(_counts_reach(rec, "out_of_range_observations", 2), timeout=5)
+    assert h.wait_until(_counts_reach(rec, "malformed_messages", 2), timeout=5)
+    assert [b.epoch for b in rec.decoded_beliefs(2)] == [0]  # nothing published from bad input
+    # impossible observation: recovery = the predicted belief, published for that epoch
+    pub.publish(encode_observation(1, 1, 1))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 2)
+    b1 = rec.decoded_beliefs(2)[-1]
+    assert b1.epoch == 1
+    np.testing.assert_allclose(b1.belief, [1.0, 0.0])
+    assert h.wait_until(_counts_reach(rec, "impossible_observations", 1), timeout=5)
+    assert _latest_diag(rec)["_level"] != b"\x00"  # WARN after bad input
+    # still running: a possible observation of the next epoch is applied normally
+    pub.publish(encode_observation(2, 2, 0))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 3)
+    b2 = rec.decoded_beliefs(2)[-1]
+    assert b2.epoch == 2
+    np.testing.assert_allclose(b2.belief, [1.0, 0.0])
+
+
+def test_filter_reordered_delayed_duplicated_delivery_pairs_by_carried_action(harness):
+    h = harness
+    model = load_model(S3)
+    _filter(h, S3, epoch_timeout=5.0)
+    rec = h.recorder()
+    pub = _publisher(h)
+    h.start()
+    assert h.wait_until(lambda: len(rec.beliefs) >= 1)
+    # epochs 1..5 with their carried actions, delivered as 3, 5, 1, 1 (dup), 4, 2
+    seq = {1: (2, 0), 2: (1, 2), 3: (3, 1), 4: (1, 1), 5: (2, 2)}
+    for t in (3, 5, 1, 1, 4):
+        pub.publish(encode_observation(t, *seq[t]))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 2)  # epoch 1 applied, 2 still missing
+    assert h.wait_until(_counts_reach(rec, "duplicates", 1), timeout=5)
+    assert [b.epoch for b in rec.decoded_beliefs(3)] == [0, 1]
+    pub.publish(encode_observation(2, *seq[2]))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 6)
+    got = rec.decoded_beliefs(3)
+    assert [b.epoch for b in got] == [0, 1, 2, 3, 4, 5]
+    b = np.full(3, 1 / 3)  # replay with the core filter in epoch order, actions as carried
+    for t in range(1, 6):
+        p, z = seq[t]
+        b = update(model, b, p - 1, z)
+        np.testing.assert_allclose(got[t].belief, b, rtol=1e-12, atol=1e-15)
+    diag = _latest_diag(rec)
+    assert int(diag.get("gaps", 0)) == 0
+
+
+def test_filter_gap_is_reported_and_loop_goes_on(harness):
+    h = harness
+    _filter(h, S3, epoch_timeout=60.0, max_pending_epochs=2)
+    rec = h.recorder()
+    pub = _publisher(h)
+    h.start()
+    assert h.wait_until(lambda: len(rec.beliefs) >= 1)
+    for t in (2, 3):  # epoch 1 never arrives; two later epochs waiting force the gap
+        pub.publish(encode_observation(t, 1, 0))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 4, timeout=5)
+    assert [b.epoch for b in rec.decoded_beliefs(3)][-2:] == [2, 3]
+    assert h.wait_until(_counts_reach(rec, "gaps", 1), timeout=5)
+
+
+def test_filter_two_sensors_one_prediction_then_one_update_per_sensor(harness, tmp_path):
+    h = harness
+    model = load_model(S3)
+    # second sensor: a different (noisier) observation model with 2 symbols
+    doc = yaml.safe_load(Path(S3).read_text())
+    O2 = np.array([[[0.9, 0.1], [0.5, 0.5], [0.2, 0.8]]] * 3)
+    doc.pop("generator")
+    doc["transition"] = model.P.tolist()
+    doc["observation"] = O2.tolist()
+    doc["observations"] = 2
+    p2 = tmp_path / "sensor2.yaml"
+    p2.write_text(yaml.safe_dump(doc))
+    _filter(h, S3, observation_topics=["cam", "radar"], observation_model_files=["", str(p2)], epoch_timeout=30.0)
+    rec = h.recorder(obs_topics=("cam", "radar"))
+    cam, radar = _publisher(h, "cam"), _publisher(h, "radar")
+    h.start()
+    assert h.wait_until(lambda: len(rec.beliefs) >= 1)
+    radar.publish(encode_observation(1, 2, 1))
+    radar.publish(encode_observation(1, 2, 2))  # out of range for the 2-symbol radar
+    assert h.wait_until(_counts_reach(rec, "out_of_range_observations", 1), timeout=5)
+    assert len(rec.beliefs) == 1  # epoch 1 waits for the camera
+    cam.publish(encode_observation(1, 2, 0))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 2)
+    b1 = rec.decoded_beliefs(3)[-1]
+    # independent: b' ∝ (b P[a]) * O_cam[a, :, z1] * O_radar[a, :, z2]
+    expected = (np.full(3, 1 / 3) @ model.P[1]) * model.O[1, :, 0] * O2[1, :, 1]
+    np.testing.assert_allclose(b1.belief, expected / expected.sum(), rtol=1e-12)
+    assert b1.epoch == 1
+
+
+def test_belief_encoding_roundtrip_and_rejections():
+    from pomdp_planner.nodes.messages import MessageError, decode_belief
+
+    b = np.array([0.2, 0.3, 0.5])
+    msg = encode_belief(7, b)
+    got = decode_belief(msg, 3)
+    assert got.epoch == 7
+    np.testing.assert_allclose(got.belief, b)
+    with pytest.raises(MessageError, match="expected 3 probabilities"):
+        decode_belief(encode_belief(7, [0.5, 0.5]), 3)
+    with pytest.raises(MessageError, match="not finite"):
+        decode_belief(encode_belief(7, [np.nan, 0.5, 0.5]), 3)
+    with pytest.raises(MessageError, match="sums to"):
+        decode_belief(encode_belief(7, [0.5, 0.5, 0.5]), 3)
+    with pytest.raises(MessageError, match="layout"):
+        decode_belief(Float64MultiArray(data=[0.2, 0.3, 0.5]), 3)
