@@ -134,6 +134,16 @@ class SearchResult:
         }
 
 
+def _mm(M: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``M @ X`` for a small ``M`` (``k x S``) and a wide ``X`` (``S x n``), single-threaded.
+
+    ``einsum`` runs its own vectorised loops instead of a multi-threaded BLAS; on a shared
+    machine (other processes, a ROS node) BLAS threads waiting for a busy core made the
+    leaf level several times slower, and these products are memory-bound anyway.
+    """
+    return np.einsum("ks,sn->kn", M, X)
+
+
 def _xlogx(x: np.ndarray) -> np.ndarray:
     return np.where(x > 0.0, x * np.log(np.where(x > 0.0, x, 1.0)), 0.0)
 
@@ -160,11 +170,14 @@ class Planner:
         self._P = np.ascontiguousarray(P)
         self._O = np.ascontiguousarray(O)
         self._OT = np.ascontiguousarray(np.swapaxes(O, 1, 2))  # (A, Z, S)
-        # W[a] = [O[a] | O[a][:, z] * r[:, a'] for (z, a')] : (S, Z + Z*A)
-        OR = (O[:, :, :, None] * r[None, :, None, :]).reshape(A, S, Z * A)
-        self._W = np.ascontiguousarray(np.concatenate([O, OR], axis=2))
-        self._O2 = np.ascontiguousarray(O * O)
-        self._OlogO = np.ascontiguousarray(_xlogx(O))
+        # Transposed leaf matrices: WT[a] rows = O[a][:, z] (z = 0..Z-1), then O[a][:, z] * r[:, a']
+        # for a' = 0..A-1 (Z rows each); O2T, OlogOT likewise (Z x S).
+        OR = np.moveaxis(O[:, :, :, None] * r[None, :, None, :], 3, 1)  # (A, A', S, Z)
+        self._WT = np.ascontiguousarray(
+            np.concatenate([np.swapaxes(O, 1, 2)] + [np.swapaxes(OR[:, k], 1, 2) for k in range(A)], axis=1))
+        self._PT = np.ascontiguousarray(np.swapaxes(P, 1, 2))
+        self._O2T = np.ascontiguousarray(np.swapaxes(O * O, 1, 2))
+        self._OlogOT = np.ascontiguousarray(np.swapaxes(_xlogx(O), 1, 2))
         self._w = np.asarray(model.w, dtype=float)
         self._gamma = float(model.gamma)
         self._kind = model.uncertainty.name if model.uncertainty.name in ("none", "renyi2", "shannon") else "generic"
@@ -293,6 +306,13 @@ class Planner:
         lo, up = bounds.actions(b[None, :], self.model.rho(b[None, :]))
         return bool(lo[0] == up[0])
 
+    def _rho(self, B: np.ndarray) -> np.ndarray:
+        """``rho(b, a)`` for a batch (Eq. 3), as ``POMDP.rho`` but without multi-threaded BLAS."""
+        out = np.einsum("ns,sa->na", B, self.model.r)
+        if self.model.uncertainty.name != "none":
+            out -= self.model.uncertainty.value(B)[:, None] * self._w
+        return out
+
     def _allowed(self, bounds: Bounds, B: np.ndarray, rho: np.ndarray) -> np.ndarray:
         """Boolean ``(n, A)``: actions in ``[lower(b), upper(b)]`` (all if the bounds cross)."""
         A = self.model.A
@@ -360,7 +380,7 @@ class Planner:
             m = Bp.shape[0]
             Bc, key, eta = self._expand(Bp, al)
             sizes[level + 1] += Bc.shape[0]
-            rho_c = self.model.rho(Bc)
+            rho_c = self._rho(Bc)
             Qc = self._values(Bc, rho_c, self._allowed(bounds, Bc, rho_c), remaining - 1, level + 1, sizes,
                               bounds, deadline)
             Vc = Qc.max(axis=1)
@@ -379,12 +399,12 @@ class Planner:
         for a in range(A):
             if all_allowed:
                 idx = None
-                Ba = B @ self._P[a]
+                Ba = np.einsum("ns,sj->nj", B, self._P[a])
             else:
                 idx = np.flatnonzero(allowed[:, a])
                 if idx.size == 0:
                     continue
-                Ba = B[idx] @ self._P[a]
+                Ba = np.einsum("ns,sj->nj", B[idx], self._P[a])
             unnorm = Ba[:, None, :] * self._OT[a][None, :, :]  # (m, Z, S)
             eta = unnorm.sum(axis=2)
             pi, zi = np.nonzero(eta > ETA_SKIP)
@@ -401,60 +421,70 @@ class Planner:
     def _leaf_q(self, B: np.ndarray, rho: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int]:
         """``Q(b, a) = rho(b, a) + gamma sum_z eta max_a' rho(tau(b,a,z), a')`` for leaf parents.
 
-        Fused formulas (module docstring): no posterior belief is formed. Returns ``Q``
-        (``-inf`` where not allowed) and the number of leaves (branches with ``eta > ETA_SKIP``).
+        Fused formulas (module docstring): no posterior belief is formed. Works on the
+        transposed batch ``B^T`` (``S x n``) so that every per-leaf quantity is a contiguous
+        ``Z x n`` block. Returns ``Q`` (``-inf`` where not allowed) and the number of leaves
+        (branches with ``eta > ETA_SKIP``).
         """
         n = B.shape[0]
         A, Z = self.model.A, self.model.Z
         Q = np.full((n, A), -np.inf)
         count = 0
         all_allowed = bool(allowed.all())
-        w = self._w
+        BT_all = np.ascontiguousarray(B.T)
+        w, kind = self._w, self._kind
         for a in range(A):
             if all_allowed:
                 idx = slice(None)
-                Ba = B @ self._P[a]
+                BT = BT_all
             else:
                 idx = np.flatnonzero(allowed[:, a])
                 if idx.size == 0:
                     continue
-                Ba = B[idx] @ self._P[a]
-            X = Ba @ self._W[a]
-            eta = X[:, :Z]
-            ur = X[:, Z:].reshape(-1, Z, A)
+                BT = BT_all[:, idx]
+            BaT = _mm(self._PT[a], BT)  # predicted beliefs, (S, m)
+            XT = _mm(self._WT[a], BaT)  # rows: eta (Z), then u . r_a' for each a' (Z each)
+            eta = XT[:Z]
             ok = eta > ETA_SKIP
-            if self._kind == "none":
-                val = ur.max(axis=2)
-            elif self._kind == "generic":
-                val = self._leaf_generic(Ba, a, eta, ok)
-            else:
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    if self._kind == "renyi2":
-                        sq = (Ba * Ba) @ self._O2[a]
-                        etaf = -eta * np.log(sq / (eta * eta))
-                    else:  # shannon
-                        ulogu = _xlogx(Ba) @ self._O[a] + Ba @ self._OlogO[a]
-                        etaf = eta * np.log(eta) - ulogu
-                val = ur[:, :, 0] - w[0] * etaf
+            if kind == "none":
+                val = XT[Z:2 * Z].copy()
                 for k in range(1, A):
-                    np.maximum(val, ur[:, :, k] - w[k] * etaf, out=val)
+                    np.maximum(val, XT[Z * (1 + k):Z * (2 + k)], out=val)
+            elif kind == "generic":
+                val = self._leaf_generic(BaT, a, eta, ok)
+            else:
+                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                    if kind == "renyi2":
+                        t = _mm(self._O2T[a], BaT * BaT)  # sum_s u_s^2, (Z, m)
+                        np.divide(t, eta * eta, out=t)
+                        np.log(t, out=t)
+                        t *= eta  # -eta f(tau)
+                    else:  # shannon
+                        t = _mm(self._OT[a], _xlogx(BaT))
+                        t += _mm(self._OlogOT[a], BaT)  # sum_s u_s log u_s
+                        t -= eta * np.log(eta)  # -eta f(tau)
+                    val = XT[Z:2 * Z] + w[0] * t
+                    for k in range(1, A):
+                        np.maximum(val, XT[Z * (1 + k):Z * (2 + k)] + w[k] * t, out=val)
                 tiny = ok & (eta < ETA_FUSED_MIN)
                 if tiny.any():
-                    val[tiny] = self._leaf_generic(Ba, a, eta, tiny)[tiny]
-            val = np.where(ok, val, 0.0)
-            count += int(np.count_nonzero(ok))
-            Q[idx, a] = rho[idx, a] + self._gamma * val.sum(axis=1)
+                    val[tiny] = self._leaf_generic(BaT, a, eta, tiny)[tiny]
+            if not ok.all():
+                val = np.where(ok, val, 0.0)
+                count += int(np.count_nonzero(ok))
+            else:
+                count += ok.size
+            Q[idx, a] = rho[idx, a] + self._gamma * val.sum(axis=0)
         return Q, count
 
-    def _leaf_generic(self, Ba: np.ndarray, a: int, eta: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """``eta max_a' rho(tau, a')`` from explicit posteriors, for the entries in ``mask``."""
+    def _leaf_generic(self, BaT: np.ndarray, a: int, eta: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """``eta max_a' rho(tau, a')`` from explicit posteriors, for the ``(z, parent)`` in ``mask``."""
         out = np.zeros(eta.shape)
-        pi, zi = np.nonzero(mask)
+        zi, pi = np.nonzero(mask)
         if pi.size:
-            unnorm = Ba[pi] * self._OT[a][zi]
-            e = eta[pi, zi]
+            unnorm = BaT[:, pi].T * self._OT[a][zi]
             tau = unnorm / unnorm.sum(axis=1, keepdims=True)
-            out[pi, zi] = e * self.model.rho(tau).max(axis=1)
+            out[zi, pi] = eta[zi, pi] * self.model.rho(tau).max(axis=1)
         return out
 
     def _count(self, B: np.ndarray, allowed: np.ndarray, remaining: int, level: int, sizes: list[int],
@@ -466,12 +496,12 @@ class Planner:
                 for a in range(self.model.A):
                     idx = np.flatnonzero(al[:, a])
                     if idx.size:
-                        eta = (Bp[idx] @ self._P[a]) @ self._O[a]
+                        eta = np.einsum("ns,sz->nz", np.einsum("ns,sj->nj", Bp[idx], self._P[a]), self._O[a])
                         sizes[level + 1] += int(np.count_nonzero(eta > ETA_SKIP))
             return
         step = self._expand_chunk
         for s in range(0, B.shape[0], step):
             Bc, _, _ = self._expand(B[s:s + step], allowed[s:s + step])
             sizes[level + 1] += Bc.shape[0]
-            rho_c = self.model.rho(Bc)
+            rho_c = self._rho(Bc)
             self._count(Bc, self._allowed(bounds, Bc, rho_c), remaining - 1, level + 1, sizes, bounds)
