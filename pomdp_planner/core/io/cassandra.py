@@ -194,6 +194,7 @@ class _Parser:
         self.sizes: dict[str, int] = {}
         self.names: dict[str, list[str] | None] = {}
         self.start: np.ndarray | None = None
+        self.entry = _Tok("", 0)  # the keyword token of the entry being parsed
 
     # -- token helpers
     def error(self, msg: str, tok: _Tok | None = None) -> ModelError:
@@ -230,7 +231,9 @@ class _Parser:
             tok = self.peek()
             if tok is None or not _NUMBER.match(tok.text):
                 got = "end of file" if tok is None else repr(tok.text)
-                raise self.error(f"{what}: expected {n} numbers, got {k} before {got}", tok or self.toks[-1])
+                where = self.toks[-1] if tok is None else tok
+                since = f" (entry starting on line {self.entry.line})" if self.entry.line != where.line else ""
+                raise self.error(f"{what}: expected {n} numbers, got {k} before {got}{since}", where)
             out[k] = float(tok.text)
             self.pos += 1
         tok = self.peek()
@@ -422,6 +425,7 @@ class _Parser:
         blocks: dict = {}
         while (tok := self.peek()) is not None:
             self.pos += 1
+            self.entry = tok
             t = tok.text
             if t == "discount":
                 self.colon("discount")
