@@ -377,15 +377,51 @@ class CopositivityReport:
         return out
 
 
+def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
+                        rng: np.random.Generator | None = None,
+                        search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Copositivity verdicts for a batch of symmetric matrices ``D`` of shape ``(B, S, S)``.
+
+    Cheapest test first: (1) A2', ``min(D) >= -tol``, proves; (2) 1- and 2-element supports in
+    closed form refute (exact on those faces); (3) for ``S <= sdp_max_states`` the Clarabel SDP
+    ``D = PSD + N`` proves; (4) projected-gradient search on the simplex refutes (skipped with
+    ``search=False``). Returns ``(codes (B,), X (B, S), values (B,))``: the status code of
+    :data:`STATUS_NAMES` and, for refuted matrices, ``x`` on the simplex with
+    ``x^T D x = value < -tol`` (NaN elsewhere).
+    """
+    D = np.asarray(D, dtype=float)
+    B, S, _ = D.shape
+    rng = np.random.default_rng(0) if rng is None else rng
+    codes = np.full(B, PROVEN_ELEMENTWISE, dtype=np.int8)
+    X = np.full((B, S), np.nan)
+    values = np.full(B, np.nan)
+    todo = np.nonzero(D.min(axis=(-2, -1)) < -tol)[0]
+    if todo.size == 0:
+        return codes, X, values
+    Xp, vp = _pair_counterexamples(D[todo])
+    undecided = []
+    for k, b in enumerate(todo):
+        if vp[k] < -tol:
+            codes[b], X[b], values[b] = REFUTED, Xp[k], vp[k]
+        elif S <= sdp_max_states and psd_plus_nonnegative(D[b])[0]:
+            codes[b] = PROVEN_SDP
+        else:
+            codes[b] = UNKNOWN if S <= sdp_max_states else UNKNOWN_SDP_SKIPPED
+            undecided.append(b)
+    if search and undecided:
+        idx = np.asarray(undecided)
+        Xs, vs = _search_counterexamples(D[idx], rng)
+        bad = vs < -tol
+        codes[idx[bad]], X[idx[bad]], values[idx[bad]] = REFUTED, Xs[bad], vs[bad]
+    return codes, X, values
+
+
 def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
                        seed: int = 0, search: bool = True) -> CopositivityReport:
-    """(A2): copositivity of every ``D^{j,a,z}``, cheapest test first.
+    """(A2): copositivity of every ``D^{j,a,z}`` (:func:`classify_copositive` on each).
 
-    1. A2': ``min(D) >= -tol`` proves it.
-    2. 1- and 2-element supports in closed form can refute it (exact on those faces).
-    3. For ``S <= sdp_max_states``, the Clarabel SDP ``D = PSD + N`` can prove it.
-    4. Projected-gradient search on the simplex can refute it (``search=False`` skips it).
-    Anything left is unknown. All ``D`` are built with einsum in memory-bounded blocks.
+    The ``D`` are built with einsum (:func:`copositivity_matrices`) in memory-bounded blocks
+    of ``j``; only matrices that fail the elementwise test go further than a ``min``.
     """
     S, A, Z = model.S, model.A, model.Z
     shape = (max(A - 1, 0), max(S - 1, 0), Z)
@@ -403,31 +439,12 @@ def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SD
             todo = np.argwhere(mins < -tol)  # (k, 2): (j - j0, z)
             if todo.size == 0:
                 continue
-            Dt = D[todo[:, 0], todo[:, 1]]
-            X, vals = _pair_counterexamples(Dt)
-            undecided = []
+            c, X, v = classify_copositive(D[todo[:, 0], todo[:, 1]], tol, sdp_max_states, rng, search)
             for k, (jj, z) in enumerate(todo):
                 key = (a, j0 + int(jj), int(z))
-                if vals[k] < -tol:
-                    codes[key] = REFUTED
-                    refutations[key] = (X[k], float(vals[k]))
-                    continue
-                if S <= sdp_max_states:
-                    if psd_plus_nonnegative(Dt[k])[0]:
-                        codes[key] = PROVEN_SDP
-                        continue
-                    codes[key] = UNKNOWN
-                else:
-                    codes[key] = UNKNOWN_SDP_SKIPPED
-                undecided.append(k)
-            if search and undecided:
-                idx = np.asarray(undecided)
-                Xs, vs = _search_counterexamples(Dt[idx], rng)
-                for k, x, v in zip(idx, Xs, vs, strict=True):
-                    if v < -tol:
-                        key = (a, j0 + int(todo[k, 0]), int(todo[k, 1]))
-                        codes[key] = REFUTED
-                        refutations[key] = (x, float(v))
+                codes[key] = c[k]
+                if c[k] == REFUTED:
+                    refutations[key] = (X[k], float(v[k]))
     return CopositivityReport(codes=codes, min_entry=min_entry, refutations=refutations,
                               sdp_max_states=sdp_max_states, tol=tol)
 

@@ -1,0 +1,315 @@
+"""Tests of the Assumption 1 checks (core/structure.py) against independent computations.
+
+* TP2 minors against explicit loops over all 2x2 minors.
+* The D^{j,a,z} of (A2) against the paper's formula written out with loops, and the
+  translation proved through the Bayes filter (core/belief.py): ``b^T D b / 2`` equals
+  ``eta_a eta_{a+1} (tau_{a+1}(j+1) tau_a(j) - tau_{a+1}(j) tau_a(j+1))``.
+* Copositivity verdicts on matrices with known answers (PSD, non-negative, Horn, I - J/2).
+* (A3) against first-order dominance of the predicted observation computed with the filter.
+"""
+
+from __future__ import annotations
+
+import json
+from itertools import combinations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pomdp_planner.core import structure
+from pomdp_planner.core.belief import observation_probabilities, update
+from pomdp_planner.core.domains.tracking import tracking_transitions
+from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.model import POMDP
+from pomdp_planner.core.structure import (
+    PROVEN_ELEMENTWISE,
+    PROVEN_SDP,
+    REFUTED,
+    UNKNOWN,
+    UNKNOWN_SDP_SKIPPED,
+    check_assumptions,
+    check_copositivity,
+    check_dominance,
+    check_tp2,
+    classify_copositive,
+    copositivity_matrices,
+    psd_plus_nonnegative,
+    tp2_minors,
+    worst_tp2_minor,
+)
+
+MODELS = "config/models"
+HORN = np.array([[1, -1, 1, 1, -1], [-1, 1, -1, 1, 1], [1, -1, 1, -1, 1],
+                 [1, 1, -1, 1, -1], [-1, 1, 1, -1, 1]], dtype=float)
+
+
+def random_model(seed: int, S: int = 4, A: int = 3, Z: int = 3) -> POMDP:
+    """A generic random model (usually violates Assumption 1)."""
+    rng = np.random.default_rng(seed)
+    P = rng.dirichlet(np.ones(S), size=(A, S))
+    O = rng.dirichlet(np.ones(Z), size=(A, S))
+    return POMDP(P=P, O=O, r=np.zeros((S, A)), gamma=0.9, name=f"random{seed}")
+
+
+def tp2ish_model(seed: int, S: int = 4, A: int = 3, Z: int = 3) -> POMDP:
+    """Tracking transitions with random TP2 kernels and action-dependent TP2 observations:
+    a mix of D's proven elementwise, proven only by the SDP, and refuted."""
+    rng = np.random.default_rng(seed)
+    P = tracking_transitions(S, A, np.sort(rng.uniform(0, 3, S)), np.sort(rng.uniform(-9, -1, S * A)))
+    u = np.sort(rng.uniform(-2, 2, S))
+    O = np.stack([np.exp(np.outer(u, np.sort(rng.uniform(-2, 2, Z)))) for _ in range(A)])
+    O /= O.sum(axis=-1, keepdims=True)
+    return POMDP(P=P, O=O, r=np.zeros((S, A)), gamma=0.9, name=f"tp2ish{seed}")
+
+
+def random_beliefs(rng: np.random.Generator, n: int, S: int) -> np.ndarray:
+    return rng.dirichlet(np.full(S, 0.5), size=n)
+
+
+# ------------------------------------------------------------------------------ (A1)
+def brute_minors(M: np.ndarray) -> dict[tuple[int, int, int, int], float]:
+    n, m = M.shape
+    return {(i, j, k, l): M[i, k] * M[j, l] - M[i, l] * M[j, k]
+            for i, j in combinations(range(n), 2) for k, l in combinations(range(m), 2)}
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(2, 6), st.integers(2, 6), st.integers(0, 10_000))
+def test_tp2_minors_match_brute_force(n, m, seed):
+    M = np.random.default_rng(seed).normal(size=(n, m))
+    ref = brute_minors(M)
+    got = tp2_minors(M)
+    ri, rj = np.triu_indices(n, 1)
+    ck, cl = np.triu_indices(m, 1)
+    for p in range(ri.size):
+        for q in range(ck.size):
+            assert got[p, q] == pytest.approx(ref[(ri[p], rj[p], ck[q], cl[q])], abs=1e-12)
+    worst, rows, cols, count = worst_tp2_minor(M, tol=0.0)
+    key = min(ref, key=ref.get)
+    assert worst == pytest.approx(ref[key], abs=1e-12)
+    assert ref[(*rows, *cols)] == pytest.approx(worst, abs=1e-12)
+    assert count == sum(v < 0 for v in ref.values())
+
+
+def test_worst_minor_blocks_agree_with_single_block(monkeypatch):
+    M = np.random.default_rng(3).uniform(size=(9, 7))
+    whole = worst_tp2_minor(M)
+    monkeypatch.setattr(structure, "_MINOR_BLOCK", 5)  # forces many row-pair blocks
+    assert worst_tp2_minor(M) == whole
+
+
+def test_non_tp2_transition_reports_the_right_minor():
+    S = 3
+    base = tracking_transitions(S, 2)
+    assert check_tp2(POMDP(P=base, O=np.ones((2, S, 1)), r=np.zeros((S, 2)), gamma=0.5)).holds
+    bad = base.copy()
+    # rows 0 and 2 of action 1 put their mass in reversed order: only the minor with rows
+    # (0, 2) and columns (0, 2) is clearly negative (0.1*0.1 - 0.8*0.8).
+    bad[1] = [[0.1, 0.1, 0.8], [0.3, 0.4, 0.3], [0.8, 0.1, 0.1]]
+    rep = check_tp2(POMDP(P=bad, O=np.ones((2, S, 1)), r=np.zeros((S, 2)), gamma=0.5))
+    assert not rep.holds and rep.status == "fails"
+    assert (rep.matrix, rep.action, rep.rows, rep.cols) == ("transition", 1, (0, 2), (0, 2))
+    assert rep.worst_minor == pytest.approx(0.1 * 0.1 - 0.8 * 0.8)
+    assert rep.num_negative == sum(v < -1e-9 for v in brute_minors(bad[1]).values())
+
+
+def test_non_tp2_observation_with_zero_pattern_is_found():
+    # Adjacent minors are all zero but the minor on rows (0,1), columns (0,2) is -1: a check of
+    # adjacent minors only would wrongly accept this matrix.
+    O = np.array([[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]])
+    rep = check_tp2(POMDP(P=np.eye(2)[None], O=O, r=np.zeros((2, 1)), gamma=0.5))
+    assert (rep.holds, rep.matrix, rep.rows, rep.cols, rep.worst_minor) == (False, "observation", (0, 1), (0, 2), -1.0)
+
+
+# ------------------------------------------------------------------------------ (A2)
+def paper_d_matrix(model: POMDP, j: int, a: int, z: int) -> np.ndarray:
+    """The paper's D^{j,a,z} written with loops, T^a_{m,j} = P[a, m, j], O^a_{z,j} = O[a, j, z]."""
+    P, O, S = model.P, model.O, model.S
+    d = np.zeros((S, S))
+    for m in range(S):
+        for n in range(S):
+            d[m, n] = (O[a, j, z] * O[a + 1, j + 1, z] * P[a, m, j] * P[a + 1, n, j + 1]
+                       - O[a, j + 1, z] * O[a + 1, j, z] * P[a, m, j + 1] * P[a + 1, n, j])
+    return d + d.T
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_d_matrices_match_paper_formula(seed):
+    model = random_model(seed, S=4, A=3, Z=3)
+    for a in range(model.A - 1):
+        D = copositivity_matrices(model, a)
+        for j in range(model.S - 1):
+            for z in range(model.Z):
+                np.testing.assert_allclose(D[j, z], paper_d_matrix(model, j, a, z), atol=1e-15)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 10_000))
+def test_d_quadratic_form_is_the_mlr_condition_of_lemma1(seed):
+    """b^T D b / 2 = eta_a eta_{a+1} [tau_{a+1}(j+1) tau_a(j) - tau_{a+1}(j) tau_a(j+1)] via the filter."""
+    rng = np.random.default_rng(seed)
+    model = random_model(seed, S=int(rng.integers(2, 6)), A=3, Z=int(rng.integers(1, 4)))
+    b = random_beliefs(rng, 1, model.S)[0]
+    for a in range(model.A - 1):
+        D = copositivity_matrices(model, a)
+        for z in range(model.Z):
+            ea, eb = observation_probabilities(model, b, a)[z], observation_probabilities(model, b, a + 1)[z]
+            ta, tb = update(model, b, a, z), update(model, b, a + 1, z)
+            for j in range(model.S - 1):
+                lhs = b @ D[j, z] @ b / 2
+                rhs = ea * eb * (tb[j + 1] * ta[j] - tb[j] * ta[j + 1])
+                assert lhs == pytest.approx(rhs, abs=1e-13)
+
+
+def test_copositivity_known_matrices():
+    rng = np.random.default_rng(0)
+    G = rng.normal(size=(6, 6))
+    psd = G @ G.T  # PSD with negative entries: needs the SDP
+    assert psd.min() < 0
+    nonneg = rng.uniform(size=(6, 6))
+    nonneg = nonneg + nonneg.T
+    not_cop = np.eye(4) - 0.5  # x = (1,1,1,1)/4 gives -1/4; every 2-support gives >= 0
+    pair_bad = np.array([[1.0, -2.0], [-2.0, 1.0]])
+    codes = classify_copositive(np.stack([psd, nonneg]))[0]
+    assert list(codes) == [PROVEN_SDP, PROVEN_ELEMENTWISE]
+    for M in (not_cop, pair_bad):
+        (code,), (x,), (val,) = classify_copositive(M[None])
+        assert code == REFUTED
+        assert np.all(x >= 0) and x.sum() == pytest.approx(1.0)
+        assert x @ M @ x == pytest.approx(val) and val < -1e-3
+    # the 1/2-supports alone cannot refute I - J/2; the search tier must
+    assert classify_copositive(not_cop[None], search=False)[0][0] == UNKNOWN
+
+
+def test_horn_matrix_is_unknown_not_refuted():
+    # Horn: copositive (x^T H x = (x1-x2+x3+x4-x5)^2 + 4 x2 x4 + 4 x3 (x5 - x4) for x5 >= x4, ...)
+    # but not PSD + N, so with S = 5 > 4 the SDP cannot prove it and no x may refute it.
+    assert not psd_plus_nonnegative(HORN)[0]
+    (code,), _, _ = classify_copositive(HORN[None], rng=np.random.default_rng(1))
+    assert code == UNKNOWN
+    (code,), _, _ = classify_copositive(HORN[None], sdp_max_states=4)
+    assert code == UNKNOWN_SDP_SKIPPED
+    xs = np.random.default_rng(2).dirichlet(np.ones(5), size=20_000)
+    assert np.einsum("nm,mk,nk->n", xs, HORN, xs).min() >= -1e-12  # sanity: sampled copositivity
+
+
+def test_sdp_certificate_exact_for_small_s():
+    """S <= 4 (Diananda): every D of these models is decided, and verdicts are consistent."""
+    rng = np.random.default_rng(7)
+    seen = set()
+    for seed in range(12):
+        model = tp2ish_model(seed)
+        rep = check_copositivity(model)
+        seen |= set(np.unique(rep.codes).tolist())
+        assert not np.any(rep.codes >= UNKNOWN)
+        xs = rng.dirichlet(np.ones(model.S), size=2000)
+        for a in range(model.A - 1):
+            D = copositivity_matrices(model, a)
+            quad = np.einsum("nm,jzmk,nk->jzn", xs, D, xs).min(axis=-1)
+            proven = rep.codes[a] <= PROVEN_SDP
+            assert np.all(quad[proven] >= -rep.tol)  # sampled: no violation of a proven D (up to tol)
+    assert {PROVEN_ELEMENTWISE, PROVEN_SDP, REFUTED} <= seen  # all three verdicts exercised
+
+
+@pytest.mark.parametrize("seed", [0, 2, 3, 5])
+def test_copositivity_verdicts_match_lemma1_through_the_filter(seed):
+    """Proven D: tau(b, a+1, z) >=_r tau(b, a, z) at (j, j+1) for random beliefs.
+    Refuted D: at x (as a belief) the two posteriors violate the MLR order at (j, j+1)."""
+    model = tp2ish_model(seed) if seed % 2 else random_model(seed)
+    rep = check_copositivity(model)
+    B = random_beliefs(np.random.default_rng(seed), 50, model.S)
+    for a, j, z in np.argwhere(rep.codes <= PROVEN_SDP):
+        for b in B:
+            ea, eb = observation_probabilities(model, b, a)[z], observation_probabilities(model, b, a + 1)[z]
+            if min(ea, eb) < 1e-12:
+                continue
+            ta, tb = update(model, b, a, z), update(model, b, a + 1, z)
+            # "proven" allows entries of D down to -tol: compare on the scale of b^T D b / 2
+            assert ea * eb * (tb[j + 1] * ta[j] - tb[j] * ta[j + 1]) >= -rep.tol
+    assert rep.refutations
+    for (a, j, z), (x, val) in rep.refutations.items():
+        assert val < -rep.tol and x @ copositivity_matrices(model, a, [j])[0, z] @ x == pytest.approx(val)
+        ta, tb = update(model, x, a, z), update(model, x, a + 1, z)
+        assert tb[j + 1] * ta[j] - tb[j] * ta[j + 1] < 0
+
+
+def test_copositivity_blocks_agree(monkeypatch):
+    model = random_model(4, S=5, A=3, Z=4)
+    whole = check_copositivity(model)
+    monkeypatch.setattr(structure, "_D_BLOCK", 30)  # one j per block
+    blocked = check_copositivity(model)
+    np.testing.assert_array_equal(whole.codes, blocked.codes)
+    np.testing.assert_array_equal(whole.min_entry, blocked.min_entry)
+
+
+# ------------------------------------------------------------------------------ (A3)
+def fosd_margin(p: np.ndarray, q: np.ndarray) -> float:
+    """min over zbar < Z-1 of CDF_p(zbar) - CDF_q(zbar): >= 0 iff q first-order dominates p."""
+    return float((np.cumsum(p)[:-1] - np.cumsum(q)[:-1]).min()) if p.size > 1 else 0.0
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.booleans())
+def test_a3_is_fosd_of_predicted_observations(seed, structured):
+    rng = np.random.default_rng(seed)
+    model = tp2ish_model(seed, S=4, A=3, Z=3) if structured else random_model(seed, S=3, A=3, Z=3)
+    rep = check_dominance(model)
+    for a in range(model.A - 1):
+        for i in range(model.S):  # point masses: exact equivalence, margin by margin
+            e = np.eye(model.S)[i]
+            m = fosd_margin(observation_probabilities(model, e, a), observation_probabilities(model, e, a + 1))
+            assert m == pytest.approx(rep.margins[a, i].min(), abs=1e-12)
+        for b in random_beliefs(rng, 20, model.S):  # eta is linear in b: margin >= worst row margin
+            m = fosd_margin(observation_probabilities(model, b, a), observation_probabilities(model, b, a + 1))
+            assert m >= rep.margins[a].min(axis=-1).min() - 1e-12
+            if rep.holds:
+                assert m >= -1e-9
+
+
+# ------------------------------------------------------------------------ reports
+@pytest.mark.parametrize("name", ["tracking_s3_info", "tracking_s8_info"])
+def test_shipped_models_satisfy_assumption_1(name):
+    model = load_model(f"{MODELS}/{name}.yaml")
+    rep = check_assumptions(model)
+    assert rep.holds and rep.status == {"A1": "holds", "A2": "holds", "A3": "holds"}
+    # with one observation model for all actions, D = O_jz O_(j+1)z (E1 - E2) and the rows of
+    # P[a+1] MLR-dominate those of P[a]: every D is proven elementwise (A2')
+    assert rep.copositivity.counts()["proven_elementwise"] == (model.A - 1) * (model.S - 1) * model.Z
+    text = rep.summary()
+    assert "HOLDS" in text and "FAILS" not in text and "Assumption 1 holds" in text
+    json.dumps(rep.to_dict())
+
+
+def test_failing_model_report():
+    good = load_model(f"{MODELS}/tracking_s8_info.yaml")
+    bad = POMDP(P=good.P[::-1], O=good.O, r=good.r, gamma=good.gamma, name="reversed")  # priorities reversed
+    rep = check_assumptions(bad)
+    assert not rep.holds
+    assert rep.status == {"A1": "holds", "A2": "fails", "A3": "fails"}
+    text = rep.summary()
+    assert "(A2) copositivity: FAILS" in text and "(A3) observation dominance: FAILS" in text
+    assert "NOT guaranteed" in text and "counterexample" in text
+    d = json.loads(json.dumps(rep.to_dict()))
+    assert d["holds"] is False and d["status"]["A2"] == "fails"
+    item = d["A2_copositivity"]["not_proven"][0]
+    a = item["priorities"][0] - 1
+    x = np.array(item["x"])
+    D = copositivity_matrices(bad, a, [item["j"]])[0, item["z"]]
+    assert x @ D @ x == pytest.approx(item["xDx"]) and item["xDx"] < 0
+    assert d["A3_dominance"]["worst_margin"] == rep.dominance.worst[0] < 0
+
+
+def test_unknown_is_not_holds():
+    # In this S = 5 model every D is elementwise non-negative except one, which only the SDP
+    # proves. Without the SDP it must stay "unknown", and the report must not claim Assumption 1.
+    model = tp2ish_model(34, S=5, A=2, Z=3)
+    full = check_assumptions(model, seed=1)
+    assert full.holds and full.copositivity.counts()["proven_sdp"] == 1
+    rep = check_assumptions(model, sdp_max_states=4, seed=1)
+    assert rep.copositivity.counts()["unknown_sdp_skipped"] == 1 and rep.copositivity.counts()["refuted"] == 0
+    assert not rep.holds and rep.status == {"A1": "holds", "A2": "unknown", "A3": "holds"}
+    text = rep.summary()
+    assert "(A2) copositivity: UNKNOWN" in text and "SDP skipped above S=4" in text
+    assert "not proven" in text and "NOT guaranteed" in text
