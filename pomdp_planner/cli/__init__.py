@@ -16,6 +16,7 @@ from ..core.model import ModelError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMANDS = [
+    "check",
     "export",
     "simulate",
 ]
