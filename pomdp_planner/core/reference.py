@@ -364,8 +364,10 @@ def prune_alpha_vectors(V: np.ndarray, labels: np.ndarray | None = None, tol: fl
     first = np.sort(first)
     V, labels = V[first], labels[first]
     # pointwise dominance (a vector <= another everywhere, by at most tol)
-    dom = np.all(V[:, None, :] <= V[None, :, :] + tol, axis=2)
+    dom = np.all(V[:, None, :] <= V[None, :, :] + tol, axis=2)  # dom[i, j]: i <= j (+tol) everywhere
     np.fill_diagonal(dom, False)
+    mutual = dom & dom.T  # equal within tol: keep the first of the two
+    dom &= ~(mutual & (np.arange(len(V))[None, :] > np.arange(len(V))[:, None]))
     keep = ~np.any(dom, axis=1)
     V, labels = V[keep], labels[keep]
     if len(V) <= 1:
