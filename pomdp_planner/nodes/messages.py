@@ -19,6 +19,12 @@ decision epoch it belongs to, and every observation carries the action it was ta
   epoch ``t``; ``t = 0`` is the prior). The data stay a plain probability vector for generic
   tools; the epoch rides in the layout so that belief and epoch arrive in one message.
 
+* **plan_info** (``std_msgs/Float64MultiArray``), one record per decision, published right after
+  the action: data ``[epoch, action_priority, depth, nodes_expanded, pruned_percent, certified,
+  time_used, latency, deadline_hit]`` with one dimension labelled with these names (comma
+  separated). ``nodes_expanded`` sums all completed depths, ``pruned_percent`` is that of the
+  deepest one, ``time_used`` is the search time and ``latency`` belief-in to action-out (s).
+
 Decoders raise :class:`MessageError` with a message that names the field and the problem.
 """
 
@@ -36,6 +42,9 @@ ACTION_LABEL = "epoch,action_priority"
 OBSERVATION_LABEL = "epoch,action_priority,observation"
 TRUE_STATE_LABEL = "epoch,state"
 BELIEF_STATE_LABEL = "state"
+PLAN_INFO_FIELDS = ("epoch", "action_priority", "depth", "nodes_expanded", "pruned_percent", "certified",
+                    "time_used", "latency", "deadline_hit")
+PLAN_INFO_LABEL = ",".join(PLAN_INFO_FIELDS)
 _EPOCH_LABEL_RE = re.compile(r"^epoch=(\d+)$")
 
 
@@ -161,3 +170,18 @@ def decode_belief(msg: Float64MultiArray, num_states: int, atol: float = 1e-6) -
         raise MessageError(f"belief: sums to {total:.9g}, not 1")
     b = np.clip(b, 0.0, None)
     return BeliefMsg(int(m.group(1)), b / b.sum())
+
+
+def encode_plan_info(**fields: float) -> Float64MultiArray:
+    msg = Float64MultiArray()
+    n = len(PLAN_INFO_FIELDS)
+    msg.layout = MultiArrayLayout(dim=[MultiArrayDimension(label=PLAN_INFO_LABEL, size=n, stride=n)], data_offset=0)
+    msg.data = [float(fields[k]) for k in PLAN_INFO_FIELDS]
+    return msg
+
+
+def decode_plan_info(msg: Float64MultiArray) -> dict[str, float]:
+    data = list(msg.data)
+    if len(data) != len(PLAN_INFO_FIELDS):
+        raise MessageError(f"plan_info: expected {len(PLAN_INFO_FIELDS)} numbers [{PLAN_INFO_LABEL}], got {len(data)}")
+    return dict(zip(PLAN_INFO_FIELDS, data, strict=True))

@@ -1,0 +1,238 @@
+"""``planner``: anytime branch-and-bound with myopic policy bounds (paper Sec. V) on each new belief.
+
+Topics (relative names, remappable):
+
+* subscribes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``, latched);
+* publishes ``action`` (``Int64MultiArray [epoch, action_priority]``, latched, depth 1) with
+  ``epoch = t + 1``: the action computed from the belief of epoch ``t`` moves the system to epoch
+  ``t + 1``; so every action names the belief it was computed from;
+* ``plan_info`` (``Float64MultiArray``, one record per decision: see ``messages``);
+* ``/diagnostics`` (``DiagnosticArray``) about once a second: depth reached, nodes expanded,
+  % pruned, whether the bounds certified the action, time used, deadline misses, the
+  assumption-check status of the model, the parameters in force.
+
+Each new belief (epoch greater than the last one planned for; a belief that fails validation is
+counted, logged and never planned for) runs ``Planner.plan(belief, max_depth, time_budget,
+use_bounds)``; the action is published within ``time_budget`` plus a small overhead (decoding,
+the last depth's bookkeeping, publishing: see README for measured latencies). A decision whose
+total time exceeds ``time_budget + deadline_slack`` counts as a deadline miss.
+
+Planning runs in its own ``MutuallyExclusiveCallbackGroup``; parameter services and diagnostics
+are in the default group, so on the ``MultiThreadedExecutor`` they are answered during a search.
+Parameter changes take effect at the next decision (``bound_variant`` re-solves the bounds then).
+
+Structural assumptions (``core.structure.check_assumptions``): if the model fails them, the node
+warns once and searches exhaustively (``use_bounds`` ignored); with
+``refuse_if_assumptions_fail`` it publishes nothing and reports ERROR in diagnostics instead.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray, Int64MultiArray
+
+from ..core.bounds import BOUND_VARIANTS
+from ..core.search import Planner
+from ..core.structure import check_assumptions
+from . import common
+from .messages import MessageError, decode_belief, encode_action, encode_plan_info
+
+TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "deadline_slack")
+
+
+class PlannerNode(Node):
+    """Planner node (see module docstring)."""
+
+    def __init__(self, node_name: str = "planner", **kwargs):
+        super().__init__(node_name, **kwargs)
+        d = common.descriptor
+        self.declare_parameter("model_file", common.DEFAULT_MODEL, d(
+            "Model YAML file (absolute, or relative to the package share dir / source tree)", read_only=True))
+        self.declare_parameter("time_budget", 0.1, d(
+            "Planning time per decision in seconds (anytime iterative deepening stops at it)",
+            float_range=(0.001, 60.0)))
+        self.declare_parameter("max_depth", 3, d("Maximum search depth (Table II convention)", int_range=(1, 50)))
+        self.declare_parameter("use_bounds", True, d("Prune with the myopic policy bounds (Sec. V)"))
+        self.declare_parameter("bound_variant", "tight", d(
+            "Bound vectors g, h to solve for", constraints=f"one of {', '.join(BOUND_VARIANTS)}"))
+        self.declare_parameter("refuse_if_assumptions_fail", False, d(
+            "If the model fails the structural assumptions: publish nothing (ERROR) instead of exhaustive search",
+            read_only=True))
+        self.declare_parameter("deadline_slack", 0.02, d(
+            "Allowed overhead (s) beyond time_budget before a decision counts as a deadline miss",
+            float_range=(0.0, 10.0)))
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        self.model = common.load_node_model(self.get_parameter("model_file").value)
+        self.params = {name: self.get_parameter(name).value for name in TUNABLE}
+        bad = self._check_values({k: v for k, v in self.params.items()})
+        if bad:
+            raise common.NodeConfigError(bad)
+        self._lock = threading.Lock()
+        self.report = check_assumptions(self.model)
+        self.refusing = False
+        if not self.report.holds:
+            if self.get_parameter("refuse_if_assumptions_fail").value:
+                self.refusing = True
+                self.get_logger().error("model fails the structural assumptions; refusing to plan "
+                                        f"(refuse_if_assumptions_fail): {self.report.summary()}")
+            else:
+                self.get_logger().warning("model fails the structural assumptions; the bounds are not valid, "
+                                          f"falling back to exhaustive search: {self.report.summary()}")
+        self._planner: Planner | None = None
+        self._planner_variant: str | None = None
+        self._bounds_ok = False
+        self._bounds_message = ""
+        self._ensure_planner(self.params["bound_variant"])
+        self.last_epoch = -1
+        self.last = None
+        self.last_latency = float("nan")
+        self.last_params: dict = {}
+        self.counts = {"decisions": 0, "deadline_misses": 0, "budget_exhausted": 0, "certified": 0,
+                       "bad_beliefs": 0, "stale_beliefs": 0}
+        self.last_warning = ""
+
+        self.action_pub = self.create_publisher(Int64MultiArray, "action", common.LATCHED_QOS)
+        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", 50)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.plan_group = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(Float64MultiArray, "belief", self._on_belief, common.LATCHED_QOS,
+                                 callback_group=self.plan_group)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f"{self.model.describe()}; assumptions {'hold' if self.report.holds else 'FAIL'}; "
+            f"bounds {self._bounds_message}; time_budget {self.params['time_budget']:g} s, "
+            f"max_depth {self.params['max_depth']}")
+
+    # ----------------------------------------------------------- parameters
+    @staticmethod
+    def _check_values(values: dict) -> str:
+        if "bound_variant" in values and values["bound_variant"] not in BOUND_VARIANTS:
+            return f"bound_variant: {values['bound_variant']!r} is not one of {list(BOUND_VARIANTS)}"
+        if "time_budget" in values and not (math.isfinite(values["time_budget"]) and values["time_budget"] > 0):
+            return f"time_budget: must be a positive number of seconds, got {values['time_budget']}"
+        return ""
+
+    def _validate_parameters(self, params) -> SetParametersResult:
+        reason = self._check_values({p.name: p.value for p in params})
+        return SetParametersResult(successful=not reason, reason=reason)
+
+    def _apply_parameters(self, params) -> None:
+        changed = {p.name: p.value for p in params if p.name in TUNABLE}
+        if changed:
+            with self._lock:
+                self.params = {**self.params, **changed}
+            self.get_logger().info(f"parameters changed {changed}; in force from the next decision")
+
+    # ----------------------------------------------------------- planning
+    def _ensure_planner(self, variant: str) -> None:
+        """(Re)build the core planner for ``variant``: bounds solved once per variant (can take a while)."""
+        if self._planner is not None and variant == self._planner_variant:
+            return
+        if self.report.holds:
+            planner = Planner.from_model(self.model, variant=variant)
+            sol = planner.bounds_solution
+            if planner.has_bounds:
+                self._bounds_message = f"{variant}: feasible"
+            else:
+                self._bounds_message = f"{variant}: infeasible ({getattr(sol, 'message', '')}); exhaustive search"
+                self.get_logger().warning(f"bounds {self._bounds_message}")
+        else:
+            planner = Planner.from_model(self.model, variant=None)
+            self._bounds_message = "not used (assumptions fail)"
+        self._bounds_ok = planner.has_bounds
+        self._planner = planner
+        self._planner_variant = variant
+
+    def _on_belief(self, msg: Float64MultiArray) -> None:
+        t0 = time.perf_counter()
+        try:
+            bel = decode_belief(msg, self.model.S)
+        except MessageError as exc:
+            with self._lock:
+                self.counts["bad_beliefs"] += 1
+                self.last_warning = f"ignored {exc}"
+            self.get_logger().warning(f"ignored {exc}; no action published")
+            return
+        if bel.epoch <= self.last_epoch:
+            with self._lock:
+                self.counts["stale_beliefs"] += 1
+            return
+        self.last_epoch = bel.epoch
+        if self.refusing:
+            return
+        with self._lock:
+            params = dict(self.params)
+        self._ensure_planner(params["bound_variant"])
+        use_bounds = bool(params["use_bounds"]) and self._bounds_ok
+        result = self._planner.plan(bel.belief, max_depth=params["max_depth"],
+                                    time_budget=params["time_budget"], use_bounds=use_bounds)
+        self.action_pub.publish(encode_action(bel.epoch + 1, int(result.priority)))
+        latency = time.perf_counter() - t0
+        pruned = result.percent_pruned[-1] if result.percent_pruned else 0.0
+        self.info_pub.publish(encode_plan_info(
+            epoch=bel.epoch + 1, action_priority=result.priority, depth=result.depth,
+            nodes_expanded=sum(result.nodes_expanded), pruned_percent=pruned, certified=result.certified,
+            time_used=result.time_used, latency=latency, deadline_hit=result.deadline_hit))
+        with self._lock:
+            self.last = result
+            self.last_latency = latency
+            self.last_params = {**params, "use_bounds_effective": use_bounds, "belief_epoch": bel.epoch}
+            self.counts["decisions"] += 1
+            self.counts["certified"] += bool(result.certified)
+            self.counts["budget_exhausted"] += bool(result.deadline_hit)
+            if latency > params["time_budget"] + params["deadline_slack"]:
+                self.counts["deadline_misses"] += 1
+                self.last_warning = (f"epoch {bel.epoch + 1}: decision took {latency * 1e3:.1f} ms "
+                                     f"(budget {params['time_budget'] * 1e3:.0f} ms)")
+
+    # ----------------------------------------------------------- diagnostics
+    def diagnostics_values(self) -> tuple[bytes, str, dict]:
+        with self._lock:
+            r, counts, lp, params = self.last, dict(self.counts), dict(self.last_params), dict(self.params)
+            latency, warning = self.last_latency, self.last_warning
+        values: dict = {"assumptions_hold": self.report.holds, "assumptions": self.report.summary(),
+                        "bounds": self._bounds_message, **{f"param.{k}": v for k, v in params.items()},
+                        **counts}
+        if r is not None:
+            values.update({
+                "last.belief_epoch": lp.get("belief_epoch"), "last.action_priority": int(r.priority),
+                "last.depth": int(r.depth), "last.nodes_expanded": int(sum(r.nodes_expanded)),
+                "last.pruned_percent": float(r.percent_pruned[-1]) if r.percent_pruned else 0.0,
+                "last.certified": bool(r.certified), "last.time_used": float(r.time_used),
+                "last.latency": float(latency), "last.deadline_hit": bool(r.deadline_hit),
+                "last.time_budget": lp.get("time_budget"), "last.max_depth": lp.get("max_depth"),
+                "last.use_bounds": lp.get("use_bounds_effective"),
+            })
+        if self.refusing:
+            return DiagnosticStatus.ERROR, "refusing to plan: model fails the structural assumptions", values
+        if not self.report.holds:
+            return DiagnosticStatus.WARN, "assumptions fail: exhaustive search", values
+        if counts["deadline_misses"] or counts["bad_beliefs"]:
+            return DiagnosticStatus.WARN, warning or "deadline misses or bad beliefs", values
+        if r is None:
+            return DiagnosticStatus.OK, "waiting for a belief", values
+        return DiagnosticStatus.OK, f"depth {r.depth}, {'certified' if r.certified else 'not certified'}", values
+
+    def _publish_diagnostics(self) -> None:
+        level, text, values = self.diagnostics_values()
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [common.status(f"{self.get_name()}: planning", self.model.name, level, text, values)]
+        self.diag_pub.publish(msg)
+
+
+def main(args=None) -> None:
+    common.main_for([PlannerNode])
+
+
+if __name__ == "__main__":
+    main()
