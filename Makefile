@@ -58,7 +58,10 @@ lint: $(DEPS_STAMP)
 	$(BIN)/ruff check .
 
 $(BIN)/python:
-	$(PYTHON) -m venv $(VENV)
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' || \
+		echo "warning: $(PYTHON) is not Python 3.11; the ROS 2 wheels are built for 3.11 only" >&2
+	$(PYTHON) -m venv $(VENV) || { rm -rf $(VENV); \
+		echo "error: cannot create $(VENV) (on Debian/Ubuntu: apt-get install python3.11-venv)" >&2; exit 1; }
 
 $(DEPS_STAMP): requirements.txt | $(BIN)/python
 	$(PIP) install -r requirements.txt

@@ -7,7 +7,7 @@ under ``share/pomdp_planner/config``. We check exactly that through ``ament_inde
 
 The package is installed into the interpreter's prefix (``make`` runs ``pip install .`` into
 ``.venv``), but nothing sets ``AMENT_PREFIX_PATH`` to a venv (there is no ROS ``setup.bash``
-there), so the fixture below appends ``sys.prefix`` to it for the test.
+there), so the fixture below puts ``sys.prefix`` in front of it for the test.
 
 A developer running pytest without having installed the package gets a skip with the reason;
 ``make test`` sets ``POMDP_PLANNER_REQUIRE_INSTALLED=1`` so that CI fails instead.
@@ -58,7 +58,8 @@ def prefix(monkeypatch) -> Path:
     except ImportError:
         _skip_or_fail("ament_index_python is not installed (it comes with the ROS wheels)")
     paths = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
-    monkeypatch.setenv("AMENT_PREFIX_PATH", os.pathsep.join([*paths, sys.prefix]))
+    # This interpreter's prefix first: that is the installation `make test` has just made.
+    monkeypatch.setenv("AMENT_PREFIX_PATH", os.pathsep.join([sys.prefix, *paths]))
     try:
         return Path(get_package_prefix(PACKAGE))
     except PackageNotFoundError:
