@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -153,11 +153,14 @@ class Planner:
 
     ``bounds`` is a :class:`MyopicBounds` (or anything with its ``actions(B, rho)``
     interface); ``None`` means :class:`TrivialBounds`, i.e. only exhaustive search.
-    ``chunk_bytes`` bounds the memory of one leaf-level chunk.
+    ``chunk_bytes`` bounds the memory of one chunk (smaller chunks: finer deadline checks).
+    ``clock`` is the wall clock used for deadlines and timings (injectable for tests).
     """
 
-    def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES):
+    def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                 clock: Callable[[], float] = time.perf_counter):
         self.model = model
+        self.clock = clock
         self.trivial = TrivialBounds(model)
         self.bounds = self.trivial if bounds is None else bounds
         if getattr(self.bounds, "model", model) is not model:
@@ -233,10 +236,10 @@ class Planner:
         """
         depth = self._check_depth(depth, "depth")
         b = check_belief(self.model, belief)
-        t0 = time.perf_counter()
+        t0 = self.clock()
         bounds = self.bounds if use_bounds else self.trivial
         q, sizes = self._run(b, depth, bounds, None)
-        t = time.perf_counter() - t0
+        t = self.clock() - t0
         return self._result(b, q, sizes, depth, bounds, t, False, (t,))
 
     def plan(self, belief: np.ndarray, max_depth: int, time_budget: float | None = None,
@@ -255,7 +258,7 @@ class Planner:
             if not time_budget >= 0.0:
                 raise ValueError(f"time_budget: must be a non-negative number of seconds, got {time_budget}")
         b = check_belief(self.model, belief)
-        t0 = time.perf_counter()
+        t0 = self.clock()
         deadline = None if time_budget is None else t0 + time_budget
         bounds = self.bounds if use_bounds else self.trivial
         best: tuple[np.ndarray, list[int], int] | None = None
@@ -264,20 +267,20 @@ class Planner:
         certified = use_bounds and self._certified(b, bounds)
         last = 1 if certified else max_depth
         for d in range(1, last + 1):
-            ts = time.perf_counter()
+            ts = self.clock()
             try:
                 q, sizes = self._run(b, d, bounds, None if d == 1 else deadline)
             except _DeadlineExceeded:
                 hit = True
                 break
             best = (q, sizes, d)
-            times.append(time.perf_counter() - ts)
-            if deadline is not None and d < last and time.perf_counter() >= deadline:
+            times.append(self.clock() - ts)
+            if deadline is not None and d < last and self.clock() >= deadline:
                 hit = True
                 break
         assert best is not None  # depth 1 runs without a deadline
         q, sizes, d = best
-        return self._result(b, q, sizes, d, bounds, time.perf_counter() - t0, hit, tuple(times))
+        return self._result(b, q, sizes, d, bounds, self.clock() - t0, hit, tuple(times))
 
     def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
         """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
@@ -356,9 +359,8 @@ class Planner:
         Q = self._values(B, rho, allowed, depth, 0, sizes, bounds, deadline)
         return Q[0], sizes
 
-    @staticmethod
-    def _check_deadline(deadline: float | None) -> None:
-        if deadline is not None and time.perf_counter() > deadline:
+    def _check_deadline(self, deadline: float | None) -> None:
+        if deadline is not None and self.clock() > deadline:
             raise _DeadlineExceeded
 
     def _values(self, B: np.ndarray, rho: np.ndarray, allowed: np.ndarray, remaining: int, level: int,
