@@ -119,13 +119,23 @@ class RosHarness:
                 self.cond.wait(min(left, 0.05))
         return True
 
+    @staticmethod
+    def wait_matched(publisher, count: int, timeout: float = 10.0) -> bool:
+        """Poll (discovery runs in DDS threads, no event to wait on) until ``count`` subscribers match."""
+        deadline = time.monotonic() + timeout
+        while publisher.get_subscription_count() < count:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.005)
+        return True
+
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=2.0)
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
         for n in self.nodes:
             n.destroy_node()
         self.context.try_shutdown()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
 
 
 def make_harness():

@@ -35,6 +35,10 @@ def start_loop(h, *, time_budget=0.02, max_depth=2, seed=3, sim_params=None, fil
     planner = h.add(PlannerNode(context=h.context, parameter_overrides=_params(
         model_file=S3, time_budget=time_budget, max_depth=max_depth, **(planner_params or {}))))
     rec = h.recorder()
+    # Start spinning only once every publisher sees its subscribers (the recorder included), so that
+    # nothing is missed: the loop cannot advance before the executor spins.
+    for pub, n in ((flt.belief_pub, 2), (planner.action_pub, 3), (sim.obs_pubs[0], 2), (sim.state_pub, 1)):
+        assert h.wait_matched(pub, n), f"{pub.topic_name}: subscribers not matched"
     h.start()
     return sim, flt, planner, rec
 
@@ -75,8 +79,9 @@ def test_closed_loop_200_epochs_pairs_and_matches_core_replay(harness):
     for t in range(1, EPOCHS + 1):
         b = update(model, b, act[t] - 1, obs[t][1])
         np.testing.assert_allclose(beliefs[t].belief, b, rtol=1e-9, atol=1e-12)
+    assert h.wait_until(lambda: rec.diag_values("belief_filter"), timeout=5)
     diag = rec.diag_values("belief_filter")
-    assert diag and all(int(d[k]) == 0 for d in diag for k in ("gaps", "conflicts", "impossible_observations"))
+    assert all(int(d[k]) == 0 for d in diag for k in ("gaps", "conflicts", "impossible_observations"))
 
 
 def test_closed_loop_timer_mode_pairs_by_carried_action(harness):
