@@ -70,7 +70,7 @@ def test_generator_form_equals_explicit_matrices():
     np.testing.assert_array_equal(custom.r, comparison_reward(4, 2, c_a=1.0, k_r=3.0))
 
 
-@pytest.mark.parametrize("start", [None, [0.25, 0.75], "uniform"])
+@pytest.mark.parametrize("start", [None, [0.25, 0.75], "uniform", "hi"])
 def test_round_trip_through_file(tmp_path, start):
     m = model_from_dict(explicit_doc(start=start, actions=["fast", "slow"], observations=["1", "2"]))
     save_model(m, tmp_path / "m.yaml")
@@ -132,6 +132,9 @@ def test_model_to_dict_is_yaml_safe():
     (explicit_doc(reward=None, reward_generator={"kind": "other"}), "reward_generator.kind: only"),
     (explicit_doc(reward=None, reward_generator={"kind": "tracking_comparison", "c_a": "x"}),
      "reward_generator: c_a, c_p, c_d, k_r must be numbers"),
+    (explicit_doc(start=[0.5, 0.6]), "start: sums to 1.1"),
+    (explicit_doc(start=[1.0]), "start: expected 2 entries"),
+    (explicit_doc(start="middle"), "start: expected a list of 2 probabilities, 'uniform' or a state name"),
 ])
 def test_errors_name_the_source_and_field(doc, pattern):
     with pytest.raises(ModelError, match=r"^my\.yaml: .*" + pattern):

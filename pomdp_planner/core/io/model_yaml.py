@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from ..belief import start_belief
 from ..domains.tracking import comparison_reward, tracking_observations, tracking_transitions
 from ..model import POMDP, ModelError
 
@@ -146,12 +147,14 @@ def _model_from_dict(doc: Any) -> POMDP:
         metadata["start"] = doc["start"]
     if "description" in doc:
         metadata["description"] = str(doc["description"])
-    return POMDP(
+    model = POMDP(
         P=P, O=O, r=r, gamma=doc["discount"], uncertainty=func, w=weights,
         epsilon=unc.get("epsilon", 1e-3), name=doc.get("name", "pomdp"),
         state_names=state_names, action_names=action_names, observation_names=obs_names,
         metadata=metadata,
     )
+    start_belief(model)  # validates 'start' now (ModelError naming the field), not at first use
+    return model
 
 
 def load_model(path: str | Path) -> POMDP:
