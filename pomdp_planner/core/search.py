@@ -52,7 +52,7 @@ import numpy as np
 
 from .belief import ETA_MIN, check_belief
 from .model import POMDP, priority_of
-from .myopic import MyopicBounds, TrivialBounds
+from .myopic import TIE_RTOL, MyopicBounds, TrivialBounds, transform_matrix
 
 #: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
 ETA_SKIP = ETA_MIN
@@ -168,6 +168,7 @@ class Planner:
             if (bm.S, bm.A, bm.Z) != (model.S, model.A, model.Z):
                 raise ValueError("bounds: built for a model of different size")
         self.bounds_solution: Any = None
+        self._bound_mats: dict[int, tuple[Any, np.ndarray]] = {}
         S, A, Z = model.S, model.A, model.Z
         P, O, r = model.P, model.O, model.r
         self._P = np.ascontiguousarray(P)
@@ -321,11 +322,40 @@ class Planner:
         A = self.model.A
         if isinstance(bounds, TrivialBounds):
             return np.ones((B.shape[0], A), dtype=bool)
-        lo, up = bounds.actions(B, rho)
+        if type(bounds) is MyopicBounds:
+            lo, up = self._myopic_actions(bounds, B, rho)
+        else:
+            lo, up = bounds.actions(B, rho)
         lo = np.asarray(lo)[:, None]
         up = np.asarray(up)[:, None]
         ar = np.arange(A)[None, :]
         return ((ar >= lo) & (ar <= up)) | (lo > up)
+
+    def _myopic_actions(self, bounds: MyopicBounds, B: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``bounds.actions(B, rho)`` computed column-wise without BLAS (same Eq. 8, same ties).
+
+        ``lower`` is the smallest and ``upper`` the largest maximiser of the transformed rewards,
+        with :data:`~pomdp_planner.core.myopic.TIE_RTOL` ties, exactly as ``MyopicBounds``.
+        """
+        key = id(bounds)
+        C = self._bound_mats.get(key)
+        if C is None or C[0] is not bounds:
+            mats = np.concatenate([transform_matrix(self.model, bounds.g), transform_matrix(self.model, bounds.h)])
+            C = (bounds, np.ascontiguousarray(mats))
+            self._bound_mats[key] = C
+        A = self.model.A
+        T = np.einsum("ks,ns->kn", C[1], B)  # (2A, n): rows b @ C_g[a], then b @ C_h[a]
+        T[:A] += rho.T
+        T[A:] += rho.T
+        out = []
+        for rows, order in ((T[:A], range(A - 1, -1, -1)), (T[A:], range(A))):
+            top = rows.max(axis=0)
+            thr = top - TIE_RTOL * np.maximum(1.0, np.abs(top))
+            act = np.zeros(B.shape[0], dtype=np.intp)
+            for a in order:  # the last assignment wins: smallest (lower) / largest (upper) maximiser
+                act[rows[a] >= thr] = a
+            out.append(act)
+        return out[0], out[1]
 
     def _result(self, b: np.ndarray, q: np.ndarray, sizes: Sequence[int], depth: int, bounds: Bounds,
                 t: float, hit: bool, times: tuple[float, ...]) -> SearchResult:
