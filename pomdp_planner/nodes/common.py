@@ -62,7 +62,7 @@ def resolve_path(path: str, field: str = "model_file") -> Path:
 
         try:
             candidates.append(Path(get_package_share_directory(PACKAGE)) / p)
-        except PackageNotFoundError:
+        except (PackageNotFoundError, OSError):  # OSError: AMENT_PREFIX_PATH unset (plain venv, source tree)
             pass
     except ImportError:  # pragma: no cover - ament_index_python ships with rclpy
         pass

@@ -1,0 +1,139 @@
+"""Node parameters: run-time changes through the parameter service, rejections, shipped YAML files."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from nodes_support import REPO, S3, make_harness
+from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
+from rclpy.parameter_client import AsyncParameterClient
+from test_nodes_closed_loop import start_loop
+
+from pomdp_planner.nodes.belief_filter import BeliefFilter
+from pomdp_planner.nodes.common import NodeConfigError
+from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.target_simulator import TargetSimulator
+
+harness = pytest.fixture(make_harness)
+NODE_CLASSES = {"target_simulator": TargetSimulator, "belief_filter": BeliefFilter, "planner": PlannerNode}
+PARAM_FILES = sorted((REPO / "config").glob("*.yaml"))
+
+
+def _result(future, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while not future.done():  # the executor spins in another thread: poll, never spin here
+        assert time.monotonic() < deadline, "parameter service did not answer"
+        time.sleep(0.005)
+    return future.result()
+
+
+def _set(client, **values):
+    res = _result(client.set_parameters([Parameter(k, value=v) for k, v in values.items()]))
+    return res.results
+
+
+def test_set_parameters_while_running_take_effect_at_next_decision(harness):
+    h = harness
+    _, _, _, rec = start_loop(h, time_budget=0.02, max_depth=2)
+    client = AsyncParameterClient(h.nodes[-1], "planner")
+    assert client.wait_for_services(timeout_sec=10.0)
+    assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=30)
+
+    results = _set(client, max_depth=1, time_budget=0.05)
+    assert all(r.successful for r in results), [r.reason for r in results]
+    got = _result(client.get_parameters(["max_depth", "time_budget"]))
+    assert [v.integer_value for v in got.values[:1]] == [1] and got.values[1].double_value == 0.05
+    n0 = len(rec.diagnostics)
+
+    def changed():
+        return any(d.get("last.max_depth") == "1" and d.get("last.time_budget") == "0.05"
+                   and d.get("last.depth") == "1" for d in rec.diag_values("planner")[n0:])
+    assert h.wait_until(changed, timeout=10), rec.diag_values("planner")[-1]
+    assert h.wait_until(lambda: len(rec.beliefs) > 60, timeout=30)  # still looping
+
+    results = _set(client, use_bounds=False, bound_variant="feasible", max_depth=3)
+    assert all(r.successful for r in results), [r.reason for r in results]
+    n1 = len(rec.diagnostics)
+    assert h.wait_until(lambda: any(d.get("last.use_bounds") == "false" and d.get("last.max_depth") == "3"
+                                    for d in rec.diag_values("planner")[n1:]), timeout=10)
+
+
+@pytest.mark.parametrize(("name", "value", "reason"), [
+    ("time_budget", 100.0, "time_budget"),       # out of the FloatingPointRange
+    ("time_budget", 0.0, "time_budget"),
+    ("max_depth", 0, "max_depth"),               # out of the IntegerRange
+    ("max_depth", 51, "max_depth"),
+    ("time_budget", "fast", "type"),             # wrong type
+    ("max_depth", 2.5, "type"),
+    ("use_bounds", 1, "type"),
+    ("bound_variant", "loose", "bound_variant"),  # not a known variant (custom validation)
+    ("model_file", "other.yaml", "read-only"),   # needs a restart
+])
+def test_invalid_parameter_values_rejected_with_reason(harness, name, value, reason):
+    h = harness
+    planner = h.add(PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3)]))
+    before = planner.get_parameter(name).value
+    client_node = h.add(rclpy_node(h))
+    client = AsyncParameterClient(client_node, "planner")
+    h.start()
+    assert client.wait_for_services(timeout_sec=10.0)
+    (res,) = _set(client, **{name: value})
+    assert not res.successful
+    assert reason.lower() in res.reason.lower(), res.reason
+    assert planner.get_parameter(name).value == before
+
+
+def rclpy_node(h):
+    from rclpy.node import Node
+
+    return Node("test_param_client", context=h.context)
+
+
+def test_bad_startup_parameters_refuse_to_start(harness):
+    h = harness
+    with pytest.raises(NodeConfigError, match="model_file"):
+        PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value="no/such/model.yaml")])
+    with pytest.raises(NodeConfigError, match="bound_variant"):
+        PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
+                                                            Parameter("bound_variant", value="loose")])
+    with pytest.raises(NodeConfigError, match="initial_state"):
+        TargetSimulator(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
+                                                                Parameter("initial_state", value=3)])
+    with pytest.raises(NodeConfigError, match="observation_model_files"):
+        BeliefFilter(context=h.context, parameter_overrides=[
+            Parameter("model_file", value=S3), Parameter("observation_topics", value=["a", "b"]),
+            Parameter("observation_model_files", value=["", "", ""])])
+
+
+def test_shipped_yaml_files_exist_for_both_models():
+    names = {p.name for p in PARAM_FILES}
+    for node in NODE_CLASSES:
+        assert {f"{node}_s3.yaml", f"{node}_s8.yaml"} <= names
+    assert {"closed_loop_s3.yaml", "closed_loop_s8.yaml"} <= names
+
+
+@pytest.mark.parametrize("path", PARAM_FILES, ids=lambda p: p.name)
+def test_shipped_yaml_loads_and_matches_declared_parameters(harness, path):
+    h = harness
+    doc = yaml.safe_load(path.read_text())
+    assert doc, f"{path.name}: no node section"
+    for section in doc:
+        node_name = section.lstrip("/")
+        assert node_name in NODE_CLASSES, f"{path.name}: unknown node {section!r}"
+        params = parameter_dict_from_yaml_file(str(path), target_nodes=[node_name])
+        assert params, f"{path.name}: {node_name}: no parameters"
+        node = h.add(NODE_CLASSES[node_name](
+            context=h.context, cli_args=["--ros-args", "--params-file", str(path)]))
+        for name, msg in params.items():
+            assert node.has_parameter(name), f"{path.name}: {node_name} declares no parameter {name!r}"
+            expected = Parameter.from_parameter_msg(msg).value
+            got = node.get_parameter(name).value
+            if isinstance(expected, list):
+                got = list(got)
+            assert got == expected, f"{path.name}: {node_name}.{name} = {got!r}, file says {expected!r}"
