@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 from pathlib import Path
 
@@ -385,3 +386,54 @@ def test_round_trip_random_models(model):
     assert back.observation_names == model.observation_names
     if "start" in model.metadata:
         np.testing.assert_allclose(back.metadata["start"], model.metadata["start"], rtol=0, atol=1e-12)
+
+
+def test_spaces_around_colons_and_trailing_wildcards():
+    # The style some writers use (e.g. pomdp-py's to_pomdp_file): spaces before ':' and element forms only.
+    text = """discount: 0.950000000
+values: reward
+states: tl tr
+actions: listen open
+observations: hl hr
+start: 0.300000000 0.700000000
+T : listen : tl : tl 1.000000000
+T : listen : tr : tr 1.000000000
+T : open : * : * 0.500000000
+O : listen : tl : hl 0.850000000
+O : listen : tl : hr 0.150000000
+O : listen : tr : hl 0.150000000
+O : listen : tr : hr 0.850000000
+O : open : * : * 0.500000000
+R : listen : * : * : *  -1.000000000
+R : open : tl : * : *  -100.000000000
+R : open : tr : * : *  10.000000000
+"""
+    m = parse_pomdp(text)
+    np.testing.assert_array_equal(m.P, [np.eye(2), np.full((2, 2), 0.5)])
+    np.testing.assert_array_equal(m.O[0], [[0.85, 0.15], [0.15, 0.85]])
+    np.testing.assert_array_equal(m.r, [[-1, -100], [-1, 10]])
+    assert m.metadata["start"] == [0.3, 0.7]
+
+
+def test_exported_numbers_follow_the_pomdp_solve_rule():
+    """pomdp-solve: every float has a digit before and after the decimal point."""
+    model = parse_pomdp(TIGER)
+    tiny = POMDP(P=model.P, O=model.O, r=model.r * 1e-7, gamma=0.95)
+    checked = 0
+    for m in (model, tiny):
+        for line in export_pomdp(m).splitlines():
+            tokens = line.split("#", 1)[0].split()
+            if not tokens:
+                continue
+            if tokens[0] in ("discount:", "R:"):
+                numbers = tokens[-1:]
+            elif tokens[0] == "start:":
+                numbers = tokens[1:]
+            elif tokens[0].endswith(":"):
+                continue  # header or T:/O: line (names or indices)
+            else:
+                numbers = tokens  # a matrix row
+            for tok in numbers:
+                assert re.fullmatch(r"-?\d+\.\d+(e[+-]\d+)?", tok), (line, tok)
+                checked += 1
+    assert checked > 20
