@@ -183,6 +183,7 @@ class Planner:
         self._O2T = np.ascontiguousarray(np.swapaxes(O * O, 1, 2))
         self._OlogOT = np.ascontiguousarray(np.swapaxes(_xlogx(O), 1, 2))
         self._w = np.asarray(model.w, dtype=float)
+        self._rT = np.ascontiguousarray(r.T)
         self._gamma = float(model.gamma)
         self._kind = model.uncertainty.name if model.uncertainty.name in ("none", "renyi2", "shannon") else "generic"
         if self._kind != "none" and not np.any(self._w):
@@ -293,8 +294,8 @@ class Planner:
         b = check_belief(self.model, belief)
         bounds = self.bounds if use_bounds else self.trivial
         sizes = [1] + [0] * depth
-        rho = self.model.rho(b[None, :])
-        self._count(b[None, :], self._allowed(bounds, b[None, :], rho), depth, 0, sizes, bounds)
+        BT = np.ascontiguousarray(b[:, None])
+        self._count(BT, self._allowed(bounds, BT, self._rho(BT)), depth, 0, sizes, bounds)
         return tuple(sizes)
 
     # --------------------------------------------------------------- internals
@@ -310,29 +311,38 @@ class Planner:
         lo, up = bounds.actions(b[None, :], self.model.rho(b[None, :]))
         return bool(lo[0] == up[0])
 
-    def _rho(self, B: np.ndarray) -> np.ndarray:
-        """``rho(b, a)`` for a batch (Eq. 3), as ``POMDP.rho`` but without multi-threaded BLAS."""
-        out = np.einsum("ns,sa->na", B, self.model.r)
-        if self.model.uncertainty.name != "none":
-            out -= self.model.uncertainty.value(B)[:, None] * self._w
+    def _rho(self, BT: np.ndarray) -> np.ndarray:
+        """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``."""
+        out = _mm(self._rT, BT)
+        kind = self._kind
+        if kind == "none":
+            return out
+        if kind == "renyi2":
+            f = -np.log(np.einsum("sn,sn->n", BT, BT))
+        elif kind == "shannon":
+            f = -_xlogx(BT).sum(axis=0)
+        else:
+            f = self.model.uncertainty.value(BT.T)
+        out -= self._w[:, None] * f[None, :]
         return out
 
-    def _allowed(self, bounds: Bounds, B: np.ndarray, rho: np.ndarray) -> np.ndarray:
-        """Boolean ``(n, A)``: actions in ``[lower(b), upper(b)]`` (all if the bounds cross)."""
-        A = self.model.A
+    def _allowed(self, bounds: Bounds, BT: np.ndarray, rhoT: np.ndarray) -> np.ndarray:
+        """Boolean ``(A, n)``: actions in ``[lower(b), upper(b)]`` (all if the bounds cross)."""
+        A, n = self.model.A, BT.shape[1]
         if isinstance(bounds, TrivialBounds):
-            return np.ones((B.shape[0], A), dtype=bool)
+            return np.ones((A, n), dtype=bool)
         if type(bounds) is MyopicBounds:
-            lo, up = self._myopic_actions(bounds, B, rho)
+            lo, up = self._myopic_actions(bounds, BT, rhoT)
         else:
-            lo, up = bounds.actions(B, rho)
-        lo = np.asarray(lo)[:, None]
-        up = np.asarray(up)[:, None]
-        ar = np.arange(A)[None, :]
+            lo, up = bounds.actions(np.ascontiguousarray(BT.T), np.ascontiguousarray(rhoT.T))
+        lo = np.asarray(lo)[None, :]
+        up = np.asarray(up)[None, :]
+        ar = np.arange(A)[:, None]
         return ((ar >= lo) & (ar <= up)) | (lo > up)
 
-    def _myopic_actions(self, bounds: MyopicBounds, B: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``bounds.actions(B, rho)`` computed column-wise without BLAS (same Eq. 8, same ties).
+    def _myopic_actions(self, bounds: MyopicBounds, BT: np.ndarray, rhoT: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """``bounds.actions`` computed column-wise without BLAS (same Eq. 8, same ties).
 
         ``lower`` is the smallest and ``upper`` the largest maximiser of the transformed rewards,
         with :data:`~pomdp_planner.core.myopic.TIE_RTOL` ties, exactly as ``MyopicBounds``.
@@ -344,14 +354,14 @@ class Planner:
             C = (bounds, np.ascontiguousarray(mats))
             self._bound_mats[key] = C
         A = self.model.A
-        T = np.einsum("ks,ns->kn", C[1], B)  # (2A, n): rows b @ C_g[a], then b @ C_h[a]
-        T[:A] += rho.T
-        T[A:] += rho.T
+        T = _mm(C[1], BT)  # (2A, n): rows b @ C_g[a], then b @ C_h[a]
+        T[:A] += rhoT
+        T[A:] += rhoT
         out = []
         for rows, order in ((T[:A], range(A - 1, -1, -1)), (T[A:], range(A))):
             top = rows.max(axis=0)
             thr = top - TIE_RTOL * np.maximum(1.0, np.abs(top))
-            act = np.zeros(B.shape[0], dtype=np.intp)
+            act = np.zeros(BT.shape[1], dtype=np.intp)
             for a in order:  # the last assignment wins: smallest (lower) / largest (upper) maximiser
                 act[rows[a] >= thr] = a
             out.append(act)
@@ -382,100 +392,98 @@ class Planner:
         )
 
     def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None) -> tuple[np.ndarray, list[int]]:
-        B = b[None, :]
-        rho = self.model.rho(B)
-        allowed = self._allowed(bounds, B, rho)
+        BT = np.ascontiguousarray(b[:, None])
+        rhoT = self._rho(BT)
         sizes = [1] + [0] * depth
-        Q = self._values(B, rho, allowed, depth, 0, sizes, bounds, deadline)
-        return Q[0], sizes
+        QT = self._values(BT, rhoT, self._allowed(bounds, BT, rhoT), depth, 0, sizes, bounds, deadline)
+        return QT[:, 0], sizes
 
     def _check_deadline(self, deadline: float | None) -> None:
         if deadline is not None and self.clock() > deadline:
             raise _DeadlineExceeded
 
-    def _values(self, B: np.ndarray, rho: np.ndarray, allowed: np.ndarray, remaining: int, level: int,
+    def _values(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray, remaining: int, level: int,
                 sizes: list[int], bounds: Bounds, deadline: float | None) -> np.ndarray:
-        """``Q(b, a)`` (``-inf`` where not allowed) for nodes ``B`` with ``remaining`` levels below."""
-        n, A = B.shape[0], self.model.A
-        Q = np.empty((n, A))
+        """``Q(b, a)`` as ``(A, n)`` (``-inf`` where not allowed) for the belief columns ``BT (S, n)``
+        with ``remaining`` action-observation levels below them (chunked, depth-first)."""
+        A, n = self.model.A, BT.shape[1]
+        QT = np.empty((A, n))
         if remaining == 1:
             step = self._leaf_chunk
             for s in range(0, n, step):
                 self._check_deadline(deadline)
-                Q[s:s + step], cnt = self._leaf_q(B[s:s + step], rho[s:s + step], allowed[s:s + step])
+                QT[:, s:s + step], cnt = self._leaf_q(BT[:, s:s + step], rhoT[:, s:s + step], allowed[:, s:s + step])
                 sizes[level + 1] += cnt
-            return Q
+            return QT
         step = self._expand_chunk
         for s in range(0, n, step):
             self._check_deadline(deadline)
-            Bp, al = B[s:s + step], allowed[s:s + step]
-            m = Bp.shape[0]
-            Bc, key, eta = self._expand(Bp, al)
-            sizes[level + 1] += Bc.shape[0]
-            rho_c = self._rho(Bc)
-            Qc = self._values(Bc, rho_c, self._allowed(bounds, Bc, rho_c), remaining - 1, level + 1, sizes,
+            al = allowed[:, s:s + step]
+            m = al.shape[1]
+            CT, key, eta = self._expand(BT[:, s:s + step], al)
+            sizes[level + 1] += CT.shape[1]
+            rho_c = self._rho(CT)
+            Qc = self._values(CT, rho_c, self._allowed(bounds, CT, rho_c), remaining - 1, level + 1, sizes,
                               bounds, deadline)
-            Vc = Qc.max(axis=1)
-            acc = np.bincount(key, weights=eta * Vc, minlength=m * A).reshape(m, A)
-            Q[s:s + step] = np.where(al, rho[s:s + step] + self._gamma * acc, -np.inf)
-        return Q
+            Vc = Qc.max(axis=0)
+            acc = np.bincount(key, weights=eta * Vc, minlength=m * A).reshape(m, A).T
+            QT[:, s:s + step] = np.where(al, rhoT[:, s:s + step] + self._gamma * acc, -np.inf)
+        return QT
 
-    def _expand(self, B: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Children of ``B`` under allowed actions and possible observations (Eqs. 1-2).
+    def _expand(self, BT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Children of the columns ``BT (S, n)`` under allowed actions and possible observations.
 
-        Returns posteriors ``(m, S)``, key ``parent * A + action`` and ``eta`` of each child.
+        Eqs. 1-2: ``b^a = b @ P[a]``, ``u = b^a * O[a][:, z]``, ``eta = sum u``, ``tau = u / eta``.
+        Returns posteriors as columns ``(S, m)``, key ``parent * A + action`` and ``eta``.
         """
-        A = self.model.A
+        S, A, Z = self.model.S, self.model.A, self.model.Z
         parts_b, parts_k, parts_e = [], [], []
         all_allowed = bool(allowed.all())
         for a in range(A):
             if all_allowed:
                 idx = None
-                Ba = np.einsum("ns,sj->nj", B, self._P[a])
+                BaT = _mm(self._PT[a], BT)
             else:
-                idx = np.flatnonzero(allowed[:, a])
+                idx = np.flatnonzero(allowed[a])
                 if idx.size == 0:
                     continue
-                Ba = np.einsum("ns,sj->nj", B[idx], self._P[a])
-            unnorm = Ba[:, None, :] * self._OT[a][None, :, :]  # (m, Z, S)
-            eta = unnorm.sum(axis=2)
-            pi, zi = np.nonzero(eta > ETA_SKIP)
-            e = eta[pi, zi]
-            parts_b.append(unnorm[pi, zi] / e[:, None])
-            parent = pi if idx is None else idx[pi]
+                BaT = _mm(self._PT[a], BT[:, idx])
+            m = BaT.shape[1]
+            unnorm = (self._O[a][:, :, None] * BaT[:, None, :]).reshape(S, Z * m)  # column z*m + parent
+            eta = unnorm.sum(axis=0)
+            ok = np.flatnonzero(eta > ETA_SKIP)
+            e = eta[ok]
+            parts_b.append(unnorm[:, ok] / e)
+            parent = ok % m if idx is None else idx[ok % m]
             parts_k.append(parent * A + a)
             parts_e.append(e)
         if not parts_b:
-            S = self.model.S
-            return np.empty((0, S)), np.empty(0, dtype=np.intp), np.empty(0)
-        return np.concatenate(parts_b), np.concatenate(parts_k), np.concatenate(parts_e)
+            return np.empty((S, 0)), np.empty(0, dtype=np.intp), np.empty(0)
+        return np.concatenate(parts_b, axis=1), np.concatenate(parts_k), np.concatenate(parts_e)
 
-    def _leaf_q(self, B: np.ndarray, rho: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int]:
+    def _leaf_q(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int]:
         """``Q(b, a) = rho(b, a) + gamma sum_z eta max_a' rho(tau(b,a,z), a')`` for leaf parents.
 
-        Fused formulas (module docstring): no posterior belief is formed. Works on the
-        transposed batch ``B^T`` (``S x n``) so that every per-leaf quantity is a contiguous
-        ``Z x n`` block. Returns ``Q`` (``-inf`` where not allowed) and the number of leaves
-        (branches with ``eta > ETA_SKIP``).
+        Fused formulas (module docstring): no posterior belief is formed; every per-leaf
+        quantity is a contiguous ``Z x n`` block. Returns ``Q`` as ``(A, n)`` (``-inf`` where
+        not allowed) and the number of leaves (branches with ``eta > ETA_SKIP``).
         """
-        n = B.shape[0]
         A, Z = self.model.A, self.model.Z
-        Q = np.full((n, A), -np.inf)
+        n = BT.shape[1]
+        QT = np.full((A, n), -np.inf)
         count = 0
         all_allowed = bool(allowed.all())
-        BT_all = np.ascontiguousarray(B.T)
         w, kind = self._w, self._kind
         for a in range(A):
             if all_allowed:
                 idx = slice(None)
-                BT = BT_all
+                Ba = _mm(self._PT[a], BT)  # predicted beliefs as columns, (S, m)
             else:
-                idx = np.flatnonzero(allowed[:, a])
+                idx = np.flatnonzero(allowed[a])
                 if idx.size == 0:
                     continue
-                BT = BT_all[:, idx]
-            BaT = _mm(self._PT[a], BT)  # predicted beliefs, (S, m)
-            XT = _mm(self._WT[a], BaT)  # rows: eta (Z), then u . r_a' for each a' (Z each)
+                Ba = _mm(self._PT[a], BT[:, idx])
+            XT = _mm(self._WT[a], Ba)  # rows: eta (Z), then u . r_a' for each a' (Z each)
             eta = XT[:Z]
             ok = eta > ETA_SKIP
             if kind == "none":
@@ -483,31 +491,31 @@ class Planner:
                 for k in range(1, A):
                     np.maximum(val, XT[Z * (1 + k):Z * (2 + k)], out=val)
             elif kind == "generic":
-                val = self._leaf_generic(BaT, a, eta, ok)
+                val = self._leaf_generic(Ba, a, eta, ok)
             else:
                 with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                     if kind == "renyi2":
-                        t = _mm(self._O2T[a], BaT * BaT)  # sum_s u_s^2, (Z, m)
+                        t = _mm(self._O2T[a], Ba * Ba)  # sum_s u_s^2, (Z, m)
                         np.divide(t, eta * eta, out=t)
                         np.log(t, out=t)
                         t *= eta  # -eta f(tau)
                     else:  # shannon
-                        t = _mm(self._OT[a], _xlogx(BaT))
-                        t += _mm(self._OlogOT[a], BaT)  # sum_s u_s log u_s
+                        t = _mm(self._OT[a], _xlogx(Ba))
+                        t += _mm(self._OlogOT[a], Ba)  # sum_s u_s log u_s
                         t -= eta * np.log(eta)  # -eta f(tau)
                     val = XT[Z:2 * Z] + w[0] * t
                     for k in range(1, A):
                         np.maximum(val, XT[Z * (1 + k):Z * (2 + k)] + w[k] * t, out=val)
                 tiny = ok & (eta < ETA_FUSED_MIN)
                 if tiny.any():
-                    val[tiny] = self._leaf_generic(BaT, a, eta, tiny)[tiny]
-            if not ok.all():
+                    val[tiny] = self._leaf_generic(Ba, a, eta, tiny)[tiny]
+            if ok.all():
+                count += ok.size
+            else:
                 val = np.where(ok, val, 0.0)
                 count += int(np.count_nonzero(ok))
-            else:
-                count += ok.size
-            Q[idx, a] = rho[idx, a] + self._gamma * val.sum(axis=0)
-        return Q, count
+            QT[a, idx] = rhoT[a, idx] + self._gamma * val.sum(axis=0)
+        return QT, count
 
     def _leaf_generic(self, BaT: np.ndarray, a: int, eta: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """``eta max_a' rho(tau, a')`` from explicit posteriors, for the ``(z, parent)`` in ``mask``."""
@@ -519,21 +527,21 @@ class Planner:
             out[zi, pi] = eta[zi, pi] * self.model.rho(tau).max(axis=1)
         return out
 
-    def _count(self, B: np.ndarray, allowed: np.ndarray, remaining: int, level: int, sizes: list[int],
+    def _count(self, BT: np.ndarray, allowed: np.ndarray, remaining: int, level: int, sizes: list[int],
                bounds: Bounds) -> None:
+        n = BT.shape[1]
         if remaining == 1:
             step = self._leaf_chunk
-            for s in range(0, B.shape[0], step):
-                Bp, al = B[s:s + step], allowed[s:s + step]
+            for s in range(0, n, step):
+                Bp, al = BT[:, s:s + step], allowed[:, s:s + step]
                 for a in range(self.model.A):
-                    idx = np.flatnonzero(al[:, a])
+                    idx = np.flatnonzero(al[a])
                     if idx.size:
-                        eta = np.einsum("ns,sz->nz", np.einsum("ns,sj->nj", Bp[idx], self._P[a]), self._O[a])
+                        eta = _mm(self._OT[a], _mm(self._PT[a], Bp[:, idx]))
                         sizes[level + 1] += int(np.count_nonzero(eta > ETA_SKIP))
             return
         step = self._expand_chunk
-        for s in range(0, B.shape[0], step):
-            Bc, _, _ = self._expand(B[s:s + step], allowed[s:s + step])
-            sizes[level + 1] += Bc.shape[0]
-            rho_c = self._rho(Bc)
-            self._count(Bc, self._allowed(bounds, Bc, rho_c), remaining - 1, level + 1, sizes, bounds)
+        for s in range(0, n, step):
+            CT, _, _ = self._expand(BT[:, s:s + step], allowed[:, s:s + step])
+            sizes[level + 1] += CT.shape[1]
+            self._count(CT, self._allowed(bounds, CT, self._rho(CT)), remaining - 1, level + 1, sizes, bounds)
