@@ -34,6 +34,7 @@ importer uses to restore them (other readers ignore comments).
 
 from __future__ import annotations
 
+import io
 import json
 import re
 import warnings
@@ -167,27 +168,48 @@ class _Tok:
     line: int
 
 
-def _tokenize(text: str) -> tuple[list[_Tok], dict]:
-    toks: list[_Tok] = []
-    meta: dict = {}
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        m = _META.match(raw.strip())
-        if m:
-            try:
-                parsed = json.loads(m.group(1))
-            except json.JSONDecodeError:
-                parsed = None
-            if isinstance(parsed, dict):
-                meta = parsed
-        code = raw.split("#", 1)[0]
-        toks.extend(_Tok(t, lineno) for t in re.findall(r":|[^\s:]+", code))
-    return toks, meta
+_TOKEN = re.compile(r":|[^\s:]+")
+
+
+class _Lexer:
+    """Streams tokens (``:`` is a token of its own) with one token of lookahead.
+
+    Tokens are produced lazily, so that a large file is never held as a list of tokens.
+    ``meta`` collects the ``# pomdp_planner: {...}`` comment (see the module docstring).
+    """
+
+    def __init__(self, text: str):
+        self.meta: dict = {}
+        self.last: _Tok | None = None  # the last token consumed
+        self._it = self._tokens(text)
+        self.head: _Tok | None = next(self._it, None)
+
+    def _tokens(self, text: str):
+        for lineno, raw in enumerate(io.StringIO(text), start=1):
+            if "#" in raw:
+                m = _META.match(raw.strip())
+                if m:
+                    try:
+                        parsed = json.loads(m.group(1))
+                    except json.JSONDecodeError:
+                        parsed = None
+                    if isinstance(parsed, dict):
+                        self.meta = parsed
+                raw = raw.split("#", 1)[0]
+            for t in _TOKEN.findall(raw):
+                yield _Tok(t, lineno)
+
+    def advance(self) -> _Tok:
+        tok = self.head
+        assert tok is not None
+        self.last = tok
+        self.head = next(self._it, None)
+        return tok
 
 
 class _Parser:
     def __init__(self, text: str, source: str):
-        self.toks, self.meta = _tokenize(text)
-        self.pos = 0
+        self.lex = _Lexer(text)
         self.source = source
         self.gamma: float | None = None
         self.sign = 1.0
@@ -199,20 +221,18 @@ class _Parser:
     # -- token helpers
     def error(self, msg: str, tok: _Tok | None = None) -> ModelError:
         if tok is None:
-            tok = self.toks[self.pos] if self.pos < len(self.toks) else None
+            tok = self.lex.head if self.lex.head is not None else self.lex.last
         where = f"line {tok.line}" if tok is not None else "end of file"
         return ModelError(f"{self.source}: {where}: {msg}")
 
     def peek(self) -> _Tok | None:
-        return self.toks[self.pos] if self.pos < len(self.toks) else None
+        return self.lex.head
 
     def next(self, what: str) -> _Tok:
         tok = self.peek()
         if tok is None:
-            last = self.toks[-1] if self.toks else None
-            raise self.error(f"unexpected end of file, expected {what}", last)
-        self.pos += 1
-        return tok
+            raise self.error(f"unexpected end of file, expected {what}", self.lex.last)
+        return self.lex.advance()
 
     def colon(self, after: str) -> None:
         tok = self.next(f"':' after {after}")
@@ -231,11 +251,11 @@ class _Parser:
             tok = self.peek()
             if tok is None or not _NUMBER.match(tok.text):
                 got = "end of file" if tok is None else repr(tok.text)
-                where = self.toks[-1] if tok is None else tok
+                where = self.lex.last if tok is None else tok
                 since = f" (entry starting on line {self.entry.line})" if self.entry.line != where.line else ""
                 raise self.error(f"{what}: expected {n} numbers, got {k} before {got}{since}", where)
             out[k] = float(tok.text)
-            self.pos += 1
+            self.lex.advance()
         tok = self.peek()
         if tok is not None and _NUMBER.match(tok.text):
             raise self.error(f"{what}: more than the expected {n} numbers", tok)
@@ -245,7 +265,7 @@ class _Parser:
         out = []
         while (tok := self.peek()) is not None and tok.text not in _SECTIONS:
             out.append(tok)
-            self.pos += 1
+            self.lex.advance()
         return out
 
     # -- header
@@ -302,7 +322,7 @@ class _Parser:
         S = self.need("states", tok)
         mode = self.peek()
         if mode is not None and mode.text in ("include", "exclude"):
-            self.pos += 1
+            self.lex.advance()
             self.colon(f"start {mode.text}")
             items = self.until_section()
             if not items:
@@ -348,17 +368,17 @@ class _Parser:
         acts = self.ref("actions")
         nxt = self.peek()
         if nxt is not None and nxt.text == ":":
-            self.pos += 1
+            self.lex.advance()
             rows = self.ref("states")
             nxt = self.peek()
             if nxt is not None and nxt.text == ":":  # element form
-                self.pos += 1
+                self.lex.advance()
                 cols = self.ref(col)
                 p = self.probs(np.array([self.number(f"{what}: probability")]), f"{what}: entry", tok)[0]
                 P[np.ix_(acts, rows, cols)] = p
             else:  # row form
                 if nxt is not None and nxt.text == "uniform":
-                    self.pos += 1
+                    self.lex.advance()
                     row = np.full(n, 1.0 / n)
                 else:
                     row = self.probs(self.numbers(n, f"{what}: row"), f"{what}: row", tok)
@@ -366,7 +386,7 @@ class _Parser:
             lines[np.ix_(acts, rows)] = tok.line
             return
         if nxt is not None and nxt.text in ("uniform", "identity"):
-            self.pos += 1
+            self.lex.advance()
             if nxt.text == "uniform":
                 M = np.full((S, n), 1.0 / n)
             else:
@@ -385,11 +405,11 @@ class _Parser:
         starts = self.ref("states")
         nxt = self.peek()
         if nxt is not None and nxt.text == ":":
-            self.pos += 1
+            self.lex.advance()
             ends = self.ref("states")
             nxt = self.peek()
             if nxt is not None and nxt.text == ":":  # element form
-                self.pos += 1
+                self.lex.advance()
                 obs = self.ref("observations")
                 v = self.number("R: value")
                 whole = len(ends) == S and len(obs) == Z
@@ -424,7 +444,7 @@ class _Parser:
         P_lines = O_lines = None
         blocks: dict = {}
         while (tok := self.peek()) is not None:
-            self.pos += 1
+            self.lex.advance()
             self.entry = tok
             t = tok.text
             if t == "discount":
@@ -499,11 +519,11 @@ class _Parser:
     def build(self, P: np.ndarray, O: np.ndarray, r: np.ndarray) -> POMDP:
         names = dict(self.names)
         for kind in ("states", "actions", "observations"):
-            orig = self.meta.get(kind)
+            orig = self.lex.meta.get(kind)
             if (isinstance(orig, list) and names[kind] is not None and len(orig) == len(names[kind])
                     and all(isinstance(x, str) for x in orig) and safe_names(orig, kind) == names[kind]):
                 names[kind] = orig
-        name = self.meta.get("name") if isinstance(self.meta.get("name"), str) else None
+        name = self.lex.meta.get("name") if isinstance(self.lex.meta.get("name"), str) else None
         if name is None:
             name = Path(self.source).stem if self.source not in ("", "<string>") else "pomdp"
         metadata: dict = {"source_format": "cassandra"}
