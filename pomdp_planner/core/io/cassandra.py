@@ -54,7 +54,8 @@ KEYWORDS = frozenset({
 #: Words that begin a new section of the file (end a list of names or numbers).
 _SECTIONS = frozenset({"discount", "values", "states", "actions", "observations", "start", "T", "O", "R"})
 _IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
-_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_INDEX = re.compile(r"^[0-9]+$")
+_NUMBER = re.compile(r"^[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?$")
 _META = re.compile(r"^#\s*pomdp_planner:\s*(\{.*\})\s*$")
 _PREFIX = {"states": "s_", "actions": "a_", "observations": "o_"}
 
@@ -215,6 +216,7 @@ class _Parser:
         self.sign = 1.0
         self.sizes: dict[str, int] = {}
         self.names: dict[str, list[str] | None] = {}
+        self.lookup: dict[str, dict[str, int]] = {}  # name -> index, per kind
         self.start: np.ndarray | None = None
         self.entry = _Tok("", 0)  # the keyword token of the entry being parsed
 
@@ -280,14 +282,15 @@ class _Parser:
         t = tok.text
         if t == "*":
             return list(range(n))
-        if t.isdigit():
+        if _INDEX.match(t):
             i = int(t)
             if i >= n:
                 raise self.error(f"{kind[:-1]} index {i} out of range 0..{n - 1}", tok)
             return [i]
+        i = self.lookup.get(kind, {}).get(t)
+        if i is not None:
+            return [i]
         names = self.names.get(kind)
-        if names is not None and t in names:
-            return [names.index(t)]
         known = f"; known names: {' '.join(names)}" if names else " (declared as a count: use 0-based indices)"
         raise self.error(f"unknown {kind[:-1]} {t!r}{known}", tok)
 
@@ -301,22 +304,24 @@ class _Parser:
         items = self.until_section()
         if not items:
             raise self.error(f"{kind}: expected a count or a list of names", tok)
-        if len(items) == 1 and items[0].text.isdigit():
+        if len(items) == 1 and _INDEX.match(items[0].text):
             n = int(items[0].text)
             if n < 1:
                 raise self.error(f"{kind}: count must be at least 1, got {n}", items[0])
             self.sizes[kind], self.names[kind] = n, None
             return
-        names = []
+        names: list[str] = []
+        lookup: dict[str, int] = {}
         for it in items:
             if _NUMBER.match(it.text) or it.text in ("*", ":") or it.text in KEYWORDS:
                 what = "a bare number" if _NUMBER.match(it.text) else "reserved"
                 raise self.error(f"{kind}: name {it.text!r} is {what}; give one count or names that start "
                                  "with a letter", it)
-            if it.text in names:
+            if it.text in lookup:
                 raise self.error(f"{kind}: name {it.text!r} appears twice", it)
+            lookup[it.text] = len(names)
             names.append(it.text)
-        self.sizes[kind], self.names[kind] = len(names), names
+        self.sizes[kind], self.names[kind], self.lookup[kind] = len(names), names, lookup
 
     def start_line(self, tok: _Tok) -> None:
         S = self.need("states", tok)
