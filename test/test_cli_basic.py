@@ -52,6 +52,22 @@ def test_simulate_json_matches_core(capsys):
     assert data["policy"] == "random" and data["seed"] == 9
 
 
+def test_simulate_policy_options(capsys, monkeypatch):
+    from pomdp_planner.core import simulate as sim
+
+    seen = {}
+
+    def factory(model, opts):
+        seen.update(opts)
+        return lambda b: int(opts["fixed"]) - 1
+
+    monkeypatch.setitem(sim.POLICIES, "fixed", sim.PolicyEntry(factory, "test policy"))
+    code, out, _ = run(capsys, "simulate", S3, "--steps", "3", "--policy", "fixed", "--option", "fixed=3",
+                       "--option", "seed=11", "--option", "label=x", "--json")
+    assert code == 0 and [row["priority"] for row in json.loads(out)["steps"]] == [3, 3, 3]
+    assert seen == {"fixed": 3, "seed": 11, "label": "x"}
+
+
 def test_simulate_initial_belief_and_state(capsys):
     code, out, _ = run(capsys, "simulate", S3, "--steps", "2", "--belief", "0,0,1", "--initial-state", "2", "--json")
     data = json.loads(out)

@@ -110,7 +110,7 @@ def test_policies_callable_object_and_registry(s3):
         return 2
 
     tr = simulate(s3, always_last, steps=4, seed=0)
-    assert tr.actions.tolist() == [2, 2, 2, 2] and len(calls) == 4
+    assert tr.actions.tolist() == [2, 2, 2, 2] and len(calls) == 4 and tr.policy == "always_last"
 
     class Obj:
         def act(self, b):

@@ -75,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
         raise ModelError(f"--policy: unknown policy {args.policy!r} (known: {', '.join(policy_names())})")
     belief = parse_belief(args.belief, model) if args.belief else None
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.
-    policy = make_policy(args.policy, model, seed=args.seed + 1, **dict(args.option))
+    options = {"seed": args.seed + 1, **dict(args.option)}
+    policy = make_policy(args.policy, model, **options)
     trace = simulate(model, policy, args.steps, seed=args.seed,
                      initial_state=_initial_state(args.initial_state, model), initial_belief=belief)
     data = trace.to_dict(model.state_names, model.observation_names)

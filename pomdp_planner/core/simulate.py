@@ -242,7 +242,10 @@ def simulate(model: POMDP, policy: Policy | str, steps: int, seed: int | None = 
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ValueError(f"steps: must be a non-negative integer, got {steps!r}")
     rng = np.random.default_rng(seed)
-    policy_name = policy if isinstance(policy, str) else getattr(policy, "name", type(policy).__name__)
+    if isinstance(policy, str):
+        policy_name = policy
+    else:
+        policy_name = getattr(policy, "name", None) or getattr(policy, "__name__", None) or type(policy).__name__
     if isinstance(policy, str):
         policy = make_policy(policy, model, seed=None if seed is None else seed + 1)
     act = _as_callable(policy)
