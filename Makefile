@@ -35,7 +35,7 @@ endif
 TEST_ENV := ROS_PYTHON_CHECK_FIELDS=1 POMDP_PLANNER_REQUIRE_INSTALLED=1
 PYTEST_ARGS ?=
 
-DEMO_CMD := $(BIN)/pomdp-planner simulate config/models/tracking_s3_info.yaml --steps 30 --seed 1 --policy myopic
+DEMO_CMD := $(BIN)/python -m pomdp_planner.nodes.demo --steps 30 --model s8
 
 .PHONY: help setup demo test lint clean
 

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..core.belief import BeliefError, check_belief, uniform_belief
+from ..core.belief import BeliefError, check_belief, start_belief, uniform_belief
 from ..core.io.model_yaml import load_model
 from ..core.model import POMDP, ModelError
 
@@ -38,7 +38,7 @@ DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
 #: Latest value for late joiners (belief, action): reliable, transient-local, depth 1.
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: Observations and true states: reliable, transient-local, the last 20 (a late filter catches up).
+#: Observations, true states, plan_info: reliable, transient-local, the last 20 (a late filter catches up).
 STREAM_QOS = QoSProfile(depth=20, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -106,16 +106,14 @@ def load_observation_models(model: POMDP, files: Sequence[str] | None, num_senso
 
 
 def initial_distribution(model: POMDP, values: Sequence[float] | None) -> np.ndarray:
-    """Parameter ``initial_distribution`` if set, else the model file's ``start`` vector, else uniform."""
+    """Parameter ``initial_distribution`` if set, else the model file's ``start`` (core), else uniform."""
     try:
         if values is not None and len(values) > 0:
             return check_belief(model, np.asarray(values, dtype=float), field="initial_distribution")
-        start = model.metadata.get("start")
-        if isinstance(start, (list, tuple)) and len(start) == model.S:
-            return check_belief(model, np.asarray(start, dtype=float), field="model start")
-    except BeliefError as exc:
+        start = start_belief(model)
+    except (BeliefError, ModelError) as exc:
         raise NodeConfigError(str(exc)) from None
-    return uniform_belief(model)
+    return uniform_belief(model) if start is None else start
 
 
 def shannon_entropy(b: np.ndarray) -> float:

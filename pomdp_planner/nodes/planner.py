@@ -106,7 +106,7 @@ class PlannerNode(Node):
         self.last_warning = ""
 
         self.action_pub = self.create_publisher(Int64MultiArray, "action", common.LATCHED_QOS)
-        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", 50)
+        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", common.STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.plan_group = MutuallyExclusiveCallbackGroup()
         self.create_subscription(Float64MultiArray, "belief", self._on_belief, common.LATCHED_QOS,
