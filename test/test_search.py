@@ -274,6 +274,22 @@ def test_exhaustive_counts_equal_formula(S: int) -> None:
     assert res.percent_pruned == (0.0,) * depth
 
 
+def test_fast_bound_actions_equal_myopic_bounds() -> None:
+    """The planner's column-wise bound actions equal ``MyopicBounds.actions`` (ties included)."""
+    bounds = model_bounds(_S8)
+    planner = Planner(_S8, bounds)
+    rng = np.random.default_rng(21)
+    B = np.vstack([rng.dirichlet(np.ones(8) * 0.3, size=2000), np.eye(8), np.full((1, 8), 1 / 8)])
+    lo, up = planner._myopic_actions(bounds, np.ascontiguousarray(B.T), _S8.rho(B).T)
+    lo_ref, up_ref = bounds.actions(B)
+    np.testing.assert_array_equal(lo, lo_ref)
+    np.testing.assert_array_equal(up, up_ref)
+    flat = POMDP(P=_S3.P, O=_S3.O, r=np.ones((3, 3)), gamma=0.9)  # all actions tie
+    tie = MyopicBounds(flat, np.zeros(3), np.zeros(3))
+    lo, up = Planner(flat, tie)._myopic_actions(tie, np.full((3, 1), 1 / 3), np.ones((3, 1)))
+    assert (int(lo[0]), int(up[0])) == (0, 2)
+
+
 def test_count_nodes_matches_search_and_nested_depths() -> None:
     planner = Planner(_S8, model_bounds(_S8))
     b = np.random.default_rng(2).dirichlet(np.ones(8))
@@ -306,6 +322,7 @@ def test_zero_probability_branches_are_skipped(uncertainty: str) -> None:
         assert np.all(np.isfinite(res.q_values))
         np.testing.assert_allclose(res.q_values, Q, rtol=1e-12, atol=1e-12)
         assert res.nodes_expanded[-1] == nodes < complete_tree_nodes(3, 3, 3)
+        assert planner.count_nodes(b, 3) == res.level_sizes
         assert res.nodes_pruned[-1] == complete_tree_nodes(3, 3, 3) - nodes
 
 

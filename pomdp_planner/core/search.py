@@ -184,6 +184,9 @@ class Planner:
         self._OlogOT = np.ascontiguousarray(np.swapaxes(_xlogx(O), 1, 2))
         self._w = np.asarray(model.w, dtype=float)
         self._rT = np.ascontiguousarray(r.T)
+        PO = P @ O  # (A, S, Z): eta(z | b, a) = b @ PO[a][:, z]
+        self._POT = np.ascontiguousarray(np.swapaxes(PO, 1, 2))
+        self._sure_obs = PO.min(axis=1) > 2.0 * ETA_SKIP  # (A, Z): possible from every belief
         self._gamma = float(model.gamma)
         self._kind = model.uncertainty.name if model.uncertainty.name in ("none", "renyi2", "shannon") else "generic"
         if self._kind != "none" and not np.any(self._w):
@@ -536,8 +539,12 @@ class Planner:
                 Bp, al = BT[:, s:s + step], allowed[:, s:s + step]
                 for a in range(self.model.A):
                     idx = np.flatnonzero(al[a])
-                    if idx.size:
-                        eta = _mm(self._OT[a], _mm(self._PT[a], Bp[:, idx]))
+                    if not idx.size:
+                        continue
+                    sure = self._sure_obs[a]  # eta >= min_s (P O)[a][s, z] > ETA_SKIP for any belief
+                    sizes[level + 1] += idx.size * int(np.count_nonzero(sure))
+                    if not sure.all():
+                        eta = _mm(self._POT[a][~sure], Bp[:, idx])
                         sizes[level + 1] += int(np.count_nonzero(eta > ETA_SKIP))
             return
         step = self._expand_chunk
