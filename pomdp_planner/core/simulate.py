@@ -192,7 +192,12 @@ class SimulationTrace:
 
     def to_dict(self, state_names: tuple[str, ...] | None = None,
                 observation_names: tuple[str, ...] | None = None) -> dict:
-        """JSON-ready record; actions as tracking priorities ``1..A`` (key ``priority``)."""
+        """JSON-ready record; actions as tracking priorities ``1..A`` (key ``priority``).
+
+        Per step: ``state`` = ``s_t``, ``next_state`` = ``s_{t+1}``, ``observation`` = ``z_{t+1}``,
+        ``belief`` = the updated belief ``b_{t+1}`` and ``entropy`` its Shannon entropy (nats),
+        ``reward`` = ``rho(b_t, a_t)``, ``state_reward`` = ``r(s_t, a_t)``; indices 0-based.
+        """
         rows = []
         for t in range(self.steps):
             row = {
