@@ -174,19 +174,25 @@ def posterior_floor(model: POMDP) -> float:
     return floor
 
 
-def random_candidate(rng: np.random.Generator, spec: ModelSpec) -> POMDP:
+def random_candidate(rng: np.random.Generator, spec: ModelSpec, epsilon: float | None = None,
+                     sharpness: float | None = None) -> POMDP:
     """One random tracking-style model (may or may not pass the filters).
 
     For Shannon entropy, ``epsilon`` is set to :func:`posterior_floor` (capped below ``1/S``)
     so that ``B_epsilon`` contains every posterior: only then does the paper's induction
-    (Corollary 1) run inside ``B_epsilon`` (see ``test_bounds_validation.py``).
+    (Corollary 1) run inside ``B_epsilon`` (see ``test_bounds_validation.py``). Passing
+    ``epsilon`` overrides that choice (to build counterexamples), ``sharpness`` the scale of
+    the kernels' exponents (default 1, and 0.3 for Shannon).
     """
     S, A, Z = spec.S, spec.A, spec.Z
-    x = np.cumsum(rng.uniform(0.3, 1.5, S))
-    y = np.cumsum(rng.uniform(0.2, 1.5, S * A)) - rng.uniform(5.0, 12.0)
+    # Shannon: flatter kernels, so that posteriors stay away from the boundary and a useful
+    # epsilon = posterior_floor exists (the gradient constant grows like log(1/epsilon)).
+    sharp = sharpness if sharpness is not None else (0.3 if spec.uncertainty == "shannon" else 1.0)
+    x = np.cumsum(rng.uniform(0.3, 1.5, S)) * sharp
+    y = (np.cumsum(rng.uniform(0.2, 1.5, S * A)) - rng.uniform(5.0, 12.0)) * sharp
     P = tracking_transitions(S, A, x, y)
-    u = np.cumsum(rng.uniform(0.5, 2.0, S))
-    v = np.cumsum(rng.uniform(0.5, 2.0, Z))
+    u = np.cumsum(rng.uniform(0.5, 2.0, S)) * sharp
+    v = np.cumsum(rng.uniform(0.5, 2.0, Z)) * sharp
     K = np.exp(np.outer(u, v) - np.outer(u, v).max(axis=1, keepdims=True))
     O = np.broadcast_to(K / K.sum(axis=1, keepdims=True), (A, S, Z)).copy()
     r = rng.uniform(0.0, 2.0, (S, A))
@@ -194,7 +200,7 @@ def random_candidate(rng: np.random.Generator, spec: ModelSpec) -> POMDP:
     m = POMDP(P=P, O=O, r=r, gamma=spec.gamma, uncertainty=spec.uncertainty, w=w,
               name=f"random_s{S}_a{A}_{spec.uncertainty}")
     if spec.uncertainty == "shannon":
-        eps = min(posterior_floor(m), 0.9 / S)
+        eps = min(posterior_floor(m), 0.9 / S) if epsilon is None else epsilon
         if eps < 1e-6:  # effectively on the boundary: B_eps would be the whole simplex
             eps = 1e-6
         m = POMDP(P=P, O=O, r=r, gamma=spec.gamma, uncertainty="shannon", w=w, epsilon=eps, name=m.name)
