@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
     if args.steps < 0:
         raise ModelError(f"--steps: must be non-negative, got {args.steps}")
-    if args.policy not in policy_names():
+    if args.policy not in POLICIES and args.policy not in policy_names():
         raise ModelError(f"--policy: unknown policy {args.policy!r} (known: {', '.join(policy_names())})")
     belief = parse_belief(args.belief, model) if args.belief else None
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.

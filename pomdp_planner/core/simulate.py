@@ -110,8 +110,13 @@ def policy_names() -> list[str]:
 
 
 def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
-    """Build the registered policy ``name`` for ``model`` (``options`` go to its factory)."""
-    _load_plugins()
+    """Build the registered policy ``name`` for ``model`` (``options`` go to its factory).
+
+    :data:`POLICY_MODULES` are imported only when ``name`` is not registered yet, so the
+    built-in policies never depend on the planners' modules.
+    """
+    if name not in POLICIES:
+        _load_plugins()
     if name not in POLICIES:
         raise ModelError(f"policy: unknown policy {name!r} (known: {', '.join(sorted(POLICIES))})")
     return POLICIES[name].factory(model, options)
