@@ -230,8 +230,8 @@ class Planner:
     def root_bounds(self, belief: np.ndarray) -> tuple[int, int]:
         """0-based ``(lower, upper)`` myopic bound actions at ``belief``."""
         b = check_belief(self.model, belief)
-        lo, up = self.bounds.actions(b[None, :], self.model.rho(b[None, :]))
-        return int(lo[0]), int(up[0])
+        rb = self._root_bounds(b, self.bounds)
+        return (0, self.model.A - 1) if rb is None else rb
 
     def search(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> SearchResult:
         """Algorithm 1 to ``depth`` action-observation levels (``Search(b, depth + 1)``).
@@ -308,11 +308,21 @@ class Planner:
             raise ValueError(f"{name}: must be an integer >= 1, got {depth!r}")
         return int(depth)
 
-    def _certified(self, b: np.ndarray, bounds: Bounds) -> bool:
+    def _root_bounds(self, b: np.ndarray, bounds: Bounds) -> tuple[int, int] | None:
+        """0-based ``(lower, upper)`` at ``b``, ``None`` for :class:`TrivialBounds`."""
         if isinstance(bounds, TrivialBounds):
-            return self.model.A == 1
-        lo, up = bounds.actions(b[None, :], self.model.rho(b[None, :]))
-        return bool(lo[0] == up[0])
+            return None
+        BT = np.ascontiguousarray(b[:, None])
+        rhoT = self._rho(BT)
+        if type(bounds) is MyopicBounds:
+            lo, up = self._myopic_actions(bounds, BT, rhoT)
+        else:
+            lo, up = bounds.actions(BT.T, rhoT.T)
+        return int(lo[0]), int(up[0])
+
+    def _certified(self, b: np.ndarray, bounds: Bounds) -> bool:
+        rb = self._root_bounds(b, bounds)
+        return self.model.A == 1 if rb is None else rb[0] == rb[1]
 
     def _rho(self, BT: np.ndarray) -> np.ndarray:
         """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``."""
@@ -361,14 +371,10 @@ class Planner:
         T[:A] += rhoT
         T[A:] += rhoT
         out = []
-        for rows, order in ((T[:A], range(A - 1, -1, -1)), (T[A:], range(A))):
+        for rows in (T[:A], T[A:][::-1]):  # upper: largest maximiser = first one in reversed order
             top = rows.max(axis=0)
-            thr = top - TIE_RTOL * np.maximum(1.0, np.abs(top))
-            act = np.zeros(BT.shape[1], dtype=np.intp)
-            for a in order:  # the last assignment wins: smallest (lower) / largest (upper) maximiser
-                act[rows[a] >= thr] = a
-            out.append(act)
-        return out[0], out[1]
+            out.append(np.argmax(rows >= top - TIE_RTOL * np.maximum(1.0, np.abs(top)), axis=0))
+        return out[0], A - 1 - out[1]
 
     def _result(self, b: np.ndarray, q: np.ndarray, sizes: Sequence[int], depth: int, bounds: Bounds,
                 t: float, hit: bool, times: tuple[float, ...]) -> SearchResult:
@@ -379,13 +385,8 @@ class Planner:
         q.setflags(write=False)
         expanded = tuple(int(sum(sizes[: i + 2])) for i in range(depth))
         pruned = tuple(complete_tree_nodes(A, Z, i + 1) - expanded[i] for i in range(depth))
-        if isinstance(bounds, TrivialBounds):
-            rb = None
-            certified = A == 1
-        else:
-            lo, up = bounds.actions(b[None, :], self.model.rho(b[None, :]))
-            rb = (int(lo[0]), int(up[0]))
-            certified = rb[0] == rb[1]
+        rb = self._root_bounds(b, bounds)
+        certified = A == 1 if rb is None else rb[0] == rb[1]
         return SearchResult(
             action=action, priority=int(priority_of(action)), q_values=q, depth=int(depth),
             nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
