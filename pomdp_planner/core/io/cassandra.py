@@ -38,8 +38,8 @@ import io
 import json
 import re
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -163,8 +163,7 @@ def save_pomdp_file(model: POMDP, path: str | Path) -> None:
 
 
 # ---------------------------------------------------------------------------- import
-@dataclass(frozen=True)
-class _Tok:
+class _Tok(NamedTuple):
     text: str
     line: int
 
