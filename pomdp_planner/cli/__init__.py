@@ -19,6 +19,8 @@ SUBCOMMANDS = [
     "check",
     "export",
     "simulate",
+    "plan",
+    "bench",
 ]
 
 

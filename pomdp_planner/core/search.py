@@ -59,7 +59,7 @@ ETA_SKIP = ETA_MIN
 #: Below this ``eta`` the fused leaf formulas are replaced by the normalised computation.
 ETA_FUSED_MIN = 1e-100
 #: Default memory budget (bytes) for one chunk of the leaf level.
-DEFAULT_CHUNK_BYTES = 32 * 2**20
+DEFAULT_CHUNK_BYTES = 16 * 2**20
 
 Bounds = MyopicBounds | TrivialBounds
 

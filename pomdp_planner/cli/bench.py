@@ -1,0 +1,31 @@
+"""``pomdp-planner bench search [--json FILE] [--quick]``: the search benchmark (paper Table II).
+
+The same as ``python bench/search_bench.py``; see ``pomdp_planner/bench/search_bench.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..bench import search_bench
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("bench", help="benchmarks (search: pruning, timings, throughput)",
+                              description="Benchmarks. 'bench search' reproduces the paper's Table II "
+                              "and measures the speed of branch-and-bound and exhaustive search.")
+    sub = p.add_subparsers(dest="bench", metavar="BENCH")
+    sub.required = True
+    s = sub.add_parser("search", help="Table II pruning, timings, agreement and throughput of the search",
+                       description=search_bench.__doc__.split("\n\n")[0])
+    search_bench.add_arguments(s)
+    s.set_defaults(func=_run_search)
+
+
+def _run_search(args: argparse.Namespace) -> int:
+    try:
+        return search_bench.run_from_args(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"pomdp-planner bench search: error: {exc}", file=sys.stderr)
+        return 2
