@@ -138,10 +138,10 @@ def minimal_bounds(model: POMDP) -> MyopicBounds | None:
     return MyopicBounds(model, vecs[0], vecs[1])
 
 
-def bounds_for(model: POMDP) -> MyopicBounds | None:
-    """Bounds through ``core/bounds.py`` when present, else :func:`minimal_bounds`."""
+def bounds_for(model: POMDP, variant: str = "tight") -> MyopicBounds | None:
+    """Bounds through ``core/bounds.py`` (``variant``) when present, else :func:`minimal_bounds`."""
     if _solve_bounds is not None:
-        sol = _solve_bounds(model)
+        sol = _solve_bounds(model, variant)
         return sol.myopic if sol.feasible else None
     return minimal_bounds(model)
 

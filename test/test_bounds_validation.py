@@ -30,6 +30,7 @@ from pomdp_planner.core.reference import (
     reference_policy,
     solve_grid,
 )
+from pomdp_planner.core.structure import check_assumptions
 
 from model_factory import (  # isort: skip
     ModelSpec, assumptions_hold, bounds_for, minimal_bounds, posterior_floor, random_candidate,
@@ -68,10 +69,11 @@ def describe(model: POMDP, bounds: MyopicBounds, ref: ReferencePolicy, k: int) -
 
 
 # ------------------------------------------------------------------ the paper's S = 3 problem
-def test_bounds_hold_on_the_paper_s3_problem():
+@pytest.mark.parametrize("variant", ["tight", "feasible"])
+def test_bounds_hold_on_the_paper_s3_problem(variant):
     model = load_model(MODELS_DIR / "tracking_s3_info.yaml")
-    assert assumptions_hold(model)
-    bounds = bounds_for(model)
+    assert check_assumptions(model).holds
+    bounds = bounds_for(model, variant)
     assert bounds is not None
     ref = reference_policy(model, 40)
     v = validate(model, bounds, ref)
@@ -167,7 +169,7 @@ def test_bounds_can_fail_when_assumption_1_fails():
         ref = reference_policy(model, 60)
         v = validate(model, bounds, ref)
         if v.violations.size:
-            assert not assumptions_hold(model)
+            assert not check_assumptions(model).holds
             k = v.violations[np.argmax(ref.gap[v.violations])]
             if ref.gap[k] > 10 * ref.tie_margin:
                 clear.append(describe(model, bounds, ref, k))
@@ -182,7 +184,9 @@ def test_reversed_action_order_breaks_a3_and_the_bounds():
     for _ in range(10):
         base = random_candidate(rng, ModelSpec(2, 2, 2, "none", 0.9))
         model = POMDP(P=base.P[::-1], O=base.O, r=base.r, gamma=base.gamma, name="reversed")
-        assert not assumptions_hold(model)
+        assert check_assumptions(base).holds
+        report = check_assumptions(model)
+        assert not report.holds and report.status["A3"] == "fails"
         bounds = minimal_bounds(model)
         if bounds is None:
             continue
