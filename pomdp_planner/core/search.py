@@ -553,3 +553,82 @@ class Planner:
             CT, _, _ = self._expand(BT[:, s:s + step], allowed[:, s:s + step])
             sizes[level + 1] += CT.shape[1]
             self._count(CT, self._allowed(bounds, CT, self._rho(CT)), remaining - 1, level + 1, sizes, bounds)
+
+
+# ------------------------------------------------------------------ simulation policies
+class SearchPolicy:
+    """A closed-loop policy that plans every step (``pomdp-planner simulate --policy bnb``).
+
+    Options: ``depth`` (fixed-depth search, default 3), or ``time_budget`` seconds of anytime
+    search up to ``max_depth`` (default 10); ``variant`` of the bounds (``tight``).
+    """
+
+    def __init__(self, planner: Planner, depth: int = 3, time_budget: float | None = None, max_depth: int = 10,
+                 use_bounds: bool = True):
+        self.planner = planner
+        self.depth = Planner._check_depth(depth, "depth")
+        self.max_depth = Planner._check_depth(max_depth, "max_depth")
+        self.time_budget = None if time_budget is None else float(time_budget)
+        self.use_bounds = use_bounds and planner.has_bounds
+        self.last: SearchResult | None = None
+
+    def act(self, belief: np.ndarray) -> int:
+        if self.time_budget is None:
+            self.last = self.planner.search(belief, self.depth, use_bounds=self.use_bounds)
+        else:
+            self.last = self.planner.plan(belief, self.max_depth, self.time_budget, use_bounds=self.use_bounds)
+        return self.last.action
+
+
+class BoundPolicy:
+    """The myopic lower or upper bound policy of Sec. IV (``--policy lower`` / ``upper``)."""
+
+    def __init__(self, bounds: MyopicBounds, which: str):
+        if which not in ("lower", "upper"):
+            raise ValueError(f"which: expected 'lower' or 'upper', got {which!r}")
+        self.bounds = bounds
+        self.which = which
+
+    def act(self, belief: np.ndarray) -> int:
+        b = np.asarray(belief, dtype=float)[None, :]
+        return int(getattr(self.bounds, self.which)(b)[0])
+
+
+def _search_policy(model: POMDP, opts: Any, use_bounds: bool) -> SearchPolicy:
+    from .model import ModelError
+
+    variant = str(opts.get("variant", "tight")) if use_bounds else None
+    planner = Planner.from_model(model, variant=variant)
+    if use_bounds and not planner.has_bounds:
+        raise ModelError(f"policy bnb: the bound LP ({variant}) is infeasible for this model: "
+                         f"{planner.bounds_solution.message}; use --policy exhaustive")
+    tb = opts.get("time_budget")
+    return SearchPolicy(planner, depth=int(opts.get("depth", 3)), time_budget=None if tb is None else float(tb),
+                        max_depth=int(opts.get("max_depth", 10)), use_bounds=use_bounds)
+
+
+def _bound_policy(model: POMDP, opts: Any, which: str) -> BoundPolicy:
+    from .bounds import solve_bounds
+    from .model import ModelError
+
+    variant = str(opts.get("variant", "tight"))
+    sol = solve_bounds(model, variant=variant)
+    if not sol.feasible or sol.myopic is None:
+        raise ModelError(f"policy {which}: the bound LP ({variant}) is infeasible for this model: {sol.message}")
+    return BoundPolicy(sol.myopic, which)
+
+
+def _register_policies() -> None:
+    from .simulate import register_policy
+
+    register_policy("bnb", lambda m, o: _search_policy(m, o, True),
+                    "branch-and-bound search, Algorithm 1 (options: depth=3 | time_budget=S, max_depth, variant)")
+    register_policy("exhaustive", lambda m, o: _search_policy(m, o, False),
+                    "exhaustive tree search (options: depth=3 | time_budget=S, max_depth)")
+    register_policy("lower", lambda m, o: _bound_policy(m, o, "lower"),
+                    "myopic lower-bound policy of Theorem 2 (option: variant)")
+    register_policy("upper", lambda m, o: _bound_policy(m, o, "upper"),
+                    "myopic upper-bound policy of Theorem 2 (option: variant)")
+
+
+_register_policies()
