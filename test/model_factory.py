@@ -3,7 +3,9 @@
 Models are tracking-style (paper Sec. VI): transitions ``exp(x_i y_j)`` with random increasing
 ``x`` (S values) and ``y`` (S*A values, so action ``a+1`` uses larger ``y`` and moves the state
 up: (A3)), and one TP2 observation kernel ``O[j, z] ~ exp(u_j v_z)`` with random increasing
-``u``, ``v`` shared by all actions (A1). Rewards and weights are random. A candidate is kept
+``u``, ``v`` shared by all actions (A1), or one such kernel per action
+(``per_action_observations``; most of those fail (A2)/(A3) and are filtered out). Rewards and
+weights are random. A candidate is kept
 only if the structural checks pass and the bound LP is feasible.
 
 Structural checks and the LP come from ``core/structure.py`` / ``core/bounds.py`` when those
@@ -154,6 +156,7 @@ class ModelSpec:
     Z: int
     uncertainty: str
     gamma: float
+    per_action_observations: bool = False  # one TP2 kernel per action (then (A2) is not trivial)
 
 
 def posterior_floor(model: POMDP) -> float:
@@ -191,10 +194,13 @@ def random_candidate(rng: np.random.Generator, spec: ModelSpec, epsilon: float |
     x = np.cumsum(rng.uniform(0.3, 1.5, S)) * sharp
     y = (np.cumsum(rng.uniform(0.2, 1.5, S * A)) - rng.uniform(5.0, 12.0)) * sharp
     P = tracking_transitions(S, A, x, y)
-    u = np.cumsum(rng.uniform(0.5, 2.0, S)) * sharp
-    v = np.cumsum(rng.uniform(0.5, 2.0, Z)) * sharp
-    K = np.exp(np.outer(u, v) - np.outer(u, v).max(axis=1, keepdims=True))
-    O = np.broadcast_to(K / K.sum(axis=1, keepdims=True), (A, S, Z)).copy()
+    kernels = []
+    for _ in range(A if spec.per_action_observations else 1):
+        u = np.cumsum(rng.uniform(0.5, 2.0, S)) * sharp
+        v = np.cumsum(rng.uniform(0.5, 2.0, Z)) * sharp
+        K = np.exp(np.outer(u, v) - np.outer(u, v).max(axis=1, keepdims=True))
+        kernels.append(K / K.sum(axis=1, keepdims=True))
+    O = np.broadcast_to(np.array(kernels), (A, S, Z)).copy()
     r = rng.uniform(0.0, 2.0, (S, A))
     w = rng.uniform(0.1, 1.5, A) if spec.uncertainty != "none" else np.zeros(A)
     m = POMDP(P=P, O=O, r=r, gamma=spec.gamma, uncertainty=spec.uncertainty, w=w,

@@ -104,6 +104,18 @@ def test_bounds_hold_on_random_models_satisfying_assumption_1(S, uncertainty):
     assert informative > 0.15 * checked  # the bounds prune actions: the check has teeth
 
 
+@pytest.mark.parametrize("uncertainty", ["renyi2", "none"])
+def test_bounds_hold_with_action_dependent_observations(uncertainty):
+    """Models with a different TP2 observation kernel per action, kept only if (A2) is proven
+    and (A3) holds (identical kernels make (A2) a condition on P alone)."""
+    models = random_valid_models(7, ModelSpec(3, 3, 3, uncertainty, 0.95, per_action_observations=True), 3)
+    for model, bounds in models:
+        assert not np.allclose(model.O[0], model.O[1])
+        ref = reference_policy(model, 24)
+        v = validate(model, bounds, ref)
+        assert v.violations.size == 0, describe(model, bounds, ref, v.violations[0])
+
+
 # ------------------------------------------------------------------ linear rewards, S = 4, 5 (exact)
 @pytest.mark.parametrize("S", [4, 5])
 def test_bounds_hold_for_linear_rewards_with_exact_solution(S):
