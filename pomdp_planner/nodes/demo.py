@@ -99,6 +99,7 @@ class Monitor:
         self.beliefs: dict[int, object] = {}
         self.states: dict[int, int] = {}
         self.info: dict[int, dict] = {}
+        self.observations: dict[int, tuple[int, int]] = {}
         self.planner_diag: dict[str, str] = {}
         S = self.model.S
         self.node.create_subscription(Float64MultiArray, "belief",
@@ -106,6 +107,7 @@ class Monitor:
         self.node.create_subscription(Int64MultiArray, "true_state",
                                       lambda msg: self.states.__setitem__(*m.decode_true_state(msg)), deep)
         self.node.create_subscription(Float64MultiArray, "plan_info", self._on_info, deep)
+        self.node.create_subscription(Int64MultiArray, "observation", self._on_observation, deep)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
         self._m = m
 
@@ -117,6 +119,10 @@ class Monitor:
         info = self._m.decode_plan_info(msg)
         self.info[int(info["epoch"])] = info
 
+    def _on_observation(self, msg):
+        obs = self._m.decode_observation(msg, self.model.A, self.model.Z)
+        self.observations[obs.epoch] = (obs.priority, obs.observation)
+
     def _on_diag(self, msg):
         for st in msg.status:
             if st.name.startswith("planner"):
@@ -126,7 +132,9 @@ class Monitor:
         self.executor.spin_once(timeout_sec=timeout)
 
     def row_ready(self, t: int) -> bool:
-        return t in self.beliefs and t in self.states and (t + 1) in self.info
+        """Belief and true state of epoch ``t`` and the observation of ``t + 1`` (it carries the action
+        chosen from that belief); the planner's ``plan_info`` is shown if it has arrived."""
+        return t in self.beliefs and t in self.states and (t + 1) in self.observations
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)
@@ -165,14 +173,20 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
         while t < steps:
             monitor.spin_once()
             while t < steps and monitor.row_ready(t):
-                b, s, info = monitor.beliefs[t], monitor.states[t], monitor.info[t + 1]
-                a = int(info["action_priority"]) - 1
+                b, s = monitor.beliefs[t], monitor.states[t]
+                a = monitor.observations[t + 1][0] - 1
+                info = monitor.info.get(t + 1)
                 mode = int(b.argmax())
                 h = shannon_entropy(b)
                 rewards.append(float(model.r[s, a] - model.w[a] * model.uncertainty.value(b)))
                 entropies.append(h)
-                print(f"{t:>4} {s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} {int(info['depth']):>5} "
-                      f"{'yes' if info['certified'] else 'no':>9} {1e3 * info['latency']:>10.1f}", file=out, flush=True)
+                if info is None:  # plan_info not received (the monitor discovered the planner late)
+                    extra_cols = f"{'-':>5} {'-':>9} {'-':>10}"
+                else:
+                    extra_cols = (f"{int(info['depth']):>5} {'yes' if info['certified'] else 'no':>9} "
+                                  f"{1e3 * info['latency']:>10.1f}")
+                print(f"{t:>4} {s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} {extra_cols}",
+                      file=out, flush=True)
                 t += 1
                 last_progress = time.monotonic()
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
