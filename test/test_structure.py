@@ -313,3 +313,48 @@ def test_unknown_is_not_holds():
     text = rep.summary()
     assert "(A2) copositivity: UNKNOWN" in text and "SDP skipped above S=4" in text
     assert "not proven" in text and "NOT guaranteed" in text
+
+
+# ------------------------------------------------------------ reduced tests for large S
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from(["tp2", "perturbed", "sparse"]))
+def test_reduced_tp2_methods_decide_like_all_minors(seed, kind):
+    rng = np.random.default_rng(seed)
+    n, m = int(rng.integers(2, 7)), int(rng.integers(2, 7))
+    M = np.exp(np.outer(np.sort(rng.uniform(-2, 2, n)), np.sort(rng.uniform(-2, 2, m))))  # TP2 kernel
+    if kind == "perturbed":
+        M[rng.integers(n), rng.integers(m)] *= rng.uniform(0.2, 5.0)
+    if kind == "sparse":
+        M = M * (rng.uniform(size=M.shape) < 0.6)
+    ref = brute_minors(M)
+    holds = min(ref.values()) >= -1e-9
+    methods = ["full", "sparse"] + (["adjacent"] if np.all(M > 0) else [])
+    for method in methods:
+        worst, rows, cols, _ = worst_tp2_minor(M, 1e-9, method)
+        assert (worst >= -1e-9) == holds, method
+        assert ref[(*rows, *cols)] == pytest.approx(worst, abs=1e-12)  # a real minor, where it says
+        if not holds and method != "adjacent":
+            assert worst == pytest.approx(min(ref.values()), abs=1e-12)  # the true worst
+
+
+def test_large_tracking_model_uses_reduced_tp2_and_ratio_test():
+    from pomdp_planner.core.domains.tracking import comparison_reward, tracking_model
+
+    model = tracking_model(48, 3, 0.8, comparison_reward(48, 3))
+    rep = check_assumptions(model)
+    assert rep.holds and rep.tp2.methods == ("adjacent", "sparse")
+    assert np.all(np.isnan(rep.copositivity.min_entry))  # every D proven by the ratio test, none built
+
+
+@pytest.mark.parametrize("seed", [1, 6])
+def test_ratio_fast_path_matches_building_every_d(seed):
+    model = random_model(seed, S=5, A=3, Z=4) if seed == 1 else tp2ish_model(seed, S=5, A=3, Z=4)
+    rep = check_copositivity(model)
+    for a in range(model.A - 1):
+        D = copositivity_matrices(model, a).reshape(-1, model.S, model.S)
+        codes, _, _ = classify_copositive(D, rng=np.random.default_rng(0))
+        np.testing.assert_array_equal(rep.codes[a].ravel(), codes)
+        mins = D.min(axis=(1, 2))
+        built = ~np.isnan(rep.min_entry[a].ravel())
+        np.testing.assert_allclose(rep.min_entry[a].ravel()[built], mins[built], atol=1e-15)
+        assert np.all(mins[~built] >= -1e-15)  # the ratio test only skips non-negative D's

@@ -54,6 +54,8 @@ from .model import POMDP
 SDP_MAX_STATES = 16
 #: Largest number of 2x2 minors (per matrix) computed in one numpy block.
 _MINOR_BLOCK = 4_000_000
+#: Matrices with at most this many 2x2 minors have all of them computed (else see tp2_method).
+TP2_FULL_MAX = 1_000_000
 #: Largest number of ``D`` entries materialised at once.
 _D_BLOCK = 4_000_000
 
@@ -93,6 +95,7 @@ class TP2Report:
     cols: tuple[int, int]
     num_negative: int
     tol: float
+    methods: tuple[str, ...] = ("full",)
 
     @property
     def status(self) -> str:
@@ -102,7 +105,7 @@ class TP2Report:
         return {
             "status": self.status, "worst_minor": self.worst_minor, "matrix": self.matrix,
             "priority": self.action + 1, "rows": list(self.rows), "cols": list(self.cols),
-            "num_negative_minors": self.num_negative, "tol": self.tol,
+            "num_negative_minors": self.num_negative, "tol": self.tol, "methods": list(self.methods),
         }
 
 
@@ -120,13 +123,8 @@ def tp2_minors(M: np.ndarray) -> np.ndarray:
     return Mi[..., :, k] * Mj[..., :, l] - Mi[..., :, l] * Mj[..., :, k]
 
 
-def worst_tp2_minor(M: np.ndarray, tol: float = 1e-9) -> tuple[float, tuple[int, int], tuple[int, int], int]:
-    """Smallest 2x2 minor of ``M``, its rows ``(i, j)``, columns ``(k, l)`` and the number of
-    minors below ``-tol``. Vectorised over blocks of row pairs (memory-bounded)."""
-    M = np.asarray(M, dtype=float)
+def _worst_minor_full(M: np.ndarray, tol: float) -> tuple[float, tuple[int, int], tuple[int, int], int]:
     n, m = M.shape
-    if n < 2 or m < 2:
-        return 0.0, (0, 0), (0, 0), 0
     ri, rj = np.triu_indices(n, 1)
     k, l = np.triu_indices(m, 1)
     Mk, Ml = M[:, k], M[:, l]  # (n, C)
@@ -136,37 +134,101 @@ def worst_tp2_minor(M: np.ndarray, tol: float = 1e-9) -> tuple[float, tuple[int,
         i, j = ri[start:start + step], rj[start:start + step]
         minors = Mk[i] * Ml[j] - Ml[i] * Mk[j]  # (block, C)
         count += int(np.count_nonzero(minors < -tol))
-        flat = int(np.argmin(minors))
-        p, q = divmod(flat, k.size)
+        p, q = divmod(int(np.argmin(minors)), k.size)
         if minors[p, q] < best:
             best, where = float(minors[p, q]), (int(i[p]), int(j[p]), q)
     q = where[2]
     return best, (where[0], where[1]), (int(k[q]), int(l[q])), count
 
 
+def _worst_minor_adjacent(M: np.ndarray, tol: float) -> tuple[float, tuple[int, int], tuple[int, int], int]:
+    """Contiguous minors only: for a matrix with positive entries, TP2 holds iff all
+    ``M[i,k] M[i+1,k+1] - M[i,k+1] M[i+1,k] >= 0`` (the ratios ``M[i+1,k] / M[i,k]`` increase in
+    ``k``, and ratios chain). The reported worst is the worst contiguous minor."""
+    minors = M[:-1, :-1] * M[1:, 1:] - M[:-1, 1:] * M[1:, :-1]
+    i, k = np.unravel_index(int(np.argmin(minors)), minors.shape)
+    return float(minors[i, k]), (int(i), int(i) + 1), (int(k), int(k) + 1), int(np.count_nonzero(minors < -tol))
+
+
+def _worst_minor_sparse(M: np.ndarray, tol: float) -> tuple[float, tuple[int, int], tuple[int, int], int]:
+    """Only minors that can be negative: ``M[i,l] > 0`` and ``M[j,k] > 0`` (``i < j``, ``k < l``);
+    every other minor is ``M[i,k] M[j,l] >= 0``. Exact for negativity; when TP2 holds the
+    reported worst is over these candidates (the minor on rows/cols (0, 1) if there are none)."""
+    r, c = np.nonzero(M > 0)
+    best, where, count = float(M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]), (0, 1, 0, 1), 0
+    step = max(1, _MINOR_BLOCK // max(1, r.size))
+    first = True
+    for start in range(0, r.size, step):
+        i, l = r[start:start + step, None], c[start:start + step, None]  # (block, 1): entry (i, l)
+        ok = (r[None, :] > i) & (c[None, :] < l)  # entry (j, k) with j > i, k < l
+        bi, bj = np.nonzero(ok)
+        if bi.size == 0:
+            continue
+        ii, ll, jj, kk = i[bi, 0], l[bi, 0], r[bj], c[bj]
+        minors = M[ii, kk] * M[jj, ll] - M[ii, ll] * M[jj, kk]
+        count += int(np.count_nonzero(minors < -tol))
+        p = int(np.argmin(minors))
+        if first or minors[p] < best:
+            best, where, first = float(minors[p]), (int(ii[p]), int(jj[p]), int(kk[p]), int(ll[p])), False
+    return best, (where[0], where[1]), (where[2], where[3]), count
+
+
+def tp2_method(M: np.ndarray, full_max: int | None = None) -> str:
+    """``"full"`` (every minor) when there are at most ``full_max`` minors, else ``"adjacent"``
+    for a matrix with positive entries and ``"sparse"`` otherwise (both exact decisions)."""
+    n, m = np.shape(M)
+    full_max = TP2_FULL_MAX if full_max is None else full_max
+    if n * (n - 1) // 2 * (m * (m - 1) // 2) <= full_max:
+        return "full"
+    return "adjacent" if np.all(np.asarray(M) > 0) else "sparse"
+
+
+def worst_tp2_minor(M: np.ndarray, tol: float = 1e-9,
+                    method: str = "auto") -> tuple[float, tuple[int, int], tuple[int, int], int]:
+    """Smallest 2x2 minor of ``M``, its rows ``(i, j)``, columns ``(k, l)`` and the number of
+    minors below ``-tol``, vectorised in memory-bounded blocks.
+
+    ``method``: ``"full"`` (all minors, the exact worst), ``"adjacent"`` (positive matrices),
+    ``"sparse"`` (minors that can be negative), or ``"auto"`` (:func:`tp2_method`). All three
+    decide TP2 exactly; only the reported worst of a TP2 matrix differs.
+    """
+    M = np.asarray(M, dtype=float)
+    n, m = M.shape
+    if n < 2 or m < 2:
+        return 0.0, (0, 0), (0, 0), 0
+    method = tp2_method(M) if method == "auto" else method
+    if method == "adjacent" and not np.all(M > 0):
+        raise ValueError("worst_tp2_minor: the adjacent-minor test needs a matrix with positive entries")
+    return {"full": _worst_minor_full, "adjacent": _worst_minor_adjacent, "sparse": _worst_minor_sparse}[method](M, tol)
+
+
 def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
     """(A1): TP2 of every ``P[a]`` (rows previous state) and ``O[a]`` (rows next state).
 
     Identical matrices (e.g. an observation model shared by all actions) are checked once.
+    Large matrices use an exact reduced test (:func:`tp2_method`).
     """
     worst = (np.inf, "transition", 0, (0, 0), (0, 0))
     total = 0
+    methods: set[str] = set()
     for label, stack in (("transition", model.P), ("observation", model.O)):
         seen: list[tuple[np.ndarray, tuple]] = []
         for a in range(stack.shape[0]):
             M = stack[a]
             cached = next((res for prev, res in seen if np.array_equal(prev, M)), None)
-            res = cached if cached is not None else worst_tp2_minor(M, tol)
             if cached is None:
-                seen.append((M, res))
-            value, rows, cols, count = res
+                method = tp2_method(M) if min(M.shape) >= 2 else "full"
+                methods.add(method)
+                cached = worst_tp2_minor(M, tol, method)
+                seen.append((M, cached))
+            value, rows, cols, count = cached
             total += count
             if value < worst[0]:
                 worst = (value, label, a, rows, cols)
     value, label, a, rows, cols = worst
     value = 0.0 if not np.isfinite(value) else value
     return TP2Report(holds=value >= -tol, worst_minor=value, matrix=label, action=a, rows=rows,
-                     cols=cols, num_negative=total, tol=tol)
+                     cols=cols, num_negative=total, tol=tol, methods=tuple(sorted(methods)))
 
 
 # =============================================================================== (A2)
@@ -317,8 +379,9 @@ class CopositivityReport:
     """(A2): the verdict for every ``D^{j,a,z}``.
 
     ``codes[a, j, z]`` is one of the status codes of :data:`STATUS_NAMES`; ``min_entry`` the
-    smallest entry of each ``D`` (A2' margin); ``refutations`` maps ``(a, j, z)`` to
-    ``(x, x^T D x)`` with ``x`` on the simplex (a belief at which Lemma 1 (L2) fails).
+    smallest entry of each ``D`` (A2' margin; NaN where a ratio test proved ``D >= 0``);
+    ``refutations`` maps ``(a, j, z)`` to ``(x, x^T D x)`` with ``x`` on the simplex (a belief
+    at which Lemma 1 (L2) fails).
     """
 
     codes: np.ndarray
@@ -351,6 +414,14 @@ class CopositivityReport:
         x, val = self.refutations[key]
         return key, x, val
 
+    def worst_entry(self) -> tuple[float, int, int, int] | None:
+        """``(value, a, j, z)`` of the most negative entry of any ``D`` that was built, or None
+        when the ratio test proved every ``D`` elementwise non-negative without building it."""
+        if self.min_entry.size == 0 or np.all(np.isnan(self.min_entry)):
+            return None
+        a, j, z = np.unravel_index(int(np.nanargmin(self.min_entry)), self.min_entry.shape)
+        return float(self.min_entry[a, j, z]), int(a), int(j), int(z)
+
     def status_of(self, a: int, j: int, z: int) -> str:
         return STATUS_NAMES[int(self.codes[a, j, z])].format(cap=self.sdp_max_states)
 
@@ -359,10 +430,10 @@ class CopositivityReport:
         undecided or refuted ``(j, a, z)`` (states/observations 0-based, actions as priorities)."""
         out: dict = {"status": self.status, "counts": self.counts(), "sdp_max_states": self.sdp_max_states,
                      "tol": self.tol}
-        if self.min_entry.size:
-            a, j, z = np.unravel_index(int(np.argmin(self.min_entry)), self.min_entry.shape)
-            out["worst_entry"] = {"value": float(self.min_entry[a, j, z]), "priorities": [int(a) + 1, int(a) + 2],
-                                  "j": int(j), "z": int(z)}
+        worst = self.worst_entry()
+        if worst is not None:
+            value, a, j, z = worst
+            out["worst_entry"] = {"value": value, "priorities": [a + 1, a + 2], "j": j, "z": z}
         listed = []
         for a, j, z in np.argwhere(self.codes >= REFUTED)[:max_listed]:
             item = {"priorities": [int(a) + 1, int(a) + 2], "j": int(j), "z": int(z),
@@ -416,35 +487,53 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     return codes, X, values
 
 
+def _rank_factors(model: POMDP, a: int, js: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``D^{j,a,z} = alpha[j,z] F1[j] - beta[j,z] F2[j]`` with ``F1 = u v^T + v u^T``,
+    ``F2 = u' v'^T + v' u'^T`` (``u = P[a,:,j]``, ``v = P[a+1,:,j+1]``, ``u' = P[a,:,j+1]``,
+    ``v' = P[a+1,:,j]``), ``alpha = O[a,j,z] O[a+1,j+1,z]``, ``beta = O[a,j+1,z] O[a+1,j,z]``."""
+    Pa, Pb, Oa, Ob = model.P[a], model.P[a + 1], model.O[a], model.O[a + 1]
+    F1 = np.einsum("mj,nj->jmn", Pa[:, js], Pb[:, js + 1])
+    F2 = np.einsum("mj,nj->jmn", Pa[:, js + 1], Pb[:, js])
+    F1 = F1 + np.swapaxes(F1, 1, 2)
+    F2 = F2 + np.swapaxes(F2, 1, 2)
+    return Oa[js] * Ob[js + 1], Oa[js + 1] * Ob[js], F1, F2
+
+
 def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
                        seed: int = 0, search: bool = True) -> CopositivityReport:
     """(A2): copositivity of every ``D^{j,a,z}`` (:func:`classify_copositive` on each).
 
-    The ``D`` are built with einsum (:func:`copositivity_matrices`) in memory-bounded blocks
-    of ``j``; only matrices that fail the elementwise test go further than a ``min``.
+    Every ``D^{j,a,z}`` is ``alpha F1 - beta F2`` with non-negative rank-2 matrices ``F1``,
+    ``F2`` that do not depend on ``z`` (:func:`_rank_factors`), so the elementwise test (A2')
+    for all ``z`` at once is a ratio test: ``D >= 0`` iff ``beta <= alpha min(F1 / F2)`` (over
+    ``F2 > 0``). That costs ``O(S^2)`` per ``(j, a)`` instead of ``O(Z S^2)``; only the ``D``
+    that fail it are built (einsum, memory-bounded blocks) and passed on. ``min_entry`` is NaN
+    where the ratio test proved ``D >= 0`` without building it.
     """
     S, A, Z = model.S, model.A, model.Z
     shape = (max(A - 1, 0), max(S - 1, 0), Z)
     codes = np.full(shape, PROVEN_ELEMENTWISE, dtype=np.int8)
-    min_entry = np.zeros(shape)
+    min_entry = np.full(shape, np.nan)
     refutations: dict = {}
     rng = np.random.default_rng(seed)
-    jstep = max(1, _D_BLOCK // max(1, Z * S * S))
+    jstep = max(1, _D_BLOCK // max(1, 3 * S * S))
+    kstep = max(1, _D_BLOCK // max(1, S * S))
     for a in range(shape[0]):
         for j0 in range(0, shape[1], jstep):
-            D = copositivity_matrices(model, a, slice(j0, j0 + jstep))  # (J, Z, S, S)
-            J = D.shape[0]
-            mins = D.min(axis=(-2, -1))
-            min_entry[a, j0:j0 + J] = mins
-            todo = np.argwhere(mins < -tol)  # (k, 2): (j - j0, z)
-            if todo.size == 0:
-                continue
-            c, X, v = classify_copositive(D[todo[:, 0], todo[:, 1]], tol, sdp_max_states, rng, search)
-            for k, (jj, z) in enumerate(todo):
-                key = (a, j0 + int(jj), int(z))
-                codes[key] = c[k]
-                if c[k] == REFUTED:
-                    refutations[key] = (X[k], float(v[k]))
+            js = np.arange(j0, min(j0 + jstep, shape[1]))
+            alpha, beta, F1, F2 = _rank_factors(model, a, js)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_elem = np.where(F2 > 0, F1 / np.where(F2 > 0, F2, 1.0), np.inf).min(axis=(1, 2))  # (J,)
+                clean = (beta == 0) | np.isinf(t_elem)[:, None] | (beta <= t_elem[:, None] * alpha)
+            todo = np.argwhere(~clean)  # (k, 2): (j - j0, z)
+            for k0 in range(0, len(todo), kstep):
+                jj, zz = todo[k0:k0 + kstep, 0], todo[k0:k0 + kstep, 1]
+                D = alpha[jj, zz, None, None] * F1[jj] - beta[jj, zz, None, None] * F2[jj]
+                min_entry[a, j0 + jj, zz] = D.min(axis=(1, 2))
+                c, X, v = classify_copositive(D, tol, sdp_max_states, rng, search)
+                codes[a, j0 + jj, zz] = c
+                for k in np.nonzero(c == REFUTED)[0]:
+                    refutations[(a, j0 + int(jj[k]), int(zz[k]))] = (X[k], float(v[k]))
     return CopositivityReport(codes=codes, min_entry=min_entry, refutations=refutations,
                               sdp_max_states=sdp_max_states, tol=tol)
 
@@ -546,10 +635,11 @@ class AssumptionReport:
         if n["unknown_sdp_skipped"]:
             detail += f", unknown {n['unknown_sdp_skipped']} (SDP skipped above S={c.sdp_max_states})"
         lines.append(f"  (A2) copositivity: {c.status.upper()} ({detail})")
-        if c.min_entry.size:
-            a, j, z = np.unravel_index(int(np.argmin(c.min_entry)), c.min_entry.shape)
-            lines.append(f"       smallest entry of any D: {c.min_entry[a, j, z]:.3g} at priorities "
-                         f"({a + 1},{a + 2}), j={j}, z={z}")
+        we = c.worst_entry()
+        if we is not None:
+            value, a, j, z = we
+            lines.append(f"       smallest entry of the D's built: {value:.3g} at priorities ({a + 1},{a + 2}), "
+                         f"j={j}, z={z}")
         worst = c.worst_refutation()
         if worst is not None:
             (a, j, z), x, val = worst
