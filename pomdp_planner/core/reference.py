@@ -44,7 +44,14 @@ the largest change of any action difference when the resolution doubles. With fi
 convergence the error left in the ``2n`` differences is at most that change, with second
 order a third of it; ``safety`` (default 2) covers the rest. Beliefs where the fine gap is
 at most ``tie_margin`` are *near-ties* and are excluded from validation; elsewhere the
-fine-grid action is the reference optimal action.
+fine-grid action is the reference optimal action. ``test/test_reference.py`` checks that the
+true error of the Q differences (against a brute-force expectimax tree and against exact
+alpha vectors) stays below this margin. On the paper's S = 3 problem the margin is 1.5e-3 at
+n = 40 (9.5e-4 at n = 60) and fewer than 0.4 % of the grid beliefs are near-ties.
+
+Cost of the exact solver: the number of alpha vectors (and LPs) per backup is problem
+dependent; with gamma <= 0.75 and S <= 5 a certified horizon of 20-30 takes well under a
+second to a few seconds. For gamma = 0.99 the a-priori certificate needs H ~ 1000 backups.
 
 Conventions: ``P[a, i, j] = P(j | i, a)``, ``O[a, j, z] = P(z | j, a)``, 0-based actions
 (see :mod:`pomdp_planner.core.model`).
