@@ -173,6 +173,17 @@ def test_grid_solution_is_a_bellman_fixed_point_off_the_grid_too():
         assert np.allclose(q, sol.Q[k], atol=1e-9)
 
 
+def test_q_values_off_the_grid():
+    model = load_model(MODELS_DIR / "tracking_s3_info.yaml")
+    sol = solve_grid(model, 20)
+    assert np.allclose(sol.q_values(sol.beliefs), sol.Q, atol=1e-9)
+    fine = solve_grid(model, 60)  # most n = 60 grid beliefs are off the n = 20 grid
+    B = fine.beliefs[::7]
+    assert np.mean(sol.grid.index_of(B) < 0) > 0.8
+    err = sol.q_values(B) - fine.Q[::7]
+    assert np.max(np.abs(err.max(1) - err.min(1))) < 0.01
+
+
 def linear_model(S: int, gamma: float, seed: int, A: int = 3) -> POMDP:
     rng = np.random.default_rng(seed)
     P = tracking_transitions(S, A, np.arange(1, S + 1) * 0.8, np.linspace(-4.0, -0.5, S * A))

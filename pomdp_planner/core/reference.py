@@ -208,6 +208,18 @@ class GridSolution:
         """Interpolated ``V`` at arbitrary beliefs ``(M, S)``."""
         return self.grid.interpolate(self.V, B)
 
+    def q_values(self, B: np.ndarray) -> np.ndarray:
+        """One exact Bellman backup of the grid ``V`` at arbitrary beliefs: ``(M, A)``.
+
+        ``Q(b, a) = rho(b, a) + gamma sum_z eta(z | b, a) V(tau(b, a, z))`` with ``V``
+        interpolated; at grid beliefs this is ``Q`` (for ``horizon=None``). Use it for the
+        reference action off the grid (e.g. at sampled reachable beliefs).
+        """
+        B = np.atleast_2d(np.asarray(B, dtype=float))
+        tau, eta = posteriors_all(self.model, B)  # (M, A, Z, S), (M, A, Z)
+        v = self.grid.interpolate(self.V, tau.reshape(-1, self.model.S)).reshape(eta.shape)
+        return self.model.rho(B) + self.model.gamma * np.sum(eta * v, axis=-1)
+
 
 def _q_gap(Q: np.ndarray) -> np.ndarray:
     if Q.shape[1] < 2:
