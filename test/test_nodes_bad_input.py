@@ -10,15 +10,18 @@ import pytest
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diagnostic_msgs.msg import DiagnosticStatus
 from nodes_support import S3, make_harness, rclpy
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension
 
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.search import Planner
 from pomdp_planner.nodes import common
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.messages import encode_belief, encode_observation
+from pomdp_planner.nodes.planner import PlannerNode
 
 harness = pytest.fixture(make_harness)
 
@@ -177,3 +180,71 @@ def test_belief_encoding_roundtrip_and_rejections():
         decode_belief(encode_belief(7, [0.5, 0.5, 0.5]), 3)
     with pytest.raises(MessageError, match="layout"):
         decode_belief(Float64MultiArray(data=[0.2, 0.3, 0.5]), 3)
+
+
+def _planner(h, model_file=S3, **params):
+    overrides = [Parameter("model_file", value=model_file)] + [Parameter(k, value=v) for k, v in params.items()]
+    return h.add(PlannerNode(context=h.context, parameter_overrides=overrides))
+
+
+def test_planner_bad_beliefs_counted_no_action_then_keeps_running(harness):
+    h = harness
+    _planner(h, time_budget=0.02, max_depth=2)
+    rec = h.recorder()
+    node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
+    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    h.start()
+    bad = [
+        encode_belief(0, [0.5, 0.5]),                # wrong length
+        encode_belief(1, [np.nan, 0.5, 0.5]),        # NaN
+        encode_belief(2, [0.7, 0.7, -0.4]),          # off the simplex
+        Float64MultiArray(data=[0.2, 0.3, 0.5]),     # no epoch in the layout
+    ]
+    for msg in bad:
+        pub.publish(msg)
+        n = bad.index(msg) + 1
+        assert h.wait_until(_counts_reach(rec, "bad_beliefs", n, "planner"), timeout=10)
+    assert rec.actions == []  # nothing published from a bad belief
+    pub.publish(encode_belief(5, [0.2, 0.3, 0.5]))
+    assert h.wait_until(lambda: len(rec.actions) == 1, timeout=10)
+    assert rec.actions[0][0] == 6 and 1 <= rec.actions[0][1] <= 3  # epoch t + 1, a priority
+    assert h.wait_until(lambda: _latest_diag(rec, "planner").get("decisions") == "1", timeout=5)
+    assert _latest_diag(rec, "planner")["_level"] == DiagnosticStatus.WARN
+
+
+@pytest.fixture
+def non_tp2_model(tmp_path):
+    """A tracking-sized model whose transitions swap states: TP2 (A1) fails."""
+    doc = {
+        "name": "swap", "discount": 0.9, "states": 2, "actions": 2, "observations": 2,
+        "transition": [[[0.1, 0.9], [0.9, 0.1]], [[0.2, 0.8], [0.8, 0.2]]],
+        "observation": [[[0.8, 0.2], [0.2, 0.8]], [[0.6, 0.4], [0.4, 0.6]]],
+        "reward": [[1.0, 0.5], [0.0, 0.6]],
+    }
+    path = tmp_path / "swap.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return str(path)
+
+
+@pytest.mark.parametrize("refuse", [False, True])
+def test_planner_assumptions_fail_exhaustive_fallback_or_refusal(harness, non_tp2_model, refuse):
+    h = harness
+    planner = _planner(h, non_tp2_model, refuse_if_assumptions_fail=refuse, max_depth=2)
+    assert not planner.report.holds
+    rec = h.recorder()
+    node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
+    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    h.start()
+    pub.publish(encode_belief(0, [0.5, 0.5]))
+    assert h.wait_until(lambda: rec.diag_values("planner"), timeout=5)
+    if refuse:
+        assert h.wait_until(lambda: _latest_diag(rec, "planner")["_level"] == DiagnosticStatus.ERROR, timeout=5)
+        assert rec.actions == []
+    else:
+        assert h.wait_until(lambda: len(rec.actions) == 1, timeout=10)
+        assert h.wait_until(lambda: _latest_diag(rec, "planner").get("last.use_bounds") == "false", timeout=5)
+        d = _latest_diag(rec, "planner")
+        assert d["_level"] == DiagnosticStatus.WARN and d["assumptions_hold"] == "false"
+        # the exhaustive fallback is the core's exhaustive search
+        expected = Planner(load_model(non_tp2_model)).plan(np.array([0.5, 0.5]), 2, use_bounds=False).priority
+        assert rec.actions[0] == (1, expected)

@@ -70,7 +70,8 @@ def resolve_path(path: str, field: str = "model_file") -> Path:
     for c in candidates:
         if c.is_file():
             return c
-    raise NodeConfigError(f"{field}: {path!r} not found (looked in {', '.join(str(c.parent) for c in candidates)})")
+    places = list(dict.fromkeys(str(c.parent) for c in candidates))
+    raise NodeConfigError(f"{field}: {path!r} not found (looked in {', '.join(places)})")
 
 
 def load_node_model(path: str, field: str = "model_file") -> POMDP:
