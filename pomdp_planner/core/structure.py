@@ -52,6 +52,8 @@ from .model import POMDP
 
 #: Default largest S for which the (A2) SDP certificate is attempted.
 SDP_MAX_STATES = 16
+#: Relative tolerance of the PSD part of a certificate: ``lambda_min(D / max|D| - N) >= -SDP_TOL``.
+SDP_TOL = 1e-7
 #: Largest number of 2x2 minors (per matrix) computed in one numpy block.
 _MINOR_BLOCK = 4_000_000
 #: Matrices with at most this many 2x2 minors have all of them computed (else see tp2_method).
@@ -67,7 +69,7 @@ UNKNOWN = 3
 UNKNOWN_SDP_SKIPPED = 4
 STATUS_NAMES = {
     PROVEN_ELEMENTWISE: "proven (A2': elementwise non-negative)",
-    PROVEN_SDP: "proven (SDP certificate D = PSD + N)",
+    PROVEN_SDP: "proven (certificate D = PSD + N, N >= 0: eigenvalues if N = 0, else SDP)",
     REFUTED: "refuted (x >= 0 with x^T D x < 0)",
     UNKNOWN: "unknown (no certificate, no counterexample found)",
     UNKNOWN_SDP_SKIPPED: "unknown (SDP skipped above S = {cap}; no counterexample found)",
@@ -331,7 +333,7 @@ def _search_counterexamples(D: np.ndarray, rng: np.random.Generator, starts: int
     return X[np.arange(B), k], vals[np.arange(B), k]
 
 
-def psd_plus_nonnegative(D: np.ndarray, tol: float = 1e-7) -> tuple[bool, float]:
+def psd_plus_nonnegative(D: np.ndarray, tol: float = SDP_TOL) -> tuple[bool, float]:
     """SDP certificate of copositivity: is ``D = PSD + N`` with ``N >= 0`` elementwise?
 
     Solves ``max t  s.t.  D/s - N - t I  PSD,  N >= 0`` with Clarabel (``s = max|D|``), then
@@ -454,11 +456,11 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     """Copositivity verdicts for a batch of symmetric matrices ``D`` of shape ``(B, S, S)``.
 
     Cheapest test first: (1) A2', ``min(D) >= -tol``, proves; (2) 1- and 2-element supports in
-    closed form refute (exact on those faces); (3) for ``S <= sdp_max_states`` the Clarabel SDP
-    ``D = PSD + N`` proves; (4) projected-gradient search on the simplex refutes (skipped with
-    ``search=False``). Returns ``(codes (B,), X (B, S), values (B,))``: the status code of
-    :data:`STATUS_NAMES` and, for refuted matrices, ``x`` on the simplex with
-    ``x^T D x = value < -tol`` (NaN elsewhere).
+    closed form refute (exact on those faces); (3) ``D`` PSD (eigenvalues, any S), or for
+    ``S <= sdp_max_states`` the Clarabel SDP ``D = PSD + N``, proves; (4) projected-gradient
+    search on the simplex refutes (skipped with ``search=False``). Returns
+    ``(codes (B,), X (B, S), values (B,))``: the status code of :data:`STATUS_NAMES` and, for
+    refuted matrices, ``x`` on the simplex with ``x^T D x = value < -tol`` (NaN elsewhere).
     """
     D = np.asarray(D, dtype=float)
     B, S, _ = D.shape
@@ -470,10 +472,15 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     if todo.size == 0:
         return codes, X, values
     Xp, vp = _pair_counterexamples(D[todo])
+    Dt = D[todo]
+    scale = np.maximum(np.abs(Dt).max(axis=(1, 2)), 1e-300)
+    psd = np.linalg.eigvalsh(Dt / scale[:, None, None])[:, 0] >= -SDP_TOL  # N = 0 certificate
     undecided = []
     for k, b in enumerate(todo):
         if vp[k] < -tol:
             codes[b], X[b], values[b] = REFUTED, Xp[k], vp[k]
+        elif psd[k]:
+            codes[b] = PROVEN_SDP
         elif S <= sdp_max_states and psd_plus_nonnegative(D[b])[0]:
             codes[b] = PROVEN_SDP
         else:
