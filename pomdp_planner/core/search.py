@@ -58,6 +58,8 @@ from .myopic import TIE_RTOL, MyopicBounds, TrivialBounds, transform_matrix
 ETA_SKIP = ETA_MIN
 #: Below this ``eta`` the fused leaf formulas are replaced by the normalised computation.
 ETA_FUSED_MIN = 1e-100
+#: Leaf chunks of at most this many parents evaluate all actions in one batch.
+LEAF_STACK_MAX = 256
 #: Default memory budget (bytes) for one chunk of the leaf level.
 DEFAULT_CHUNK_BYTES = 16 * 2**20
 
@@ -168,7 +170,7 @@ class Planner:
             if (bm.S, bm.A, bm.Z) != (model.S, model.A, model.Z):
                 raise ValueError("bounds: built for a model of different size")
         self.bounds_solution: Any = None
-        self._bound_mats: dict[int, tuple[Any, np.ndarray]] = {}
+        self._bound_cache: tuple[Any, np.ndarray] | None = None
         S, A, Z = model.S, model.A, model.Z
         P, O, r = model.P, model.O, model.r
         self._P = np.ascontiguousarray(P)
@@ -180,6 +182,8 @@ class Planner:
         self._WT = np.ascontiguousarray(
             np.concatenate([np.swapaxes(O, 1, 2)] + [np.swapaxes(OR[:, k], 1, 2) for k in range(A)], axis=1))
         self._PT = np.ascontiguousarray(np.swapaxes(P, 1, 2))
+        self._PTs = self._PT.reshape(A * S, S)  # stacked P[a]^T
+        self._OS = np.ascontiguousarray(np.swapaxes(O, 0, 1))  # (S, A, Z)
         self._O2T = np.ascontiguousarray(np.swapaxes(O * O, 1, 2))
         self._OlogOT = np.ascontiguousarray(np.swapaxes(_xlogx(O), 1, 2))
         self._w = np.asarray(model.w, dtype=float)
@@ -243,9 +247,9 @@ class Planner:
         b = check_belief(self.model, belief)
         t0 = self.clock()
         bounds = self.bounds if use_bounds else self.trivial
-        q, sizes = self._run(b, depth, bounds, None)
+        q, sizes, rb = self._run(b, depth, bounds, None)
         t = self.clock() - t0
-        return self._result(b, q, sizes, depth, bounds, t, False, (t,))
+        return self._result(q, sizes, depth, rb, t, False, (t,))
 
     def plan(self, belief: np.ndarray, max_depth: int, time_budget: float | None = None,
              use_bounds: bool = True) -> SearchResult:
@@ -266,7 +270,7 @@ class Planner:
         t0 = self.clock()
         deadline = None if time_budget is None else t0 + time_budget
         bounds = self.bounds if use_bounds else self.trivial
-        best: tuple[np.ndarray, list[int], int] | None = None
+        best: tuple[np.ndarray, list[int], int, tuple[int, int] | None] | None = None
         hit = False
         times: list[float] = []
         certified = use_bounds and self._certified(b, bounds)
@@ -274,18 +278,18 @@ class Planner:
         for d in range(1, last + 1):
             ts = self.clock()
             try:
-                q, sizes = self._run(b, d, bounds, None if d == 1 else deadline)
+                q, sizes, rb = self._run(b, d, bounds, None if d == 1 else deadline)
             except _DeadlineExceeded:
                 hit = True
                 break
-            best = (q, sizes, d)
+            best = (q, sizes, d, rb)
             times.append(self.clock() - ts)
             if deadline is not None and d < last and self.clock() >= deadline:
                 hit = True
                 break
         assert best is not None  # depth 1 runs without a deadline
-        q, sizes, d = best
-        return self._result(b, q, sizes, d, bounds, self.clock() - t0, hit, tuple(times))
+        q, sizes, d, rb = best
+        return self._result(q, sizes, d, rb, self.clock() - t0, hit, tuple(times))
 
     def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
         """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
@@ -360,23 +364,20 @@ class Planner:
         ``lower`` is the smallest and ``upper`` the largest maximiser of the transformed rewards,
         with :data:`~pomdp_planner.core.myopic.TIE_RTOL` ties, exactly as ``MyopicBounds``.
         """
-        key = id(bounds)
-        C = self._bound_mats.get(key)
-        if C is None or C[0] is not bounds:
-            mats = np.concatenate([transform_matrix(self.model, bounds.g), transform_matrix(self.model, bounds.h)])
-            C = (bounds, np.ascontiguousarray(mats))
-            self._bound_mats[key] = C
+        cache = self._bound_cache
+        if cache is None or cache[0] is not bounds:
+            Ch = transform_matrix(self.model, bounds.h)[::-1]  # upper: actions in reversed order
+            cache = (bounds, np.ascontiguousarray(np.concatenate([transform_matrix(self.model, bounds.g), Ch])))
+            self._bound_cache = cache
         A = self.model.A
-        T = _mm(C[1], BT)  # (2A, n): rows b @ C_g[a], then b @ C_h[a]
-        T[:A] += rhoT
-        T[A:] += rhoT
-        out = []
-        for rows in (T[:A], T[A:][::-1]):  # upper: largest maximiser = first one in reversed order
-            top = rows.max(axis=0)
-            out.append(np.argmax(rows >= top - TIE_RTOL * np.maximum(1.0, np.abs(top)), axis=0))
-        return out[0], A - 1 - out[1]
+        T = _mm(cache[1], BT).reshape(2, A, -1)  # b @ C_g[a]; b @ C_h[A-1-a]
+        T[0] += rhoT
+        T[1] += rhoT[::-1]
+        top = T.max(axis=1, keepdims=True)
+        first = np.argmax(T >= top - TIE_RTOL * np.maximum(1.0, np.abs(top)), axis=1)  # first maximiser
+        return first[0], A - 1 - first[1]  # smallest maximiser of rho_lower, largest of rho_upper
 
-    def _result(self, b: np.ndarray, q: np.ndarray, sizes: Sequence[int], depth: int, bounds: Bounds,
+    def _result(self, q: np.ndarray, sizes: Sequence[int], depth: int, rb: tuple[int, int] | None,
                 t: float, hit: bool, times: tuple[float, ...]) -> SearchResult:
         A, Z = self.model.A, self.model.Z
         finite = np.isfinite(q)
@@ -385,22 +386,28 @@ class Planner:
         q.setflags(write=False)
         expanded = tuple(int(sum(sizes[: i + 2])) for i in range(depth))
         pruned = tuple(complete_tree_nodes(A, Z, i + 1) - expanded[i] for i in range(depth))
-        rb = self._root_bounds(b, bounds)
         certified = A == 1 if rb is None else rb[0] == rb[1]
         return SearchResult(
             action=action, priority=int(priority_of(action)), q_values=q, depth=int(depth),
             nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
             time_used=float(t), deadline_hit=bool(hit), value=float(q[action]),
-            level_sizes=tuple(int(x) for x in sizes), used_bounds=not isinstance(bounds, TrivialBounds),
+            level_sizes=tuple(int(x) for x in sizes), used_bounds=rb is not None,
             depth_times=times,
         )
 
-    def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None) -> tuple[np.ndarray, list[int]]:
+    def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None
+             ) -> tuple[np.ndarray, list[int], tuple[int, int] | None]:
+        """Root Q values, level sizes and root bounds of the depth-``depth`` search."""
         BT = np.ascontiguousarray(b[:, None])
         rhoT = self._rho(BT)
+        allowed = self._allowed(bounds, BT, rhoT)
+        rb = None
+        if not isinstance(bounds, TrivialBounds):
+            ok = np.flatnonzero(allowed[:, 0])
+            rb = (int(ok[0]), int(ok[-1])) if ok.size < self.model.A else self._root_bounds(b, bounds)
         sizes = [1] + [0] * depth
-        QT = self._values(BT, rhoT, self._allowed(bounds, BT, rhoT), depth, 0, sizes, bounds, deadline)
-        return QT[:, 0], sizes
+        QT = self._values(BT, rhoT, allowed, depth, 0, sizes, bounds, deadline)
+        return QT[:, 0], sizes, rb
 
     def _check_deadline(self, deadline: float | None) -> None:
         if deadline is not None and self.clock() > deadline:
@@ -437,33 +444,21 @@ class Planner:
     def _expand(self, BT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Children of the columns ``BT (S, n)`` under allowed actions and possible observations.
 
-        Eqs. 1-2: ``b^a = b @ P[a]``, ``u = b^a * O[a][:, z]``, ``eta = sum u``, ``tau = u / eta``.
-        Returns posteriors as columns ``(S, m)``, key ``parent * A + action`` and ``eta``.
+        Eqs. 1-2: ``b^a = b @ P[a]``, ``u = b^a * O[a][:, z]``, ``eta = sum u``, ``tau = u / eta``,
+        for all actions at once (then the allowed, possible ones are kept). Returns posteriors as
+        columns ``(S, m)`` ordered by (action, observation, parent), key ``parent * A + action``
+        and ``eta``.
         """
         S, A, Z = self.model.S, self.model.A, self.model.Z
-        parts_b, parts_k, parts_e = [], [], []
-        all_allowed = bool(allowed.all())
-        for a in range(A):
-            if all_allowed:
-                idx = None
-                BaT = _mm(self._PT[a], BT)
-            else:
-                idx = np.flatnonzero(allowed[a])
-                if idx.size == 0:
-                    continue
-                BaT = _mm(self._PT[a], BT[:, idx])
-            m = BaT.shape[1]
-            unnorm = (self._O[a][:, :, None] * BaT[:, None, :]).reshape(S, Z * m)  # column z*m + parent
-            eta = unnorm.sum(axis=0)
-            ok = np.flatnonzero(eta > ETA_SKIP)
-            e = eta[ok]
-            parts_b.append(unnorm[:, ok] / e)
-            parent = ok % m if idx is None else idx[ok % m]
-            parts_k.append(parent * A + a)
-            parts_e.append(e)
-        if not parts_b:
-            return np.empty((S, 0)), np.empty(0, dtype=np.intp), np.empty(0)
-        return np.concatenate(parts_b, axis=1), np.concatenate(parts_k), np.concatenate(parts_e)
+        n = BT.shape[1]
+        Ba = _mm(self._PTs, BT).reshape(A, S, n).transpose(1, 0, 2)  # (S, A, n)
+        unnorm = (self._OS[:, :, :, None] * Ba[:, :, None, :]).reshape(S, A * Z * n)  # column (a, z, parent)
+        eta = unnorm.sum(axis=0)
+        keep = (eta.reshape(A, Z, n) > ETA_SKIP) & allowed[:, None, :]
+        sel = np.flatnonzero(keep)
+        e = eta[sel]
+        key = (sel % n) * A + sel // (Z * n)
+        return unnorm[:, sel] / e, key, e
 
     def _leaf_q(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int]:
         """``Q(b, a) = rho(b, a) + gamma sum_z eta max_a' rho(tau(b,a,z), a')`` for leaf parents.
@@ -474,10 +469,14 @@ class Planner:
         """
         A, Z = self.model.A, self.model.Z
         n = BT.shape[1]
+        w, kind = self._w, self._kind
+        if n <= LEAF_STACK_MAX and kind != "generic":
+            out = self._leaf_q_stacked(BT, rhoT, allowed)
+            if out is not None:
+                return out
         QT = np.full((A, n), -np.inf)
         count = 0
         all_allowed = bool(allowed.all())
-        w, kind = self._w, self._kind
         for a in range(A):
             if all_allowed:
                 idx = slice(None)
@@ -520,6 +519,39 @@ class Planner:
                 count += int(np.count_nonzero(ok))
             QT[a, idx] = rhoT[a, idx] + self._gamma * val.sum(axis=0)
         return QT, count
+
+    def _leaf_q_stacked(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int] | None:
+        """:meth:`_leaf_q` for a few parents: all actions in one batch (fewer numpy calls), then
+        the allowed ones kept. Same formulas; ``None`` if some ``eta`` needs the safe path."""
+        A, Z = self.model.A, self.model.Z
+        w, kind = self._w, self._kind
+        Ba = _mm(self._PTs, BT).reshape(A, self.model.S, -1)  # (A, S, n)
+        XT = np.einsum("aks,asn->akn", self._WT, Ba)  # (A, Z + Z A, n)
+        eta = XT[:, :Z]
+        ok = eta > ETA_SKIP
+        if kind == "none":
+            val = XT[:, Z:2 * Z].copy()
+            for k in range(1, A):
+                np.maximum(val, XT[:, Z * (1 + k):Z * (2 + k)], out=val)
+        else:
+            if np.any(ok & (eta < ETA_FUSED_MIN)):
+                return None
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                if kind == "renyi2":
+                    t = np.einsum("azs,asn->azn", self._O2T, Ba * Ba)
+                    np.divide(t, eta * eta, out=t)
+                    np.log(t, out=t)
+                    t *= eta
+                else:  # shannon
+                    t = np.einsum("azs,asn->azn", self._OT, _xlogx(Ba))
+                    t += np.einsum("azs,asn->azn", self._OlogOT, Ba)
+                    t -= eta * np.log(eta)
+                val = XT[:, Z:2 * Z] + w[0] * t
+                for k in range(1, A):
+                    np.maximum(val, XT[:, Z * (1 + k):Z * (2 + k)] + w[k] * t, out=val)
+        val = np.where(ok, val, 0.0)
+        count = int(np.count_nonzero(ok & allowed[:, None, :]))
+        return np.where(allowed, rhoT + self._gamma * val.sum(axis=1), -np.inf), count
 
     def _leaf_generic(self, BaT: np.ndarray, a: int, eta: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """``eta max_a' rho(tau, a')`` from explicit posteriors, for the ``(z, parent)`` in ``mask``."""
