@@ -21,6 +21,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=search_bench.__doc__.split("\n\n")[0])
     search_bench.add_arguments(s)
     s.set_defaults(func=_run_search)
+    from . import experiments  # issue 6: every experiment -> docs/RESULTS.md (cli/experiments.py)
+
+    experiments.add_arguments(sub.add_parser("all", help="all experiments: docs/RESULTS.md and docs/img/*.png",
+                                             description=experiments.__doc__.split("\n\n")[0]))
 
 
 def _run_search(args: argparse.Namespace) -> int:

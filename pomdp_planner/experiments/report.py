@@ -1,0 +1,316 @@
+"""Markdown for docs/RESULTS.md from the data of :func:`pomdp_planner.experiments.runner.run_all`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+#: The paper's Table II row (% belief states pruned, d = 2..6).
+PAPER_TABLE2 = {2: 26.3, 3: 36.3, 4: 44.9, 5: 52.3, 6: 58.8}
+
+#: The paper's Table III: S -> (min, avg, max) for A = 4, 8, 16, 32, 64 (None: n/a).
+PAPER_TABLE3 = {
+    4: [(75.0, 94.9, 100), (75.0, 83.3, 87.5), (75.0, 78.7, 87.5), (71.9, 74.7, 75.0), (64.1, 72.0, 75.0)],
+    8: [(50.0, 75.0, 75), (37.5, 59.5, 62.5), (50.0, 58.0, 75.0), (59.4, 64.9, 71.9), (48.4, 57.6, 67.2)],
+    16: [(50.0, 72.7, 75), (50, 65.2, 75.0), (43.8, 61.3, 68.8), (46.9, 55.0, 62.5), (46.9, 55.5, 62.5)],
+    32: [(50.0, 73.9, 75), (37.5, 58.5, 62.5), (37.8, 54.9, 62.5), (37.5, 49.9, 59.4), (43.8, 52.6, 59.4)],
+    64: [(50.0, 71.9, 75), (37.5, 60.4, 62.5), (43.8, 54.0, 62.5), (37.5, 49.6, 59.4), (40.6, 47.9, 53.1)],
+    128: [(50.0, 73.2, 75), (50, 61.1, 62.5), (43.8, 54.7, 56.3), (40.6, 49.3, 53.1), (42.2, 48.3, 53.1)],
+    256: [(50.0, 72.8, 75), (50, 60.4, 62.5), (43.8, 50.9, 56.3), (43.8, 49.1, 53.1), None],
+}
+PAPER_A = (4, 8, 16, 32, 64)
+
+
+def _f(x, d: int = 1) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float) and np.isnan(x):
+        return "-"
+    return f"{x:.{d}f}"
+
+
+def _triple(t, d: int = 1) -> str:
+    return "n/a" if t is None else f"({_f(t[0], d)}, {_f(t[1], d)}, {_f(t[2], d)})"
+
+
+def _table(headers, rows) -> str:
+    out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _vec(v) -> str:
+    return "[" + ", ".join(f"{x:.4g}" for x in np.asarray(v, dtype=float)) + "]"
+
+
+def section_header(data: dict) -> list[str]:
+    cfg = data["config"]
+    mode = "QUICK (CI smoke-test sizes; NOT the paper's sizes)" if cfg["quick"] else "FULL"
+    lines = ["# Results: reproducing Lauri et al., \"Myopic Policy Bounds for Information Acquisition POMDPs\"", ""]
+    if cfg["quick"]:
+        lines += ["> **This file was generated in `--quick` mode.** Every experiment ran at toy sizes so the "
+                  "whole run takes well under two minutes; the numbers below only show that the pipeline works. "
+                  "Run `make experiments` (or `pomdp-planner bench all`) for the real figures.", ""]
+    lines += [f"Mode: **{mode}**. Generated {data['started']} on {data['machine']} (2 shared cores). "
+              "Regenerate everything with `make experiments` or `pomdp-planner bench all [--output DIR] [--quick]`.",
+              "", "Time per section (s): " + ", ".join(f"{k} {v:.0f}" for k, v in data["timings"].items()) + ".", "",
+              "Actions are the paper's tracking priorities 1..A (1 = greatest priority). "
+              "Bounds are `core.bounds.solve_bounds` (`tight` is the package default; `feasible` is the plain "
+              "L1-minimal solution of the Theorem 2 LPs); see docs/THEORY.md for what they guarantee.", ""]
+    return lines
+
+
+def section_fig1(d: dict) -> list[str]:
+    return [
+        "## Fig. 1: policy bounds on the S = 3 simplex", "",
+        f"![Fig. 1](img/{d['image']})", "",
+        f"Model `{d['model']}` (paper Sec. VI-A). Bounds: `{d['variant']}` variant, g = {_vec(d['g'])}, "
+        f"h = {_vec(d['h'])} (LP {d['lp_time']:.3f} s). Optimal policy: `core.reference.reference_policy`, "
+        "grid value iteration with Freudenthal interpolation, checked against the grid of twice the resolution; "
+        f"grey points are near-ties (Q gap <= tie margin {d['tie_margin']:.3g}).", "",
+        f"- {d['grid_beliefs']} grid beliefs; the bounds agree on {100 * d['agree_fraction']:.1f} % of them "
+        f"(the paper's Fig. 1 shows a similar large agreement region).",
+        f"- The reference decides {100 * d['decided_fraction']:.1f} % of the beliefs; optimal actions used "
+        f"(priority 1..A counts): {d['optimal_actions']}.",
+        f"- `lower <= optimal <= upper` violated at **{d['violations']}** decided beliefs; where the bounds agree "
+        f"and the reference is decided ({d['agree_decided']} beliefs) they give the optimal action at "
+        f"{d['agree_and_correct']}.", ""]
+
+
+def section_fig3(d: dict) -> list[str]:
+    return [
+        "## Fig. 3 (the paper's reward figure): original and transformed rewards, S = 2", "",
+        f"![Fig. 3](img/{d['image']})", "",
+        "The paper does not give its S = 2 model. Ours is `config/models/tracking_s2_info.yaml`: the Sec. VI "
+        "generator at S = A = Z = 2 (x = {1.5, 3}, y = 4 points on [-9, -1], q = 0.7, gamma = 0.99), state "
+        "reward r = [[2.0, 1.0], [0.3, 1.2]] (rows: states), Renyi quadratic entropy with w = [1.1, 1.0].", "",
+        f"- g = {_vec(d['g'])}, h = {_vec(d['h'])}.",
+        f"- Transformed lower rewards increasing in b(s2): {d['lower_increasing']}; upper rewards decreasing: "
+        f"{d['upper_decreasing']} (MLR monotonicity on S = 2 is ordinary monotonicity).",
+        f"- Bounds agree on {100 * d['agree_fraction']:.1f} % of the belief line: on "
+        f"{100 * d['agree_a1']:.1f} % at action 1 and {100 * d['agree_a2']:.1f} % at action 2 "
+        "(the two marked regions).",
+        f"- Grid reference: `lower <= optimal <= upper` violated at {d['violations']} decided beliefs.", ""]
+
+
+def section_table2(d: dict) -> list[str]:
+    cfg = d["config"]
+    lines = ["## Table II: belief states pruned by depth (and search speed)", "",
+             "From the search benchmark (`pomdp-planner bench search`, `pomdp_planner/bench/search_bench.py`): "
+             "nodes of Algorithm 1 with the `" + cfg["variant"] + "` bounds (`Planner.count_nodes`) against the "
+             "complete tree `sum_{i<=d} (AZ)^i`, over " + str(cfg["beliefs"]) + " random initial beliefs "
+             "(uniform on the simplex, seed " + str(cfg["seed"]) + "); the deepest depth on the first "
+             + str(cfg["deep_beliefs"]) + " of them only. The paper does not give its S = 8 reward or x, y: ours "
+             "are in `config/models/tracking_s8_info.yaml` (its header explains them).", ""]
+    for r in d["models"]:
+        if not r.get("bounds_feasible"):
+            lines += [f"**{r['model']}**: bounds infeasible ({r.get('bounds_message', '')}).", ""]
+            continue
+        pr = r["pruning"]
+        headers = ["", *[f"d={p['depth']}" for p in pr]]
+        rows = [["ours: mean % pruned", *[_f(p["percent_pruned_mean"]) for p in pr]],
+                ["ours: min / max", *[f"{_f(p['percent_pruned_min'])} / {_f(p['percent_pruned_max'])}" for p in pr]],
+                ["beliefs", *[p["beliefs"] for p in pr]], ["complete tree nodes", *[p["complete_nodes"] for p in pr]]]
+        if r["S"] == 8 and r["A"] == 3:
+            rows.append(["paper (S=Z=8, A=3)", *[_f(PAPER_TABLE2.get(p["depth"])) for p in pr]])
+        lines += [f"**{r['model']}** (S={r['S']}, A={r['A']}, Z={r['Z']}; root bounds agree at "
+                  f"{100 * r['root_bounds_agree']:.0f} % of the beliefs)", "", _table(headers, rows), ""]
+        if r.get("timing"):
+            trows = [[t["depth"], t["beliefs"], f"{1000 * t['bnb_time_median']:.1f}",
+                      f"{1000 * t['exhaustive_time_median']:.1f}", f"{t['speedup']:.2f}",
+                      f"{100 * t['agreement']:.0f} %", f"{t['exhaustive_nodes_per_s'] / 1e6:.1f}"] for t in r["timing"]]
+            lines += [_table(["depth", "beliefs", "B&B ms (median)", "exhaustive ms", "speed-up", "same action",
+                              "exhaustive Mnodes/s"], trows), ""]
+    return lines
+
+
+def section_model_check(d: dict) -> list[str]:
+    lines = ["## A non-trivial Sec. VI-B model (used for Table III and the looseness figure)", "",
+             "The paper does not say which x and y it used for S > 3. With the natural stretch of the S = 3 "
+             "sequences (x_i = 3i/S, y = S*A points on [-9, -1]) every y is negative, so every action pulls the "
+             "target towards state 1 (the poor-tracking region), the lowest priority A pulls least and also costs "
+             "least: **the lowest priority is optimal at every belief**. We prove it exactly: the value of always "
+             "playing A, `alpha = (I - gamma P_A)^-1 r_A`, satisfies `r_a + gamma P_a alpha <= alpha` for every a "
+             "componentwise, so `b.alpha` is the Bellman fixed point "
+             "(`pomdp_planner.experiments.pbvi.single_action_optimal`). Every pruning figure on that model would be "
+             "meaningless (the bounds only need to find A).", "",
+             f"**Our choice:** keep x_i = 3i/S and spread y evenly and symmetrically on [-{d['y_spread']:g}, "
+             f"{d['y_spread']:g}] (S*A points; `core/domains/comparison.py: comparison_model(S, A)`). High priority "
+             "then pulls the target into the poor-tracking region, low priority pushes it into the dangerous one, "
+             "and the effort cost makes high priority expensive, so the optimum is an intermediate, "
+             "belief-dependent priority. All other constants are the paper's (c_a = 1/(2A), c_p = 1, c_d = 0.1, "
+             "k_r = 2/S, S_p = {s <= S/5}, S_d = {s >= 9S/10}, q = 0.8, gamma = 0.99, f = 0). We scanned spreads "
+             "1.5-5: with 2 the optimum uses two actions on every small size we checked; with this generator the "
+             "next-state distribution depends mostly on the action (the previous state only shifts the tilt "
+             "within one block of y), so the optimal policy switches between two adjacent priorities, not more.", "",
+             "Optimal actions on 500 uniformly random beliefs (counts per priority 1..A), from the exact "
+             "alpha-vector solver `core.reference.alpha_vector_value_iteration` (finite horizon H, certified for "
+             "the infinite horizon where the Q gap exceeds twice the error bound) and from the point-based "
+             "reference used for the looseness figure:", ""]
+    rows = []
+    for r in d["rows"]:
+        ylab = "natural [-9,-1]" if r["natural"] else f"ours [-{d['y_spread']:g},{d['y_spread']:g}]"
+        rows.append([r["S"], r["A"], ylab,
+                     "-" if r["single_action"] is None else f"yes: {r['single_action']}", r["exact_counts"],
+                     f"{100 * r['certified']:.1f} % (H={r['horizon']}, err {r['error_bound']:.1e})", r["pbvi_counts"],
+                     f"{100 * r['pbvi_agrees_exact']:.1f} %"])
+    lines += [_table(["S", "A", "y", "one action optimal everywhere (exact)", "exact optimum counts", "certified",
+                      "PBVI counts", "PBVI = exact"], rows), ""]
+    sw = d["sweep"]
+    nat = sum(1 for r in sw if r["natural"] is not None)
+    ours = [r for r in sw if r["ours"] is not None]
+    lines += [f"Exact single-action certificate on all {len(sw)} Table III sizes: with natural sequences one action "
+              f"(always the lowest priority: {sorted({r['natural'] for r in sw if r['natural'] is not None})}) is "
+              f"provably optimal everywhere in {nat} of {len(sw)} cells; with ours in {len(ours)} cells"
+              + (": " + ", ".join(f"S={r['S']} A={r['A']} (priority {r['ours']})" for r in ours) if ours else "")
+              + ".", ""]
+    return lines
+
+
+def section_table3(d: dict, cfg: dict) -> list[str]:
+    lines = ["## Table III: actions pruned by the bounds, Sec. VI-B model", "",
+             f"(min, average, max) over {cfg['table3_beliefs']} random reachable beliefs per cell (random initial "
+             "belief, then 1-20 random actions with sampled states and observations, `experiments/sampling.py`), "
+             "our Sec. VI-B model above. **Formula:** `100 (1 - (upper - lower)/A)`. It is the only reading that "
+             "fits the paper's table: its A = 4 values are multiples of 25 and reach 100 (S = 4), which requires "
+             "upper = lower to score 100. The literal share of actions the search skips, "
+             "`100 (1 - (upper - lower + 1)/A)`, can never exceed 100 (A-1)/A (75 for A = 4); it is exactly 100/A "
+             "below the first formula, so we give its average in the second table. "
+             "'n/a': LP infeasible. LP time is the wall time of `solve_bounds` for the cell.", ""]
+    for variant, v in d.items():
+        cells = {(c.S, c.A): c for c in v["cells"]}
+        S_vals = sorted({c.S for c in v["cells"]})
+        A_vals = sorted({c.A for c in v["cells"]})
+        rows, rows_t, rows_c = [], [], []
+        for S in S_vals:
+            row, row_t, row_c = [S], [S], [S]
+            for A in A_vals:
+                c = cells[(S, A)]
+                row.append(_triple(c.pct) if c.feasible else "n/a")
+                row_t.append(f"{c.lp_time:.2f}" if c.feasible or not np.isnan(c.lp_time) else "-")
+                row_c.append(_f(c.pct_count[1]) if c.feasible else "n/a")
+            rows.append(row)
+            rows_t.append(row_t)
+            rows_c.append(row_c)
+            if S in PAPER_TABLE3:
+                prow = ["paper"]
+                for A in A_vals:
+                    i = PAPER_A.index(A) if A in PAPER_A else None
+                    prow.append(_triple(PAPER_TABLE3[S][i]) if i is not None else "-")
+                rows.append(prow)
+        hdr = ["S", *[f"A={A}" for A in A_vals]]
+        crossed = sum(c.crossed for c in v["cells"])
+        infeasible = [f"S={c.S} A={c.A}: {c.message[:160]}" for c in v["cells"] if not c.feasible]
+        lines += [f"### Variant `{variant}` (S <= {v['max_S']}; sweep {v['time']:.0f} s)", "",
+                  _table(hdr, rows), "", "LP solve time (s):", "", _table(hdr, rows_t), "",
+                  "Average literal share of actions skipped, `100 (1 - (upper - lower + 1)/A)`:", "",
+                  _table(hdr, rows_c), "", f"Beliefs with lower > upper (must be 0): {crossed}.", ""]
+        if infeasible:
+            lines += ["Infeasible / failed cells:", "", *[f"- {x}" for x in infeasible], ""]
+    return lines
+
+
+def section_looseness(data: dict) -> list[str]:
+    variant = data["looseness_variant"]
+    cells = [c for c in data["table3"][variant]["cells"] if c.feasible]
+    with_opt = [c for c in cells if c.upper_minus_opt is not None]
+    lines = ["## Looseness of the bounds (the paper's Fig. 4)", "", f"![looseness](img/{data['looseness_image']})", "",
+             f"Bounds variant `{variant}`. Solid: mean `upper - optimal` over the Table III beliefs; dashed: mean "
+             "`upper - lower`. The optimal action comes from point-based value iteration "
+             "(`experiments/pbvi.py`, run on the very beliefs evaluated plus the simplex vertices, to a value "
+             "change < 1e-6) for S <= "
+             f"{data['config']['looseness_max_states']}; on S = 4 it agrees with the exact alpha-vector solver (table "
+             "above). For larger S no optimal reference was feasible in our time budget (the paper ran incremental "
+             "pruning; a deep tree search is no substitute at gamma = 0.99 with Z = S up to 256 observations), so "
+             "only `upper - lower` is shown there.", ""]
+    rows = [[c.S, c.A, _f(c.upper_minus_opt, 2), _f(c.opt_minus_lower, 2), _f(c.mean_width, 2),
+             f"{c.opt_outside} / {c.opt_decided}", _f(c.ref_time, 1)] for c in with_opt]
+    lines += [_table(["S", "A", "upper - opt", "opt - lower", "upper - lower", "opt outside [lower, upper] / decided",
+                      "reference time (s)"], rows), ""]
+    return lines
+
+
+def section_peers(d: dict, data: dict) -> list[str]:
+    plan = d["plan"]
+    lines = ["## Against peers: closed-loop return at equal time budgets", "",
+             f"![peers](img/{data['peers_image']})", "",
+             f"Closed loop in the core simulator (`core/simulate.py`, no ROS), {plan['steps']} steps per episode, "
+             "seeded episodes (episode k uses seed "
+             f"{plan['seed']} + k for every planner), initial belief uniform. Score: discounted return "
+             "`sum_t gamma^t rho(b_t, a_t)` with the TRUE belief reward rho of the model for every planner; "
+             "'state return' is `sum_t gamma^t r(s_t, a_t)`. 95 % CIs are Student-t. B&B and exhaustive search are "
+             f"`Planner.plan` (iterative deepening up to depth {plan['max_depth']} under the budget; B&B returns at "
+             "once when the root bounds agree, a certified optimal decision). Decision time is the measured wall "
+             "time per decision (it can exceed the budget by the granularity of the deadline check).", "",
+             "**pomdp-py POUCT** "
+             + ("(pip `pomdp-py`, the optional `bench` extra) " if d["pouct"]
+                else "was NOT installed, so it is missing below; ")
+             + "plans with sampled states and can only use a STATE reward: it is given r(s, a), it cannot see the "
+             "uncertainty term -w_a f(b) of rho, but it is evaluated with rho like everyone else. It gets the exact "
+             "belief (histogram) each step, a fresh tree per decision, random rollouts, max depth 20.", "",
+             "**Episode counts (what was actually run):** "
+             f"{plan['episodes_cheap']} episodes for greedy / lower-bound / random; for the budgeted planners "
+             + ", ".join(f"{n} at {b:g} s" for b, n in plan["episodes_by_budget"].items())
+             + ". 100 episodes x 50 steps x 1 s would take 83 minutes per planner and model on this 2-core machine; "
+             "fewer episodes at the larger budgets give wider CIs, which are shown.", ""]
+    rows = []
+    for r in d["results"]:
+        rows.append([r.model, r.planner, "-" if r.budget is None else f"{r.budget:g}", r.episodes,
+                     f"{r.mean:.2f} [{r.ci[0]:.2f}, {r.ci[1]:.2f}]", f"{r.mean_state_return:.2f}",
+                     _f(r.mean_depth, 2), f"{1000 * r.mean_time:.1f} / {1000 * r.max_time:.0f}",
+                     "-" if r.certified_fraction is None else f"{100 * r.certified_fraction:.0f} %"])
+    lines += [_table(["model", "planner", "budget (s)", "episodes", "return (95 % CI)", "state return",
+                      "mean depth", "decision ms mean / max", "certified"], rows), ""]
+    return lines
+
+
+def section_when(data: dict) -> list[str]:
+    lines = ["## When to use what", ""]
+    peers = data.get("peers")
+    if peers:
+        best = {}
+        for r in peers["results"]:
+            if r.model not in best or r.mean > best[r.model].mean:
+                best[r.model] = r
+        lines += [f"- Best mean return measured on `{m}`: {r.planner}"
+                  + ("" if r.budget is None else f" at {r.budget:g} s") + f" ({r.mean:.2f})." for m, r in best.items()]
+    lines += [
+        "- **Bounds agree at the current belief** (most of the S = 3 simplex, Fig. 1): act on the bound; the "
+        "decision is certified optimal and costs microseconds. The B&B planner does this automatically.",
+        "- **Belief-dependent reward (entropy terms), small A and Z, control loop of 0.05-1 s**: branch-and-bound "
+        "(Algorithm 1). It computes the same depth-d values as exhaustive search on the actions it keeps, "
+        "prunes 25-60 % of the tree (Table II) and so reaches the same or a deeper depth in the same time.",
+        "- **Exhaustive search** only when the bounds LP is infeasible or the assumptions (check with "
+        "`pomdp-planner check`) fail; then the bounds are not valid and B&B falls back to it anyway.",
+        "- **Greedy myopic (argmax rho)**: a strong, instant baseline on these tracking problems (heavily "
+        "discounted future matters little for the action when dynamics mix fast); use it when there is no "
+        "time to search.",
+        "- **The lower-bound myopic policy alone** is a bound, not a policy: it is systematically biased towards "
+        "high priority and does worse than greedy; use it only inside the search.",
+        "- **POUCT (pomdp-py)** cannot optimise a belief-dependent reward (it sees only r(s, a)) and its Monte "
+        "Carlo estimates are noisy at these budgets; prefer it for large state spaces with a state reward, where "
+        "exact tree search is impossible.",
+        "- **Large A with a linear reward** (Table III): the bounds prune 40-95 % of the actions per node, so B&B "
+        "scales to A = 64 where exhaustive search cannot go beyond depth 1-2.", ""]
+    return lines
+
+
+def write_report(path: Path, data: dict) -> Path:
+    lines = section_header(data)
+    if "fig1" in data:
+        lines += section_fig1(data["fig1"])
+    if "fig3" in data:
+        lines += section_fig3(data["fig3"])
+    if "table2" in data:
+        lines += section_table2(data["table2"])
+    if "model_check" in data:
+        lines += section_model_check(data["model_check"])
+    if "table3" in data:
+        lines += section_table3(data["table3"], data["config"])
+        lines += section_looseness(data)
+    if "peers" in data:
+        lines += section_peers(data["peers"], data)
+    lines += section_when(data)
+    path.write_text("\n".join(lines) + "\n")
+    return path

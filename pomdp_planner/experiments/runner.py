@@ -1,0 +1,251 @@
+"""Run every experiment of issue 6 and write ``RESULTS.md`` and ``img/*.png`` (``run_all``).
+
+``quick=True`` shrinks every experiment (a CI smoke test, < 2 minutes); the report then says
+so at the top. Sizes of both modes are in :data:`FULL` and :data:`QUICK` and are printed into
+the report, so it always states exactly what was run.
+"""
+
+from __future__ import annotations
+
+import platform
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.domains.comparison import Y_SPREAD, comparison_model
+from ..core.io.model_yaml import load_model
+from ..core.model import POMDP
+from .pbvi import pbvi, single_action_optimal
+from .progress import Progress
+from .sampling import random_beliefs
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    quick: bool
+    fig1_grid: int  # Freudenthal resolution of the S = 3 reference (fine grid = 2x)
+    fig1_plot_grid: int  # resolution of the plotted bound policies
+    table2_beliefs: int
+    table2_depths: tuple[int, ...]
+    table2_depth6_beliefs: int  # beliefs counted at the deepest depth (costly), the rest one less
+    model_check_states: tuple[int, ...]
+    model_check_actions: int
+    model_check_horizon: int  # exact alpha-vector horizon
+    table3_states: tuple[int, ...]
+    table3_actions: tuple[int, ...]
+    table3_beliefs: int
+    table3_variants: tuple[tuple[str, int], ...]  # (variant, largest S it is run for)
+    looseness_max_states: int
+    peers_models: tuple[str, ...]
+    peers_budgets: tuple[float, ...]
+    peers_cheap_episodes: int
+    peers_episodes: tuple[int, ...]  # per budget
+    peers_steps: int
+    peers_max_depth: int
+    seed: int = 0
+
+
+FULL = ExperimentConfig(
+    quick=False, fig1_grid=40, fig1_plot_grid=60, table2_beliefs=100, table2_depths=(2, 3, 4, 5, 6),
+    table2_depth6_beliefs=20, model_check_states=(4, 5), model_check_actions=4, model_check_horizon=1500,
+    table3_states=(4, 8, 16, 32, 64, 128, 256), table3_actions=(4, 8, 16, 32, 64), table3_beliefs=500,
+    table3_variants=(("feasible", 256), ("tight", 64)), looseness_max_states=16,
+    peers_models=("tracking_s3_info", "tracking_s8_info"), peers_budgets=(0.05, 0.2, 1.0),
+    peers_cheap_episodes=100, peers_episodes=(40, 10, 3), peers_steps=50, peers_max_depth=12,
+)
+
+QUICK = ExperimentConfig(
+    quick=True, fig1_grid=10, fig1_plot_grid=20, table2_beliefs=5, table2_depths=(2, 3, 4),
+    table2_depth6_beliefs=2, model_check_states=(4,), model_check_actions=4, model_check_horizon=200,
+    table3_states=(4, 8), table3_actions=(4, 8), table3_beliefs=50, table3_variants=(("feasible", 8), ("tight", 8)),
+    looseness_max_states=4, peers_models=("tracking_s3_info", "tracking_s8_info"), peers_budgets=(0.01, 0.05),
+    peers_cheap_episodes=3, peers_episodes=(2, 2), peers_steps=8, peers_max_depth=6,
+)
+
+
+# ------------------------------------------------------------------------------ models
+def shipped_model(name: str) -> POMDP:
+    """A shipped model (``config/models/<name>.yaml``, source tree or installed share dir)."""
+    from ..bench.search_bench import find_model_file
+
+    return load_model(find_model_file(f"{name}.yaml"))
+
+
+# ------------------------------------------------------------------------------ sections
+def run_fig1(cfg: ExperimentConfig, img: Path) -> dict:
+    """Fig. 1: bound policies and the grid-reference optimum on the S = 3 simplex."""
+    from ..core.bounds import solve_bounds
+    from ..core.reference import reference_policy
+    from .figures import plot_fig1
+
+    model = shipped_model("tracking_s3_info")
+    sol = solve_bounds(model)
+    ref = reference_policy(model, cfg.fig1_grid)
+    B = ref.beliefs
+    lo, up = sol.myopic.actions(B)
+    dec = ref.decided
+    outside = dec & ((ref.actions < lo) | (ref.actions > up))
+    path = plot_fig1(img / "fig1_policy_bounds_s3.png", B, lo, up, ref.actions, dec, model.A)
+    return {
+        "model": model.name, "variant": "tight", "lp_time": sol.solve_time, "g": sol.g, "h": sol.h,
+        "grid_beliefs": len(B), "agree_fraction": float(np.mean(lo == up)),
+        "decided_fraction": float(np.mean(dec)), "tie_margin": float(ref.tie_margin),
+        "violations": int(outside.sum()), "optimal_actions": np.bincount(ref.actions, minlength=model.A).tolist(),
+        "agree_and_correct": int(np.sum(dec & (lo == up) & (lo == ref.actions))),
+        "agree_decided": int(np.sum(dec & (lo == up))), "image": path.name,
+    }
+
+
+def run_fig3(cfg: ExperimentConfig, img: Path) -> dict:
+    """The paper's reward figure on our S = 2 model (config/models/tracking_s2_info.yaml)."""
+    from ..core.bounds import solve_bounds
+    from ..core.reference import reference_policy
+    from .figures import plot_fig3
+
+    model = shipped_model("tracking_s2_info")
+    sol = solve_bounds(model)
+    b1 = np.linspace(0.0, 1.0, 401)
+    B = np.stack([1.0 - b1, b1], axis=1)
+    rho = model.rho(B)
+    rl, ru = sol.myopic.transformed_rewards(B, rho)
+    lo, up = sol.myopic.actions(B, rho)
+    path = plot_fig3(img / "fig3_rewards_s2.png", b1, rho, rl, ru, lo, up)
+    ref = reference_policy(model, 4 * cfg.fig1_grid)
+    rlo, rup = sol.myopic.actions(ref.beliefs)
+    viol = int(np.sum(ref.decided & ((ref.actions < rlo) | (ref.actions > rup))))
+    mono_lower = bool(np.all(np.diff(rl, axis=0) >= -1e-9))
+    mono_upper = bool(np.all(np.diff(ru, axis=0) <= 1e-9))
+    return {"model": model.name, "agree_fraction": float(np.mean(lo == up)),
+            "agree_a1": float(np.mean((lo == up) & (lo == 0))), "agree_a2": float(np.mean((lo == up) & (lo == 1))),
+            "lower_increasing": mono_lower, "upper_decreasing": mono_upper, "violations": viol,
+            "g": sol.g, "h": sol.h, "image": path.name}
+
+
+def run_table2(cfg: ExperimentConfig, progress: bool) -> dict:
+    """Table II and search timings: the search helper's benchmark (``pomdp-planner bench search``)."""
+    from ..bench.search_bench import BenchConfig, run_search_bench
+
+    if cfg.quick:
+        bc = BenchConfig(beliefs=cfg.table2_beliefs, deep_beliefs=cfg.table2_depth6_beliefs, timed=2,
+                         depths=cfg.table2_depths, timed_max_depth=max(cfg.table2_depths) - 1, seed=cfg.seed)
+    else:
+        bc = BenchConfig(beliefs=cfg.table2_beliefs, deep_beliefs=cfg.table2_depth6_beliefs, depths=cfg.table2_depths,
+                         seed=cfg.seed)
+
+    def log(msg: str) -> None:
+        if progress:
+            print(f"  table II: {msg}", file=sys.stderr, flush=True)
+
+    return run_search_bench(config=bc, log=log)
+
+
+def run_model_check(cfg: ExperimentConfig, progress: bool) -> dict:
+    """Natural vs our Sec. VI-B sequences: which actions the optimal policy uses (exact)."""
+    from ..core.reference import alpha_vector_value_iteration, certified_actions
+
+    rows = []
+    rng = np.random.default_rng([cfg.seed, 3])
+    with Progress("model check", 2 * len(cfg.model_check_states), enabled=progress) as bar:
+        for S in cfg.model_check_states:
+            A = cfg.model_check_actions
+            B = random_beliefs(S, 500, rng)
+            for natural in (True, False):
+                m = comparison_model(S, A, natural=natural)
+                single = single_action_optimal(m)
+                t0 = time.perf_counter()
+                sol = alpha_vector_value_iteration(m, cfg.model_check_horizon)
+                act, cert, _ = certified_actions(sol, B)
+                pol = pbvi(m, np.vstack([np.eye(S), B]), tol=1e-6)
+                pb = pol.actions(B)
+                rows.append({"S": S, "A": A, "natural": natural,
+                             "single_action": None if single is None else single + 1,
+                             "exact_counts": np.bincount(act, minlength=A).tolist(), "certified": float(np.mean(cert)),
+                             "error_bound": float(sol.error_bound), "horizon": cfg.model_check_horizon,
+                             "pbvi_counts": np.bincount(pb, minlength=A).tolist(),
+                             "pbvi_agrees_exact": float(np.mean(pb == act)), "time": time.perf_counter() - t0})
+                bar.advance()
+    # The exact single-action certificate is cheap: run it on every Table III size too.
+    sweep = []
+    for S in cfg.table3_states:
+        for A in cfg.table3_actions:
+            nat = single_action_optimal(comparison_model(S, A, natural=True))
+            ours = single_action_optimal(comparison_model(S, A))
+            sweep.append({"S": S, "A": A, "natural": None if nat is None else nat + 1,
+                          "ours": None if ours is None else ours + 1})
+    return {"rows": rows, "sweep": sweep, "y_spread": Y_SPREAD}
+
+
+def run_table3(cfg: ExperimentConfig, progress: bool) -> dict:
+    from .pruning import pruning_sweep
+
+    out = {}
+    for variant, max_S in cfg.table3_variants:
+        S_values = tuple(S for S in cfg.table3_states if S <= max_S)
+        t0 = time.perf_counter()
+        cells = pruning_sweep(S_values, cfg.table3_actions, n=cfg.table3_beliefs, seed=cfg.seed, variant=variant,
+                              exact_max_S=cfg.looseness_max_states, progress=progress)
+        out[variant] = {"cells": cells, "time": time.perf_counter() - t0, "max_S": max_S}
+    return out
+
+
+def run_peers(cfg: ExperimentConfig, progress: bool) -> dict:
+    from ..core.search import Planner
+    from .peers import PeerPlan, compare_peers, pouct_available
+
+    with_pouct = pouct_available()
+    plan = PeerPlan(budgets=cfg.peers_budgets, episodes_cheap=cfg.peers_cheap_episodes,
+                    episodes_by_budget=dict(zip(cfg.peers_budgets, cfg.peers_episodes, strict=True)),
+                    steps=cfg.peers_steps, max_depth=cfg.peers_max_depth, seed=1000 + cfg.seed, with_pouct=with_pouct)
+    models = {}
+    for name in cfg.peers_models:
+        m = shipped_model(name)
+        models[name] = (m, Planner.from_model(m, "tight"))
+    t0 = time.perf_counter()
+    with Progress("peers", plan.total_units(len(models)), enabled=progress) as bar:
+        results = compare_peers(models, plan, progress=bar)
+    return {"results": results, "plan": asdict(plan), "pouct": with_pouct, "time": time.perf_counter() - t0}
+
+
+SECTIONS = ("fig1", "fig3", "table2", "model_check", "table3", "peers")
+
+
+def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = True,
+            sections: tuple[str, ...] = SECTIONS) -> dict:
+    """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``."""
+    from .report import write_report
+
+    cfg = QUICK if quick else FULL
+    output = Path(output)
+    img = output / "img"
+    img.mkdir(parents=True, exist_ok=True)
+    runners = {"fig1": lambda: run_fig1(cfg, img), "fig3": lambda: run_fig3(cfg, img),
+               "table2": lambda: run_table2(cfg, progress), "model_check": lambda: run_model_check(cfg, progress),
+               "table3": lambda: run_table3(cfg, progress), "peers": lambda: run_peers(cfg, progress)}
+    data: dict = {"config": asdict(cfg), "timings": {},
+                  "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+                  "machine": f"{platform.machine()}, {platform.python_implementation()} {platform.python_version()}"}
+    for name in sections:
+        t0 = time.perf_counter()
+        if progress:
+            print(f"[experiments] {name} ...", file=sys.stderr, flush=True)
+        data[name] = runners[name]()
+        data["timings"][name] = time.perf_counter() - t0
+    if "table3" in data:
+        from .figures import plot_looseness
+
+        t3 = data["table3"].get("tight") or next(iter(data["table3"].values()))
+        data["looseness_variant"] = "tight" if "tight" in data["table3"] else next(iter(data["table3"]))
+        data["looseness_image"] = plot_looseness(img / "fig4_looseness.png", t3["cells"], cfg.table3_actions).name
+    if "peers" in data:
+        from .figures import plot_peers
+
+        data["peers_image"] = plot_peers(img / "peers_return_vs_budget.png", data["peers"]["results"],
+                                         cfg.peers_budgets, cfg.peers_models).name
+    write_report(output / "RESULTS.md", data)
+    return data
+
+
+__all__ = ["FULL", "QUICK", "SECTIONS", "ExperimentConfig", "run_all", "shipped_model"]
