@@ -157,10 +157,13 @@ def test_matches_naive_reference_tracking(uncertainty: str) -> None:
             assert res.nodes_expanded[-1] == nodes
 
 
-def test_small_chunks_give_the_same_answer() -> None:
-    """Chunking the levels (memory bound) must not change values or counts."""
-    bounds = random_bounds(_S8, 3)
-    big, small = Planner(_S8, bounds), Planner(_S8, bounds, chunk_bytes=4096)
+@pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
+def test_small_chunks_give_the_same_answer(uncertainty: str) -> None:
+    """Chunking the levels (memory bound) must not change values or counts. Small chunks take
+    the batched all-actions leaf path, large ones the per-action path: this compares them."""
+    model = tracking(8, uncertainty)
+    bounds = random_bounds(model, 3)
+    big, small = Planner(model, bounds), Planner(model, bounds, chunk_bytes=4096)
     b = np.random.default_rng(5).dirichlet(np.ones(8))
     for use_bounds in (False, True):
         r1, r2 = big.search(b, 3, use_bounds), small.search(b, 3, use_bounds)
@@ -309,6 +312,19 @@ def perfect_sensor_model(uncertainty: str) -> POMDP:
     eye = np.broadcast_to(np.eye(S), (A, S, S))
     return POMDP(P=eye, O=eye, r=np.arange(9.0).reshape(3, 3) / 9, gamma=0.95, uncertainty=uncertainty,
                  w=np.ones(A))
+
+
+def test_custom_uncertainty_uses_the_generic_path() -> None:
+    """An uncertainty function the planner does not know is evaluated from explicit posteriors."""
+    from pomdp_planner.core.uncertainty import RENYI2, Uncertainty
+
+    custom = Uncertainty("my_renyi", RENYI2.value, RENYI2.gradient)
+    m = tracking(3)
+    mc = POMDP(P=m.P, O=m.O, r=m.r, gamma=m.gamma, uncertainty=custom, w=m.w)
+    b = np.array([0.3, 0.3, 0.4])
+    r1, r2 = Planner(m).search(b, 3, use_bounds=False), Planner(mc).search(b, 3, use_bounds=False)
+    np.testing.assert_allclose(r2.q_values, r1.q_values, rtol=1e-11)
+    assert r1.nodes_expanded == r2.nodes_expanded
 
 
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
