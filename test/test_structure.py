@@ -69,6 +69,17 @@ def random_beliefs(rng: np.random.Generator, n: int, S: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ (A1)
+def brute_relative(M: np.ndarray) -> dict[tuple[int, int, int, int], float]:
+    """minor / (|M_ik M_jl| + |M_il M_jk|), 0 where both products vanish."""
+    out = {}
+    n, m = M.shape
+    for i, j in combinations(range(n), 2):
+        for k, l in combinations(range(m), 2):
+            p1, p2 = M[i, k] * M[j, l], M[i, l] * M[j, k]
+            out[(i, j, k, l)] = (p1 - p2) / (abs(p1) + abs(p2)) if abs(p1) + abs(p2) > 0 else 0.0
+    return out
+
+
 def brute_minors(M: np.ndarray) -> dict[tuple[int, int, int, int], float]:
     n, m = M.shape
     return {(i, j, k, l): M[i, k] * M[j, l] - M[i, l] * M[j, k]
@@ -86,10 +97,9 @@ def test_tp2_minors_match_brute_force(n, m, seed):
     for p in range(ri.size):
         for q in range(ck.size):
             assert got[p, q] == pytest.approx(ref[(ri[p], rj[p], ck[q], cl[q])], abs=1e-12)
-    worst, rows, cols, count = worst_tp2_minor(M, tol=0.0)
-    key = min(ref, key=ref.get)
-    assert worst == pytest.approx(ref[key], abs=1e-12)
-    assert ref[(*rows, *cols)] == pytest.approx(worst, abs=1e-12)
+    worst, rows, cols, count, rel = worst_tp2_minor(M, tol=0.0)
+    assert ref[(*rows, *cols)] == pytest.approx(worst, abs=1e-12)  # a real minor, where it says
+    assert rel == pytest.approx(min(brute_relative(M).values()), abs=1e-12)  # the worst one
     assert count == sum(v < 0 for v in ref.values())
 
 
@@ -112,7 +122,8 @@ def test_non_tp2_transition_reports_the_right_minor():
     assert not rep.holds and rep.status == "fails"
     assert (rep.matrix, rep.action, rep.rows, rep.cols) == ("transition", 1, (0, 2), (0, 2))
     assert rep.worst_minor == pytest.approx(0.1 * 0.1 - 0.8 * 0.8)
-    assert rep.num_negative == sum(v < -1e-9 for v in brute_minors(bad[1]).values())
+    assert rep.worst_relative == pytest.approx((0.01 - 0.64) / 0.65)
+    assert rep.num_negative == sum(v < -1e-9 for v in brute_relative(bad[1]).values())
 
 
 def test_non_tp2_observation_with_zero_pattern_is_found():
@@ -181,6 +192,13 @@ def test_copositivity_known_matrices():
         assert x @ M @ x == pytest.approx(val) and val < -1e-3
     # the 1/2-supports alone cannot refute I - J/2; the search tier must
     assert classify_copositive(not_cop[None], search=False)[0][0] == UNKNOWN
+    # PSD + N, neither PSD nor elementwise non-negative: only the SDP proves it
+    v = np.array([1.0, -1.0, 0.0])
+    mixed = np.outer(v, v) + 2.0 * np.array([[0, 0, 1], [0, 0, 1], [1, 1, 0]])
+    assert np.linalg.eigvalsh(mixed)[0] < -0.1 and mixed.min() < 0
+    assert psd_plus_nonnegative(mixed)[0]
+    assert classify_copositive(mixed[None])[0][0] == PROVEN_SDP
+    assert classify_copositive(mixed[None], sdp_max_states=2)[0][0] == UNKNOWN_SDP_SKIPPED
 
 
 def test_horn_matrix_is_unknown_not_refuted():
@@ -226,11 +244,13 @@ def test_copositivity_verdicts_match_lemma1_through_the_filter(seed):
             if min(ea, eb) < 1e-12:
                 continue
             ta, tb = update(model, b, a, z), update(model, b, a + 1, z)
-            # "proven" allows entries of D down to -tol: compare on the scale of b^T D b / 2
-            assert ea * eb * (tb[j + 1] * ta[j] - tb[j] * ta[j + 1]) >= -rep.tol
+            # "proven" allows entries of D down to -tol max|D|: compare on the scale of b^T D b / 2
+            scale = np.abs(copositivity_matrices(model, a, [j])[0, z]).max()
+            assert ea * eb * (tb[j + 1] * ta[j] - tb[j] * ta[j + 1]) >= -rep.tol * scale
     assert rep.refutations
     for (a, j, z), (x, val) in rep.refutations.items():
-        assert val < -rep.tol and x @ copositivity_matrices(model, a, [j])[0, z] @ x == pytest.approx(val)
+        D = copositivity_matrices(model, a, [j])[0, z]
+        assert val < -rep.tol * np.abs(D).max() and x @ D @ x == pytest.approx(val)
         ta, tb = update(model, x, a, z), update(model, x, a + 1, z)
         assert tb[j + 1] * ta[j] - tb[j] * ta[j + 1] < 0
 
@@ -326,15 +346,16 @@ def test_reduced_tp2_methods_decide_like_all_minors(seed, kind):
         M[rng.integers(n), rng.integers(m)] *= rng.uniform(0.2, 5.0)
     if kind == "sparse":
         M = M * (rng.uniform(size=M.shape) < 0.6)
-    ref = brute_minors(M)
-    holds = min(ref.values()) >= -1e-9
+    ref, relative = brute_minors(M), brute_relative(M)
+    holds = min(relative.values()) >= -1e-9
     methods = ["full", "sparse"] + (["adjacent"] if np.all(M > 0) else [])
     for method in methods:
-        worst, rows, cols, _ = worst_tp2_minor(M, 1e-9, method)
-        assert (worst >= -1e-9) == holds, method
+        worst, rows, cols, _, rel = worst_tp2_minor(M, 1e-9, method)
+        assert (rel >= -1e-9) == holds, method
         assert ref[(*rows, *cols)] == pytest.approx(worst, abs=1e-12)  # a real minor, where it says
+        assert rel == pytest.approx(relative[(*rows, *cols)], abs=1e-12)
         if not holds and method != "adjacent":
-            assert worst == pytest.approx(min(ref.values()), abs=1e-12)  # the true worst
+            assert rel == pytest.approx(min(relative.values()), abs=1e-12)  # the true worst
 
 
 def test_large_tracking_model_uses_reduced_tp2_and_ratio_test():
@@ -358,3 +379,33 @@ def test_ratio_fast_path_matches_building_every_d(seed):
         built = ~np.isnan(rep.min_entry[a].ravel())
         np.testing.assert_allclose(rep.min_entry[a].ravel()[built], mins[built], atol=1e-15)
         assert np.all(mins[~built] >= -1e-15)  # the ratio test only skips non-negative D's
+
+
+@pytest.mark.parametrize("seed", [10, 12, 34])
+def test_a2_holding_gives_full_mlr_order_of_posteriors(seed):
+    """With (A2) proven and positive posteriors, tau(b, a+1, z) >=_r tau(b, a, z) for ALL pairs
+    i < j (Definition 1), checked directly on posteriors from the filter."""
+    model = tp2ish_model(seed, S=5, A=2, Z=3)
+    rep = check_copositivity(model)
+    assert rep.holds
+    for b in random_beliefs(np.random.default_rng(seed), 30, model.S):
+        for a in range(model.A - 1):
+            for z in range(model.Z):
+                ta, tb = update(model, b, a, z), update(model, b, a + 1, z)
+                assert np.all(ta > 0) and np.all(tb > 0)
+                i, j = np.triu_indices(model.S, 1)
+                assert np.all(tb[j] * ta[i] >= tb[i] * ta[j] * (1 - 1e-9) - 1e-15)
+
+
+def test_tiny_but_real_violation_is_refuted_not_tolerated():
+    """Entries of D are products of four probabilities: here a D whose most negative entry is
+    about -6e-10 (an absolute tolerance of 1e-9 would call it non-negative) really violates
+    Lemma 1 (L2); the relative tolerance refutes it, and the posteriors at x confirm it."""
+    model = tp2ish_model(2, S=8, A=3, Z=8)
+    rep = check_copositivity(model)
+    assert rep.status == "fails"
+    for (a, j, z), (x, _) in rep.refutations.items():
+        D = copositivity_matrices(model, a, [j])[0, z]
+        assert D.min() > -1e-9
+        ta, tb = update(model, x, a, z), update(model, x, a + 1, z)
+        assert tb[j + 1] * ta[j] < tb[j] * ta[j + 1]

@@ -35,9 +35,13 @@ convention ``P[a, i, j] = P(next = j | prev = i, a)``, ``O[a, j, z] = P(z | next
   observation under ``a+1`` first-order stochastically dominates that under ``a``; since
   ``eta(. | b, a)`` is linear in ``b``, that is Lemma 1 (L1) for every belief.
 
-Tolerances are absolute (minors, entries of ``D``, ``x^T D x`` for ``x`` on the simplex and
-the A3 margins are compared with ``-tol``). Actions are 0-based here; user-facing text names
-the action pair ``(a, a+1)`` by tracking priorities ``(a+1, a+2)``.
+Tolerances (``tol``, default 1e-9) are relative where the quantities are products of small
+probabilities: a 2x2 minor is compared with ``-tol`` times the sum of its two products, the
+entries of ``D`` and ``x^T D x`` (``x`` on the simplex) with ``-tol max|D|``; the (A3) margins
+are differences of probabilities and are compared with ``-tol`` itself. (An absolute 1e-9 on
+``D``, whose entries are products of four probabilities, accepted real violations.)
+Actions are 0-based here; user-facing text names the action pair ``(a, a+1)`` by tracking
+priorities ``(a+1, a+2)``.
 """
 
 from __future__ import annotations
@@ -85,8 +89,9 @@ def _status(holds: bool, refuted: bool = False) -> str:
 class TP2Report:
     """(A1): worst 2x2 minor over all ``P[a]`` and ``O[a]``.
 
-    ``where`` names the matrix (``"transition"`` / ``"observation"``), the 0-based action and
-    the rows ``(i, j)`` and columns ``(k, l)`` of the worst minor.
+    ``matrix`` (``"transition"`` / ``"observation"``), the 0-based ``action``, ``rows`` ``(i, j)``
+    and ``cols`` ``(k, l)`` locate the minor with the smallest ``worst_relative`` (the minor over
+    the sum of its two products, see :func:`worst_tp2_minor`); ``worst_minor`` is its value.
     """
 
     holds: bool
@@ -98,6 +103,7 @@ class TP2Report:
     num_negative: int
     tol: float
     methods: tuple[str, ...] = ("full",)
+    worst_relative: float = 0.0
 
     @property
     def status(self) -> str:
@@ -105,7 +111,8 @@ class TP2Report:
 
     def to_dict(self) -> dict:
         return {
-            "status": self.status, "worst_minor": self.worst_minor, "matrix": self.matrix,
+            "status": self.status, "worst_minor": self.worst_minor, "worst_relative": self.worst_relative,
+            "matrix": self.matrix,
             "priority": self.action + 1, "rows": list(self.rows), "cols": list(self.cols),
             "num_negative_minors": self.num_negative, "tol": self.tol, "methods": list(self.methods),
         }
@@ -125,39 +132,53 @@ def tp2_minors(M: np.ndarray) -> np.ndarray:
     return Mi[..., :, k] * Mj[..., :, l] - Mi[..., :, l] * Mj[..., :, k]
 
 
-def _worst_minor_full(M: np.ndarray, tol: float) -> tuple[float, tuple[int, int], tuple[int, int], int]:
+_Minor = tuple[float, tuple[int, int], tuple[int, int], int, float]
+
+
+def _relative(minor: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """``minor / (|M_ik M_jl| + |M_il M_jk|)`` in [-1, 1] (0 where both products vanish)."""
+    den = np.abs(p1) + np.abs(p2)
+    return np.where(den > 0, minor / np.where(den > 0, den, 1.0), 0.0)
+
+
+def _worst_minor_full(M: np.ndarray, tol: float) -> _Minor:
     n, m = M.shape
     ri, rj = np.triu_indices(n, 1)
     k, l = np.triu_indices(m, 1)
     Mk, Ml = M[:, k], M[:, l]  # (n, C)
     step = max(1, _MINOR_BLOCK // max(1, k.size))
-    best, where, count = np.inf, (0, 0, 0), 0
+    best, where, count = (np.inf, 0.0), (0, 0, 0), 0
     for start in range(0, ri.size, step):
         i, j = ri[start:start + step], rj[start:start + step]
-        minors = Mk[i] * Ml[j] - Ml[i] * Mk[j]  # (block, C)
-        count += int(np.count_nonzero(minors < -tol))
-        p, q = divmod(int(np.argmin(minors)), k.size)
-        if minors[p, q] < best:
-            best, where = float(minors[p, q]), (int(i[p]), int(j[p]), q)
+        p1, p2 = Mk[i] * Ml[j], Ml[i] * Mk[j]  # (block, C)
+        rel = _relative(p1 - p2, p1, p2)
+        count += int(np.count_nonzero(rel < -tol))
+        p, q = divmod(int(np.argmin(rel)), k.size)
+        if rel[p, q] < best[0]:
+            best, where = (float(rel[p, q]), float(p1[p, q] - p2[p, q])), (int(i[p]), int(j[p]), q)
     q = where[2]
-    return best, (where[0], where[1]), (int(k[q]), int(l[q])), count
+    return best[1], (where[0], where[1]), (int(k[q]), int(l[q])), count, best[0]
 
 
-def _worst_minor_adjacent(M: np.ndarray, tol: float) -> tuple[float, tuple[int, int], tuple[int, int], int]:
+def _worst_minor_adjacent(M: np.ndarray, tol: float) -> _Minor:
     """Contiguous minors only: for a matrix with positive entries, TP2 holds iff all
     ``M[i,k] M[i+1,k+1] - M[i,k+1] M[i+1,k] >= 0`` (the ratios ``M[i+1,k] / M[i,k]`` increase in
     ``k``, and ratios chain). The reported worst is the worst contiguous minor."""
-    minors = M[:-1, :-1] * M[1:, 1:] - M[:-1, 1:] * M[1:, :-1]
-    i, k = np.unravel_index(int(np.argmin(minors)), minors.shape)
-    return float(minors[i, k]), (int(i), int(i) + 1), (int(k), int(k) + 1), int(np.count_nonzero(minors < -tol))
+    p1, p2 = M[:-1, :-1] * M[1:, 1:], M[:-1, 1:] * M[1:, :-1]
+    rel = _relative(p1 - p2, p1, p2)
+    i, k = np.unravel_index(int(np.argmin(rel)), rel.shape)
+    return (float(p1[i, k] - p2[i, k]), (int(i), int(i) + 1), (int(k), int(k) + 1),
+            int(np.count_nonzero(rel < -tol)), float(rel[i, k]))
 
 
-def _worst_minor_sparse(M: np.ndarray, tol: float) -> tuple[float, tuple[int, int], tuple[int, int], int]:
+def _worst_minor_sparse(M: np.ndarray, tol: float) -> _Minor:
     """Only minors that can be negative: ``M[i,l] > 0`` and ``M[j,k] > 0`` (``i < j``, ``k < l``);
     every other minor is ``M[i,k] M[j,l] >= 0``. Exact for negativity; when TP2 holds the
     reported worst is over these candidates (the minor on rows/cols (0, 1) if there are none)."""
     r, c = np.nonzero(M > 0)
-    best, where, count = float(M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]), (0, 1, 0, 1), 0
+    p1, p2 = M[0, 0] * M[1, 1], M[0, 1] * M[1, 0]
+    best = (float(_relative(np.float64(p1 - p2), p1, p2)), float(p1 - p2))
+    where, count = (0, 1, 0, 1), 0
     step = max(1, _MINOR_BLOCK // max(1, r.size))
     first = True
     for start in range(0, r.size, step):
@@ -167,12 +188,14 @@ def _worst_minor_sparse(M: np.ndarray, tol: float) -> tuple[float, tuple[int, in
         if bi.size == 0:
             continue
         ii, ll, jj, kk = i[bi, 0], l[bi, 0], r[bj], c[bj]
-        minors = M[ii, kk] * M[jj, ll] - M[ii, ll] * M[jj, kk]
-        count += int(np.count_nonzero(minors < -tol))
-        p = int(np.argmin(minors))
-        if first or minors[p] < best:
-            best, where, first = float(minors[p]), (int(ii[p]), int(jj[p]), int(kk[p]), int(ll[p])), False
-    return best, (where[0], where[1]), (where[2], where[3]), count
+        p1, p2 = M[ii, kk] * M[jj, ll], M[ii, ll] * M[jj, kk]
+        rel = _relative(p1 - p2, p1, p2)
+        count += int(np.count_nonzero(rel < -tol))
+        p = int(np.argmin(rel))
+        if first or rel[p] < best[0]:
+            best, first = (float(rel[p]), float(p1[p] - p2[p])), False
+            where = (int(ii[p]), int(jj[p]), int(kk[p]), int(ll[p]))
+    return best[1], (where[0], where[1]), (where[2], where[3]), count, best[0]
 
 
 def tp2_method(M: np.ndarray, full_max: int | None = None) -> str:
@@ -185,10 +208,14 @@ def tp2_method(M: np.ndarray, full_max: int | None = None) -> str:
     return "adjacent" if np.all(np.asarray(M) > 0) else "sparse"
 
 
-def worst_tp2_minor(M: np.ndarray, tol: float = 1e-9,
-                    method: str = "auto") -> tuple[float, tuple[int, int], tuple[int, int], int]:
-    """Smallest 2x2 minor of ``M``, its rows ``(i, j)``, columns ``(k, l)`` and the number of
-    minors below ``-tol``, vectorised in memory-bounded blocks.
+def worst_tp2_minor(M: np.ndarray, tol: float = 1e-9, method: str = "auto") -> _Minor:
+    """The worst 2x2 minor of ``M``: ``(minor, (i, j), (k, l), count, relative)``.
+
+    Minors are compared relative to their two products,
+    ``relative = (M_ik M_jl - M_il M_jk) / (|M_ik M_jl| + |M_il M_jk|)`` in [-1, 1], so that
+    the sign test is not swamped by the size of tiny probabilities; ``count`` is the number of
+    minors with ``relative < -tol``; TP2 holds iff ``relative >= -tol``. Vectorised in
+    memory-bounded blocks.
 
     ``method``: ``"full"`` (all minors, the exact worst), ``"adjacent"`` (positive matrices),
     ``"sparse"`` (minors that can be negative), or ``"auto"`` (:func:`tp2_method`). All three
@@ -197,7 +224,7 @@ def worst_tp2_minor(M: np.ndarray, tol: float = 1e-9,
     M = np.asarray(M, dtype=float)
     n, m = M.shape
     if n < 2 or m < 2:
-        return 0.0, (0, 0), (0, 0), 0
+        return 0.0, (0, 0), (0, 0), 0, 0.0
     method = tp2_method(M) if method == "auto" else method
     if method == "adjacent" and not np.all(M > 0):
         raise ValueError("worst_tp2_minor: the adjacent-minor test needs a matrix with positive entries")
@@ -210,7 +237,7 @@ def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
     Identical matrices (e.g. an observation model shared by all actions) are checked once.
     Large matrices use an exact reduced test (:func:`tp2_method`).
     """
-    worst = (np.inf, "transition", 0, (0, 0), (0, 0))
+    worst = (np.inf, "transition", 0, (0, 0), (0, 0), 0.0)
     total = 0
     methods: set[str] = set()
     for label, stack in (("transition", model.P), ("observation", model.O)):
@@ -223,14 +250,14 @@ def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
                 methods.add(method)
                 cached = worst_tp2_minor(M, tol, method)
                 seen.append((M, cached))
-            value, rows, cols, count = cached
+            value, rows, cols, count, rel = cached
             total += count
-            if value < worst[0]:
-                worst = (value, label, a, rows, cols)
-    value, label, a, rows, cols = worst
-    value = 0.0 if not np.isfinite(value) else value
-    return TP2Report(holds=value >= -tol, worst_minor=value, matrix=label, action=a, rows=rows,
-                     cols=cols, num_negative=total, tol=tol, methods=tuple(sorted(methods)))
+            if rel < worst[0]:
+                worst = (rel, label, a, rows, cols, value)
+    rel, label, a, rows, cols, value = worst
+    rel = 0.0 if not np.isfinite(rel) else rel
+    return TP2Report(holds=rel >= -tol, worst_minor=value, matrix=label, action=a, rows=rows, cols=cols,
+                     num_negative=total, tol=tol, methods=tuple(sorted(methods)), worst_relative=rel)
 
 
 # =============================================================================== (A2)
@@ -455,12 +482,13 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
                         search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Copositivity verdicts for a batch of symmetric matrices ``D`` of shape ``(B, S, S)``.
 
-    Cheapest test first: (1) A2', ``min(D) >= -tol``, proves; (2) 1- and 2-element supports in
+    Tolerances are relative to ``max|D|`` (for ``x`` on the simplex, ``|x^T D x| <= max|D|``).
+    Cheapest test first: (1) A2', ``min(D) >= -tol max|D|``, proves; (2) 1- and 2-element supports in
     closed form refute (exact on those faces); (3) ``D`` PSD (eigenvalues, any S), or for
     ``S <= sdp_max_states`` the Clarabel SDP ``D = PSD + N``, proves; (4) projected-gradient
     search on the simplex refutes (skipped with ``search=False``). Returns
     ``(codes (B,), X (B, S), values (B,))``: the status code of :data:`STATUS_NAMES` and, for
-    refuted matrices, ``x`` on the simplex with ``x^T D x = value < -tol`` (NaN elsewhere).
+    refuted matrices, ``x`` on the simplex with ``x^T D x = value < -tol max|D|`` (NaN elsewhere).
     """
     D = np.asarray(D, dtype=float)
     B, S, _ = D.shape
@@ -468,16 +496,17 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     codes = np.full(B, PROVEN_ELEMENTWISE, dtype=np.int8)
     X = np.full((B, S), np.nan)
     values = np.full(B, np.nan)
-    todo = np.nonzero(D.min(axis=(-2, -1)) < -tol)[0]
+    scale = np.abs(D).max(axis=(-2, -1))  # tolerances are relative to max|D|
+    todo = np.nonzero(D.min(axis=(-2, -1)) < -tol * scale)[0]
     if todo.size == 0:
         return codes, X, values
     Xp, vp = _pair_counterexamples(D[todo])
     Dt = D[todo]
-    scale = np.maximum(np.abs(Dt).max(axis=(1, 2)), 1e-300)
-    psd = np.linalg.eigvalsh(Dt / scale[:, None, None])[:, 0] >= -SDP_TOL  # N = 0 certificate
+    st = scale[todo]
+    psd = np.linalg.eigvalsh(Dt / st[:, None, None])[:, 0] >= -SDP_TOL  # N = 0 certificate
     undecided = []
     for k, b in enumerate(todo):
-        if vp[k] < -tol:
+        if vp[k] < -tol * st[k]:
             codes[b], X[b], values[b] = REFUTED, Xp[k], vp[k]
         elif psd[k]:
             codes[b] = PROVEN_SDP
@@ -489,7 +518,7 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     if search and undecided:
         idx = np.asarray(undecided)
         Xs, vs = _search_counterexamples(D[idx], rng)
-        bad = vs < -tol
+        bad = vs < -tol * scale[idx]
         codes[idx[bad]], X[idx[bad]], values[idx[bad]] = REFUTED, Xs[bad], vs[bad]
     return codes, X, values
 
