@@ -655,7 +655,7 @@ class AssumptionReport:
         t = self.tp2
         where = f"{t.matrix} priority {t.action + 1}, rows {t.rows}, cols {t.cols}"
         lines.append(f"  (A1) TP2 of transitions and observations: {t.status.upper()} "
-                     f"(worst 2x2 minor {t.worst_minor:.3g} at {where}"
+                     f"(worst 2x2 minor {t.worst_minor:.3g}, relative {t.worst_relative:.3g}, at {where}"
                      + (f"; {t.num_negative} negative minors)" if not t.holds else ")"))
         c = self.copositivity
         n = c.counts()
