@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import glob
 import json
 from itertools import combinations
 
@@ -289,9 +290,11 @@ def test_a3_is_fosd_of_predicted_observations(seed, structured):
 
 
 # ------------------------------------------------------------------------ reports
-@pytest.mark.parametrize("name", ["tracking_s3_info", "tracking_s8_info"])
-def test_shipped_models_satisfy_assumption_1(name):
-    model = load_model(f"{MODELS}/{name}.yaml")
+@pytest.mark.parametrize("path", sorted(glob.glob(f"{MODELS}/*.yaml")) or ["(no shipped models found)"])
+def test_shipped_models_satisfy_assumption_1(path):
+    """Every shipped model: all of Assumption 1 holds (a shipped model that fails must be fixed
+    or documented, not tolerated here)."""
+    model = load_model(path)
     rep = check_assumptions(model)
     assert rep.holds and rep.status == {"A1": "holds", "A2": "holds", "A3": "holds"}
     # with one observation model for all actions, D = O_jz O_(j+1)z (E1 - E2) and the rows of
