@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,8 +12,9 @@ from pomdp_planner.cli import main
 from pomdp_planner.core.io.model_yaml import load_model, save_model
 from pomdp_planner.core.model import POMDP
 
-S3 = "config/models/tracking_s3_info.yaml"
-S8 = "config/models/tracking_s8_info.yaml"
+MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
+S3 = str(MODELS / "tracking_s3_info.yaml")
+S8 = str(MODELS / "tracking_s8_info.yaml")
 
 
 @pytest.fixture

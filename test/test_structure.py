@@ -13,6 +13,7 @@ from __future__ import annotations
 import glob
 import json
 from itertools import combinations
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -41,7 +42,7 @@ from pomdp_planner.core.structure import (
     worst_tp2_minor,
 )
 
-MODELS = "config/models"
+MODELS = str(Path(__file__).resolve().parents[1] / "config" / "models")
 HORN = np.array([[1, -1, 1, 1, -1], [-1, 1, -1, 1, 1], [1, -1, 1, -1, 1],
                  [1, 1, -1, 1, -1], [-1, 1, 1, -1, 1]], dtype=float)
 
