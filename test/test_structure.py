@@ -413,3 +413,36 @@ def test_tiny_but_real_violation_is_refuted_not_tolerated():
         assert D.min() > -1e-9
         ta, tb = update(model, x, a, z), update(model, x, a + 1, z)
         assert tb[j + 1] * ta[j] < tb[j] * ta[j + 1]
+
+
+def hadeler_copositive_3x3(M: np.ndarray) -> tuple[bool, float]:
+    """Closed-form copositivity of a symmetric 3x3 matrix (Hadeler 1983; Chang & Sederberg 1994):
+    a_ii >= 0, a_ij >= -sqrt(a_ii a_jj), and sqrt(a11 a22 a33) + a12 sqrt(a33) + a13 sqrt(a22)
+    + a23 sqrt(a11) + sqrt(2 (a12 + sqrt(a11 a22)) (a13 + sqrt(a11 a33)) (a23 + sqrt(a22 a33))) >= 0.
+    Returns the verdict and the smallest of the margins (to skip near-boundary cases)."""
+    d = np.diag(M)
+    if d.min() < 0:
+        return False, d.min()
+    s = np.sqrt(d)
+    b12, b13, b23 = M[0, 1] + s[0] * s[1], M[0, 2] + s[0] * s[2], M[1, 2] + s[1] * s[2]
+    if min(b12, b13, b23) < 0:
+        return False, min(b12, b13, b23)
+    last = s.prod() + M[0, 1] * s[2] + M[0, 2] * s[1] + M[1, 2] * s[0] + np.sqrt(2 * b12 * b13 * b23)
+    return last >= 0, min(d.min(), b12, b13, b23, abs(last))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 100_000))
+def test_three_tiers_decide_3x3_like_the_closed_form(seed):
+    """For S = 3 the tiers are exact (Diananda): the verdict must match Hadeler's criterion."""
+    rng = np.random.default_rng(seed)
+    G = rng.normal(size=(3, 3))
+    M = G + G.T + rng.uniform(0, 2) * np.eye(3)
+    expected, margin = hadeler_copositive_3x3(M)
+    if abs(margin) < 1e-6:
+        return  # too close to the boundary of the copositive cone for a numerical verdict
+    (code,), (x,), (val,) = classify_copositive(M[None], rng=rng)
+    assert code != UNKNOWN
+    assert (code <= PROVEN_SDP) == expected
+    if code == REFUTED:
+        assert np.all(x >= 0) and x @ M @ x == pytest.approx(val) and val < 0
