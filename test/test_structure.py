@@ -446,3 +446,17 @@ def test_three_tiers_decide_3x3_like_the_closed_form(seed):
     assert (code <= PROVEN_SDP) == expected
     if code == REFUTED:
         assert np.all(x >= 0) and x @ M @ x == pytest.approx(val) and val < 0
+
+
+def test_pair_counterexamples_are_the_exact_edge_minimum():
+    rng = np.random.default_rng(5)
+    D = rng.normal(size=(40, 4, 4))
+    D = D + np.swapaxes(D, 1, 2)
+    X, vals = structure._pair_counterexamples(D)
+    s = np.linspace(0, 1, 2001)
+    for M, x, v in zip(D, X, vals, strict=True):
+        assert np.all(x >= 0) and x.sum() == pytest.approx(1.0) and np.count_nonzero(x) <= 2
+        assert x @ M @ x == pytest.approx(v)
+        grid = min(((1 - s) ** 2 * M[i, i] + 2 * s * (1 - s) * M[i, j] + s**2 * M[j, j]).min()
+                   for i, j in combinations(range(4), 2))
+        assert v <= grid + 1e-12 and v >= grid - 1e-5  # the grid minimum, up to the grid step

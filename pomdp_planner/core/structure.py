@@ -293,38 +293,35 @@ def _project_simplex(X: np.ndarray) -> np.ndarray:
 
 
 def _pair_counterexamples(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exact minimum of ``x^T D x`` over all ``x >= 0`` supported on 1 or 2 indices, closed form.
+    """Exact minimum of ``x^T D x`` over the simplex points supported on 1 or 2 indices.
 
-    For a support ``{m, n}`` with ``D_mm, D_nn >= 0`` the 2x2 block is copositive iff
-    ``D_mn >= -sqrt(D_mm D_nn)``; otherwise ``x = (sqrt(D_nn), sqrt(D_mm))`` gives
-    ``x^T D x = 2 sqrt(D_mm D_nn) (sqrt(D_mm D_nn) + D_mn) < 0``. Returns, per matrix of the
-    batch ``(B, S, S)``, the best ``x`` (normalised to the simplex) and its value.
+    On the edge ``x = (1-s) e_m + s e_n``, ``f(s) = (1-s)^2 D_mm + 2 s (1-s) D_mn + s^2 D_nn`` is
+    minimised at ``s* = (D_mm - D_mn) / (D_mm + D_nn - 2 D_mn)`` clipped to [0, 1] when the
+    denominator is positive, else at a vertex. (So the 2x2 block is copositive iff
+    ``D_mm, D_nn >= 0`` and ``D_mn >= -sqrt(D_mm D_nn)``.) Returns, per matrix of the batch
+    ``(B, S, S)``, the minimising ``x`` and its value.
     """
     B, S, _ = D.shape
     diag = np.diagonal(D, axis1=1, axis2=2)
-    sq = np.sqrt(np.maximum(diag, 0.0))
-    # candidate for every pair (m, n): x_m = sqrt(D_nn), x_n = sqrt(D_mm); for a negative
-    # diagonal entry the vertex e_m is the (better or equal) candidate, handled below.
-    m, n = np.triu_indices(S, 1)
-    xm, xn = sq[:, n], sq[:, m]
-    tot = xm + xn
-    ok = tot > 0
-    xm = np.where(ok, xm / np.where(ok, tot, 1.0), 0.5)
-    xn = np.where(ok, xn / np.where(ok, tot, 1.0), 0.5)
-    vals = xm**2 * diag[:, m] + 2 * xm * xn * D[:, m, n] + xn**2 * diag[:, n] if m.size else np.zeros((B, 0))
     X = np.zeros((B, S))
     best = diag.min(axis=1)
-    arg_v = diag.argmin(axis=1)
-    X[np.arange(B), arg_v] = 1.0
-    if m.size:
-        p = vals.argmin(axis=1)
-        pv = vals[np.arange(B), p]
-        better = pv < best
-        rows = np.nonzero(better)[0]
-        X[rows] = 0.0
-        X[rows, m[p[rows]]] = xm[rows, p[rows]]
-        X[rows, n[p[rows]]] = xn[rows, p[rows]]
-        best = np.where(better, pv, best)
+    X[np.arange(B), diag.argmin(axis=1)] = 1.0
+    m, n = np.triu_indices(S, 1)
+    if m.size == 0:
+        return X, best
+    a, b, c = diag[:, m], diag[:, n], D[:, m, n]
+    den = a + b - 2.0 * c
+    pos = den > 0
+    sn = np.where(pos, np.clip((a - c) / np.where(pos, den, 1.0), 0.0, 1.0), 0.0)
+    sm = 1.0 - sn
+    vals = sm**2 * a + 2.0 * sm * sn * c + sn**2 * b
+    p = vals.argmin(axis=1)
+    pv = vals[np.arange(B), p]
+    rows = np.nonzero(pv < best)[0]
+    X[rows] = 0.0
+    X[rows, m[p[rows]]] = sm[rows, p[rows]]
+    X[rows, n[p[rows]]] = sn[rows, p[rows]]
+    best = np.minimum(pv, best)
     return X, best
 
 
