@@ -21,6 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="toy sizes, < 2 minutes (CI smoke test)")
     parser.add_argument("--only", nargs="+", choices=SECTIONS, metavar="SECTION",
                         help=f"run only these sections ({', '.join(SECTIONS)})")
+    parser.add_argument("--report-only", action="store_true",
+                        help="run nothing: rewrite RESULTS.md and the plots from DIR/.experiments-cache")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
 
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     data = run_all(args.output, quick=args.quick, progress=not args.no_progress,
-                   sections=tuple(args.only) if args.only else SECTIONS)
+                   sections=() if args.report_only else tuple(args.only) if args.only else SECTIONS)
     print(f"wrote {args.output}/RESULTS.md ({'quick' if args.quick else 'full'} mode; "
           + ", ".join(f"{k} {v:.0f} s" for k, v in data["timings"].items()) + ")")
     return 0

@@ -28,22 +28,10 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from ..core.model import POMDP
 from ..core.simulate import simulate
-
-#: two-sided 95 % Student-t quantiles for small samples (df -> t), normal beyond 30.
-_T95 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228,
-        12: 2.179, 15: 2.131, 20: 2.086, 25: 2.060, 30: 2.042}
-
-
-def t95(df: int) -> float:
-    """Two-sided 95 % Student-t quantile (conservative: the next smaller tabulated df)."""
-    if df <= 0:
-        return float("nan")
-    if df > 30:
-        return 1.96
-    return _T95[max(k for k in _T95 if k <= df)]
 
 
 def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
@@ -52,7 +40,7 @@ def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
     m = float(np.mean(x))
     if x.size < 2:
         return m, (m, m)
-    half = t95(x.size - 1) * float(np.std(x, ddof=1)) / math.sqrt(x.size)
+    half = float(student_t.ppf(0.975, x.size - 1)) * float(np.std(x, ddof=1)) / math.sqrt(x.size)
     return m, (m - half, m + half)
 
 

@@ -45,16 +45,22 @@ def _vec(v) -> str:
 
 
 def section_header(data: dict) -> list[str]:
-    cfg = data["config"]
-    mode = "QUICK (CI smoke-test sizes; NOT the paper's sizes)" if cfg["quick"] else "FULL"
+    quick = [k for k, c in data["configs"].items() if c["quick"]]
+    full = [k for k, c in data["configs"].items() if not c["quick"]]
+    if quick and full:
+        mode = f"MIXED: full sizes for {', '.join(full)}; QUICK toy sizes for {', '.join(quick)}"
+    else:
+        mode = "QUICK (CI smoke-test sizes; NOT the paper's sizes)" if quick else "FULL"
+    cfg = {"quick": bool(quick)}
     lines = ["# Results: reproducing Lauri et al., \"Myopic Policy Bounds for Information Acquisition POMDPs\"", ""]
     if cfg["quick"]:
-        lines += ["> **This file was generated in `--quick` mode.** Every experiment ran at toy sizes so the "
+        lines += ["> **Sections marked quick were generated in `--quick` mode.** They ran at toy sizes so the "
                   "whole run takes well under two minutes; the numbers below only show that the pipeline works. "
                   "Run `make experiments` (or `pomdp-planner bench all`) for the real figures.", ""]
     lines += [f"Mode: **{mode}**. Generated {data['started']} on {data['machine']} (2 shared cores). "
               "Regenerate everything with `make experiments` or `pomdp-planner bench all [--output DIR] [--quick]`.",
-              "", "Time per section (s): " + ", ".join(f"{k} {v:.0f}" for k, v in data["timings"].items()) + ".", "",
+              "", "Sections (mode, finished, run time): " + "; ".join(
+                  f"{k} ({data['modes'][k]}, {data['timings'][k]:.0f} s)" for k in data["timings"]) + ".", "",
               "Actions are the paper's tracking priorities 1..A (1 = greatest priority). "
               "Bounds are `core.bounds.solve_bounds` (`tight` is the package default; `feasible` is the plain "
               "L1-minimal solution of the Theorem 2 LPs); see docs/THEORY.md for what they guarantee.", ""]
@@ -220,9 +226,10 @@ def section_looseness(data: dict) -> list[str]:
              "`upper - lower`. The optimal action comes from point-based value iteration "
              "(`experiments/pbvi.py`, run on the very beliefs evaluated plus the simplex vertices, to a value "
              "change < 1e-6) for S <= "
-             f"{data['config']['looseness_max_states']}; on S = 4 it agrees with the exact alpha-vector solver (table "
-             "above). For larger S no optimal reference was feasible in our time budget (the paper ran incremental "
-             "pruning; a deep tree search is no substitute at gamma = 0.99 with Z = S up to 256 observations), so "
+             f"{data['configs']['table3']['looseness_max_states']}; on S = 4 it agrees with the exact alpha-vector "
+             "solver (table above). For larger S no optimal reference was feasible in our time budget (the paper "
+             "ran incremental pruning; a deep tree search is no substitute at gamma = 0.99 with Z = S up to 256 "
+             "observations), so "
              "only `upper - lower` is shown there.", ""]
     rows = [[c.S, c.A, _f(c.upper_minus_opt, 2), _f(c.opt_minus_lower, 2), _f(c.mean_width, 2),
              f"{c.opt_outside} / {c.opt_decided}", _f(c.ref_time, 1)] for c in with_opt]
@@ -307,7 +314,7 @@ def write_report(path: Path, data: dict) -> Path:
     if "model_check" in data:
         lines += section_model_check(data["model_check"])
     if "table3" in data:
-        lines += section_table3(data["table3"], data["config"])
+        lines += section_table3(data["table3"], data["configs"]["table3"])
         lines += section_looseness(data)
     if "peers" in data:
         lines += section_peers(data["peers"], data)

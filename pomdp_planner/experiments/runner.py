@@ -7,6 +7,7 @@ the report, so it always states exactly what was run.
 
 from __future__ import annotations
 
+import pickle
 import platform
 import sys
 import time
@@ -54,7 +55,7 @@ FULL = ExperimentConfig(
     table3_states=(4, 8, 16, 32, 64, 128, 256), table3_actions=(4, 8, 16, 32, 64), table3_beliefs=500,
     table3_variants=(("feasible", 256), ("tight", 64)), looseness_max_states=16,
     peers_models=("tracking_s3_info", "tracking_s8_info"), peers_budgets=(0.05, 0.2, 1.0),
-    peers_cheap_episodes=100, peers_episodes=(40, 10, 3), peers_steps=50, peers_max_depth=12,
+    peers_cheap_episodes=100, peers_episodes=(30, 8, 3), peers_steps=50, peers_max_depth=12,
 )
 
 QUICK = ExperimentConfig(
@@ -212,38 +213,69 @@ def run_peers(cfg: ExperimentConfig, progress: bool) -> dict:
 SECTIONS = ("fig1", "fig3", "table2", "model_check", "table3", "peers")
 
 
+CACHE_DIR = ".experiments-cache"
+
+
+def _cache_dir(output: Path) -> Path:
+    d = output / CACHE_DIR
+    d.mkdir(parents=True, exist_ok=True)
+    (d / ".gitignore").write_text("*\n")  # never committed
+    return d
+
+
 def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = True,
             sections: tuple[str, ...] = SECTIONS) -> dict:
-    """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``."""
+    """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``.
+
+    Each section's data is also pickled into ``output/.experiments-cache/`` (git-ignored).
+    When only some ``sections`` are run, the other sections are taken from that cache if
+    present, so a long run can be done in pieces; the report states each section's mode.
+    """
     from .report import write_report
 
     cfg = QUICK if quick else FULL
     output = Path(output)
     img = output / "img"
     img.mkdir(parents=True, exist_ok=True)
+    cache = _cache_dir(output)
     runners = {"fig1": lambda: run_fig1(cfg, img), "fig3": lambda: run_fig3(cfg, img),
                "table2": lambda: run_table2(cfg, progress), "model_check": lambda: run_model_check(cfg, progress),
                "table3": lambda: run_table3(cfg, progress), "peers": lambda: run_peers(cfg, progress)}
-    data: dict = {"config": asdict(cfg), "timings": {},
+    data: dict = {"config": asdict(cfg), "configs": {}, "timings": {}, "modes": {},
                   "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
                   "machine": f"{platform.machine()}, {platform.python_implementation()} {platform.python_version()}"}
-    for name in sections:
-        t0 = time.perf_counter()
-        if progress:
-            print(f"[experiments] {name} ...", file=sys.stderr, flush=True)
-        data[name] = runners[name]()
-        data["timings"][name] = time.perf_counter() - t0
+    for name in SECTIONS:
+        if name in sections:
+            t0 = time.perf_counter()
+            if progress:
+                print(f"[experiments] {name} ...", file=sys.stderr, flush=True)
+            data[name] = runners[name]()
+            entry = {"data": data[name], "config": asdict(cfg), "time": time.perf_counter() - t0,
+                     "finished": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+            with open(cache / f"{name}.pickle", "wb") as fh:
+                pickle.dump(entry, fh)
+        elif (cache / f"{name}.pickle").is_file():
+            with open(cache / f"{name}.pickle", "rb") as fh:
+                entry = pickle.load(fh)  # our own file, written above by an earlier run
+            data[name] = entry["data"]
+        else:
+            continue
+        data["configs"][name] = entry["config"]
+        data["timings"][name] = entry["time"]
+        data["modes"][name] = ("quick" if entry["config"]["quick"] else "full") + f", {entry['finished']}"
     if "table3" in data:
         from .figures import plot_looseness
 
         t3 = data["table3"].get("tight") or next(iter(data["table3"].values()))
         data["looseness_variant"] = "tight" if "tight" in data["table3"] else next(iter(data["table3"]))
-        data["looseness_image"] = plot_looseness(img / "fig4_looseness.png", t3["cells"], cfg.table3_actions).name
+        data["looseness_image"] = plot_looseness(img / "fig4_looseness.png", t3["cells"],
+                                                 data["configs"]["table3"]["table3_actions"]).name
     if "peers" in data:
         from .figures import plot_peers
 
+        pc = data["configs"]["peers"]
         data["peers_image"] = plot_peers(img / "peers_return_vs_budget.png", data["peers"]["results"],
-                                         cfg.peers_budgets, cfg.peers_models).name
+                                         pc["peers_budgets"], pc["peers_models"]).name
     write_report(output / "RESULTS.md", data)
     return data
 
