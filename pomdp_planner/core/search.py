@@ -171,6 +171,10 @@ class Planner:
                 raise ValueError("bounds: built for a model of different size")
         self.bounds_solution: Any = None
         self._bound_cache: tuple[Any, np.ndarray] | None = None
+        ar = np.arange(model.A)
+        lo, up = ar[None, :, None], ar[None, None, :]
+        # _range_mask[a, lo, up]: a in [lo, up]; crossed bounds (lo > up) keep every action
+        self._range_mask = ((ar[:, None, None] >= lo) & (ar[:, None, None] <= up)) | (lo > up)
         S, A, Z = model.S, model.A, model.Z
         P, O, r = model.P, model.O, model.r
         self._P = np.ascontiguousarray(P)
@@ -302,7 +306,7 @@ class Planner:
         bounds = self.bounds if use_bounds else self.trivial
         sizes = [1] + [0] * depth
         BT = np.ascontiguousarray(b[:, None])
-        self._count(BT, self._allowed(bounds, BT, self._rho(BT)), depth, 0, sizes, bounds)
+        self._count(BT, self._rho_allowed(bounds, BT)[1], depth, 0, sizes, bounds)
         return tuple(sizes)
 
     # --------------------------------------------------------------- internals
@@ -328,9 +332,12 @@ class Planner:
         rb = self._root_bounds(b, bounds)
         return self.model.A == 1 if rb is None else rb[0] == rb[1]
 
-    def _rho(self, BT: np.ndarray) -> np.ndarray:
-        """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``."""
-        out = _mm(self._rT, BT)
+    def _rho(self, BT: np.ndarray, linear: np.ndarray | None = None) -> np.ndarray:
+        """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``.
+
+        ``linear`` may carry ``r^T BT`` if already computed (fused with the bounds' product).
+        """
+        out = _mm(self._rT, BT) if linear is None else linear
         kind = self._kind
         if kind == "none":
             return out
@@ -343,19 +350,30 @@ class Planner:
         out -= self._w[:, None] * f[None, :]
         return out
 
+    def _rho_allowed(self, bounds: Bounds, BT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(rho, allowed)`` for the columns ``BT``; for ``MyopicBounds`` one product gives both
+        ``r^T b`` and the bound terms ``C_g b``, ``C_h b`` of Eq. 8."""
+        if type(bounds) is not MyopicBounds:
+            rhoT = self._rho(BT)
+            return rhoT, self._allowed(bounds, BT, rhoT)
+        A = self.model.A
+        X = _mm(self._bound_matrix(bounds), BT)  # rows: r^T b (A), C_g b (A), C_h b reversed (A)
+        rhoT = self._rho(BT, X[:A])
+        T = X[A:].reshape(2, A, -1)
+        T[0] += rhoT
+        T[1] += rhoT[::-1]
+        lo, up = self._first_maximisers(T)
+        return rhoT, self._range_mask[:, lo, up]
+
     def _allowed(self, bounds: Bounds, BT: np.ndarray, rhoT: np.ndarray) -> np.ndarray:
         """Boolean ``(A, n)``: actions in ``[lower(b), upper(b)]`` (all if the bounds cross)."""
-        A, n = self.model.A, BT.shape[1]
         if isinstance(bounds, TrivialBounds):
-            return np.ones((A, n), dtype=bool)
+            return np.ones((self.model.A, BT.shape[1]), dtype=bool)
         if type(bounds) is MyopicBounds:
             lo, up = self._myopic_actions(bounds, BT, rhoT)
         else:
             lo, up = bounds.actions(np.ascontiguousarray(BT.T), np.ascontiguousarray(rhoT.T))
-        lo = np.asarray(lo)[None, :]
-        up = np.asarray(up)[None, :]
-        ar = np.arange(A)[:, None]
-        return ((ar >= lo) & (ar <= up)) | (lo > up)
+        return self._range_mask[:, lo, up]
 
     def _myopic_actions(self, bounds: MyopicBounds, BT: np.ndarray, rhoT: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray]:
@@ -364,18 +382,28 @@ class Planner:
         ``lower`` is the smallest and ``upper`` the largest maximiser of the transformed rewards,
         with :data:`~pomdp_planner.core.myopic.TIE_RTOL` ties, exactly as ``MyopicBounds``.
         """
+        A = self.model.A
+        T = _mm(self._bound_matrix(bounds)[A:], BT).reshape(2, A, -1)  # b @ C_g[a]; b @ C_h[A-1-a]
+        T[0] += rhoT
+        T[1] += rhoT[::-1]
+        return self._first_maximisers(T)
+
+    def _bound_matrix(self, bounds: MyopicBounds) -> np.ndarray:
+        """``[r^T; C_g; C_h reversed]`` (``3A x S``), cached for the last bounds object."""
         cache = self._bound_cache
         if cache is None or cache[0] is not bounds:
             Ch = transform_matrix(self.model, bounds.h)[::-1]  # upper: actions in reversed order
-            cache = (bounds, np.ascontiguousarray(np.concatenate([transform_matrix(self.model, bounds.g), Ch])))
+            M = np.concatenate([self._rT, transform_matrix(self.model, bounds.g), Ch])
+            cache = (bounds, np.ascontiguousarray(M))
             self._bound_cache = cache
-        A = self.model.A
-        T = _mm(cache[1], BT).reshape(2, A, -1)  # b @ C_g[a]; b @ C_h[A-1-a]
-        T[0] += rhoT
-        T[1] += rhoT[::-1]
+        return cache[1]
+
+    def _first_maximisers(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Smallest maximiser of ``T[0]`` (lower) and largest of the un-reversed ``T[1]`` (upper),
+        ties within ``TIE_RTOL`` as in :mod:`~pomdp_planner.core.myopic`."""
         top = T.max(axis=1, keepdims=True)
-        first = np.argmax(T >= top - TIE_RTOL * np.maximum(1.0, np.abs(top)), axis=1)  # first maximiser
-        return first[0], A - 1 - first[1]  # smallest maximiser of rho_lower, largest of rho_upper
+        first = np.argmax(T >= top - TIE_RTOL * np.maximum(1.0, np.abs(top)), axis=1)
+        return first[0], self.model.A - 1 - first[1]
 
     def _result(self, q: np.ndarray, sizes: Sequence[int], depth: int, rb: tuple[int, int] | None,
                 t: float, hit: bool, times: tuple[float, ...]) -> SearchResult:
@@ -399,8 +427,7 @@ class Planner:
              ) -> tuple[np.ndarray, list[int], tuple[int, int] | None]:
         """Root Q values, level sizes and root bounds of the depth-``depth`` search."""
         BT = np.ascontiguousarray(b[:, None])
-        rhoT = self._rho(BT)
-        allowed = self._allowed(bounds, BT, rhoT)
+        rhoT, allowed = self._rho_allowed(bounds, BT)
         rb = None
         if not isinstance(bounds, TrivialBounds):
             ok = np.flatnonzero(allowed[:, 0])
@@ -433,8 +460,8 @@ class Planner:
             m = al.shape[1]
             CT, key, eta = self._expand(BT[:, s:s + step], al)
             sizes[level + 1] += CT.shape[1]
-            rho_c = self._rho(CT)
-            Qc = self._values(CT, rho_c, self._allowed(bounds, CT, rho_c), remaining - 1, level + 1, sizes,
+            rho_c, allowed_c = self._rho_allowed(bounds, CT)
+            Qc = self._values(CT, rho_c, allowed_c, remaining - 1, level + 1, sizes,
                               bounds, deadline)
             Vc = Qc.max(axis=0)
             acc = np.bincount(key, weights=eta * Vc, minlength=m * A).reshape(m, A).T
@@ -584,7 +611,7 @@ class Planner:
         for s in range(0, n, step):
             CT, _, _ = self._expand(BT[:, s:s + step], allowed[:, s:s + step])
             sizes[level + 1] += CT.shape[1]
-            self._count(CT, self._allowed(bounds, CT, self._rho(CT)), remaining - 1, level + 1, sizes, bounds)
+            self._count(CT, self._rho_allowed(bounds, CT)[1], remaining - 1, level + 1, sizes, bounds)
 
 
 # ------------------------------------------------------------------ simulation policies
