@@ -37,12 +37,13 @@ PYTEST_ARGS ?=
 
 DEMO_CMD := $(BIN)/python -m pomdp_planner.nodes.demo --steps 30 --model s8
 
-.PHONY: help setup demo test lint clean
+.PHONY: help setup demo test lint clean experiments
 
 help:
 	@echo "make demo   set up .venv (if needed) and run the demo"
 	@echo "make test   set up .venv (if needed), then ruff and the whole test suite"
 	@echo "make lint   ruff only"
+	@echo "make experiments  regenerate docs/RESULTS.md and docs/img (long; EXPERIMENTS_ARGS=--quick for a smoke run)"
 	@echo "make clean  remove .venv and build output"
 
 setup: $(PKG_STAMP)
@@ -53,6 +54,15 @@ demo: $(PKG_STAMP)
 test: $(PKG_STAMP)
 	$(BIN)/ruff check .
 	$(TEST_ENV) $(BIN)/python -m pytest $(PYTEST_ARGS)
+
+# Issue 6: the optional extras `experiments` (matplotlib) and `bench` (pomdp-py) of setup.py, then
+# every experiment (README, "Results"). matplotlib is also in requirements.txt (the smoke test).
+EXPERIMENTS_EXTRAS := matplotlib pomdp-py
+EXPERIMENTS_ARGS ?=
+
+experiments: $(PKG_STAMP)
+	$(PIP) install $(EXPERIMENTS_EXTRAS)
+	$(BIN)/pomdp-planner bench all $(EXPERIMENTS_ARGS)
 
 lint: $(DEPS_STAMP)
 	$(BIN)/ruff check .

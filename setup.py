@@ -90,7 +90,12 @@ setup(
     ],
     python_requires=">=3.11",
     install_requires=["numpy", "scipy", "clarabel", "PyYAML"],
-    extras_require={"test": ["pytest", "hypothesis", "ruff"]},
+    extras_require={
+        "test": ["pytest", "hypothesis", "ruff"],
+        # issue 6 (README, "Optional extras"): plots of `pomdp-planner bench all`, and its POUCT peer
+        "experiments": ["matplotlib"],
+        "bench": ["pomdp-py"],
+    },
     zip_safe=True,
     maintainer="pomdp_planner maintainers",
     maintainer_email="maintainers@example.com",
