@@ -61,7 +61,7 @@ ETA_FUSED_MIN = 1e-100
 #: Leaf chunks of at most this many parents evaluate all actions in one batch.
 LEAF_STACK_MAX = 256
 #: Default memory budget (bytes) for one chunk of the leaf level.
-DEFAULT_CHUNK_BYTES = 16 * 2**20
+DEFAULT_CHUNK_BYTES = 4 * 2**20
 
 Bounds = MyopicBounds | TrivialBounds
 
