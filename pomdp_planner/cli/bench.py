@@ -1,6 +1,8 @@
-"""``pomdp-planner bench search [--json FILE] [--quick]``: the search benchmark (paper Table II).
+"""``pomdp-planner bench search|all``: benchmarks and experiments.
 
-The same as ``python bench/search_bench.py``; see ``pomdp_planner/bench/search_bench.py``.
+``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
+throughput), the same as ``python bench/search_bench.py`` (``pomdp_planner/bench/search_bench.py``).
+``bench all`` regenerates docs/RESULTS.md (``pomdp_planner/cli/experiments.py``, issue 6).
 """
 
 from __future__ import annotations
