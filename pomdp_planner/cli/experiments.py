@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     data = run_all(args.output, quick=args.quick, progress=not args.no_progress,
                    sections=() if args.report_only else tuple(args.only) if args.only else SECTIONS)
-    print(f"wrote {args.output}/RESULTS.md ({'quick' if args.quick else 'full'} mode; "
+    mode = "report only" if args.report_only else "quick mode" if args.quick else "full mode"
+    print(f"wrote {args.output}/RESULTS.md ({mode}; "
           + ", ".join(f"{k} {v:.0f} s" for k, v in data["timings"].items()) + ")")
     return 0

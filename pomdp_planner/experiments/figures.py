@@ -57,7 +57,7 @@ def plot_fig1(path: Path, B: np.ndarray, lower: np.ndarray, upper: np.ndarray, o
     for ax, (title, act, mask) in zip(axes, panels, strict=True):
         _simplex_axes(ax, title)
         c = [PRIORITY_COLOURS[a % len(PRIORITY_COLOURS)] if m else UNDECIDED for a, m in zip(act, mask, strict=True)]
-        ax.scatter(x, y, c=c, s=max(4.0, 2500.0 / len(B)), marker="s", linewidths=0)
+        ax.scatter(x, y, c=c, s=max(4.0, 8000.0 / len(B)), marker="s", linewidths=0)
     handles = [plt.Line2D([], [], marker="s", ls="", color=PRIORITY_COLOURS[a % len(PRIORITY_COLOURS)],
                           label=f"priority {a + 1}") for a in range(A)]
     fig.legend(handles=handles, loc="lower center", ncol=A, fontsize=8, frameon=False)

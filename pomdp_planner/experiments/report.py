@@ -272,34 +272,59 @@ def section_peers(d: dict, data: dict) -> list[str]:
     return lines
 
 
+def _overlap(a, b) -> bool:
+    return not (a.ci[1] < b.ci[0] or b.ci[1] < a.ci[0])
+
+
 def section_when(data: dict) -> list[str]:
+    """Guidance derived from the measured figures (every claim is computed, not asserted)."""
     lines = ["## When to use what", ""]
     peers = data.get("peers")
     if peers:
-        best = {}
+        by_model: dict = {}
         for r in peers["results"]:
-            if r.model not in best or r.mean > best[r.model].mean:
-                best[r.model] = r
-        lines += [f"- Best mean return measured on `{m}`: {r.planner}"
-                  + ("" if r.budget is None else f" at {r.budget:g} s") + f" ({r.mean:.2f})." for m, r in best.items()]
+            by_model.setdefault(r.model, {})[(r.planner, r.budget)] = r
+        for m, rs in by_model.items():
+            best = max(rs.values(), key=lambda r: r.mean)
+            tied = sorted({f"{p}" + ("" if b is None else f"@{b:g}s") for (p, b), r in rs.items() if _overlap(r, best)})
+            lines.append(f"- `{m}`: best mean return {best.mean:.2f} ({best.planner}"
+                         + ("" if best.budget is None else f" at {best.budget:g} s")
+                         + f"); statistically indistinguishable (overlapping 95 % CIs): {', '.join(tied)}.")
+            for (p, b), r in sorted(rs.items(), key=lambda kv: (kv[0][1] or 0, kv[0][0])):
+                if p != "bnb":
+                    continue
+                e = rs.get(("exhaustive", b))
+                if e is None:
+                    continue
+                lines.append(f"  - budget {b:g} s: B&B depth {r.mean_depth:.1f} in {1000 * r.mean_time:.1f} ms per "
+                             f"decision ({100 * (r.certified_fraction or 0):.0f} % certified) vs exhaustive depth "
+                             f"{e.mean_depth:.1f} in {1000 * e.mean_time:.1f} ms; returns {r.mean:.2f} vs "
+                             f"{e.mean:.2f}.")
+            g, lb = rs.get(("greedy", None)), rs.get(("lower-bound", None))
+            if g and lb:
+                lines.append(f"  - greedy {g.mean:.2f} vs lower-bound policy {lb.mean:.2f} vs random "
+                             f"{rs[('random', None)].mean:.2f}.")
+        lines.append("")
     lines += [
-        "- **Bounds agree at the current belief** (most of the S = 3 simplex, Fig. 1): act on the bound; the "
-        "decision is certified optimal and costs microseconds. The B&B planner does this automatically.",
-        "- **Belief-dependent reward (entropy terms), small A and Z, control loop of 0.05-1 s**: branch-and-bound "
-        "(Algorithm 1). It computes the same depth-d values as exhaustive search on the actions it keeps, "
-        "prunes 25-60 % of the tree (Table II) and so reaches the same or a deeper depth in the same time.",
-        "- **Exhaustive search** only when the bounds LP is infeasible or the assumptions (check with "
-        "`pomdp-planner check`) fail; then the bounds are not valid and B&B falls back to it anyway.",
-        "- **Greedy myopic (argmax rho)**: a strong, instant baseline on these tracking problems (heavily "
-        "discounted future matters little for the action when dynamics mix fast); use it when there is no "
-        "time to search.",
-        "- **The lower-bound myopic policy alone** is a bound, not a policy: it is systematically biased towards "
-        "high priority and does worse than greedy; use it only inside the search.",
-        "- **POUCT (pomdp-py)** cannot optimise a belief-dependent reward (it sees only r(s, a)) and its Monte "
-        "Carlo estimates are noisy at these budgets; prefer it for large state spaces with a state reward, where "
-        "exact tree search is impossible.",
-        "- **Large A with a linear reward** (Table III): the bounds prune 40-95 % of the actions per node, so B&B "
-        "scales to A = 64 where exhaustive search cannot go beyond depth 1-2.", ""]
+        "Reading these figures (and Tables II/III):",
+        "",
+        "- **Where the bounds agree** (most of the S = 3 simplex, Fig. 1) the action is certified optimal at the "
+        "cost of two matrix-vector products; the B&B planner then returns at once. On S = 3 nearly every "
+        "decision is certified, so B&B matches deep search at a fraction of a millisecond.",
+        "- **Belief-dependent reward, small A and Z, a control period of 0.05-1 s**: branch-and-bound "
+        "(Algorithm 1). It never drops the (infinite-horizon) optimal action where the bounds are valid, and how "
+        "much deeper than exhaustive search it gets in the same time depends on how much the bounds prune "
+        "(Table II: a lot on S = 3, little on the S = 8 model).",
+        "- **Exhaustive search** is the fallback when the bounds LP is infeasible or Assumption 1 fails "
+        "(`pomdp-planner check`); the planner then falls back to it by itself.",
+        "- **Greedy (argmax rho)** costs microseconds; on these fast-mixing tracking problems the depth of the "
+        "search changes the return little (compare the rows above), so it is a sound choice when there is no "
+        "time to search. The **lower-bound policy alone** is a bound, not a controller.",
+        "- **POUCT (pomdp-py)** sees only the state reward r(s, a), not the entropy term, so it optimises the "
+        "wrong objective here and is noisy at these budgets; it is the tool for large state spaces with state "
+        "rewards, where exact trees are out of reach.",
+        "- **Many actions, linear reward** (Table III): the bounds keep a small interval of priorities per node, "
+        "so branch-and-bound scales in A where exhaustive search does not.", ""]
     return lines
 
 
