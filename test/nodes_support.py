@@ -24,6 +24,7 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float64MultiArray, Int64MultiArray  # noqa: E402
 
+from pomdp_planner.nodes import common  # noqa: E402
 from pomdp_planner.nodes.messages import decode_belief  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -130,7 +131,7 @@ class RosHarness:
         return True
 
     def close(self) -> None:
-        self.executor.shutdown(timeout_sec=2.0)
+        common.shutdown_executor(self.executor)
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         for n in self.nodes:

@@ -29,17 +29,18 @@ def _params(**kw):
 def start_loop(h, *, time_budget=0.02, max_depth=2, seed=3, sim_params=None, filter_params=None,
                planner_params=None):
     """The three nodes on the S = 3 model plus a recorder, spinning; returns (sim, filter, planner, rec)."""
-    sim = h.add(TargetSimulator(context=h.context, parameter_overrides=_params(
-        model_file=S3, seed=seed, **(sim_params or {}))))
-    flt = h.add(BeliefFilter(context=h.context, parameter_overrides=_params(model_file=S3, **(filter_params or {}))))
-    planner = h.add(PlannerNode(context=h.context, parameter_overrides=_params(
-        model_file=S3, time_budget=time_budget, max_depth=max_depth, **(planner_params or {}))))
+    sim = TargetSimulator(context=h.context, parameter_overrides=_params(
+        model_file=S3, seed=seed, **(sim_params or {})))
+    flt = BeliefFilter(context=h.context, parameter_overrides=_params(model_file=S3, **(filter_params or {})))
+    planner = PlannerNode(context=h.context, parameter_overrides=_params(
+        model_file=S3, time_budget=time_budget, max_depth=max_depth, **(planner_params or {})))
     rec = h.recorder()
-    # Start spinning only once every publisher sees its subscribers (the recorder included), so that
-    # nothing is missed: the loop cannot advance before the executor spins.
+    h.start()  # only the recorder spins so far: the loop cannot advance yet
     for pub, n in ((flt.belief_pub, 2), (planner.action_pub, 3), (sim.obs_pubs[0], 2), (sim.state_pub, 1)):
         assert h.wait_matched(pub, n), f"{pub.topic_name}: subscribers not matched"
-    h.start()
+    assert h.wait_until(lambda: rec.beliefs and rec.true_states), "prior / initial state not received"
+    for node in (sim, flt, planner):  # now the loop runs, and the recorder misses nothing
+        h.add(node)
     return sim, flt, planner, rec
 
 
@@ -88,8 +89,7 @@ def test_closed_loop_timer_mode_pairs_by_carried_action(harness):
     """Timer-driven simulator: it steps on its own clock; the filter still pairs exactly."""
     h = harness
     model = load_model(S3)
-    start_loop(h, sim_params={"step_period": 0.01})
-    rec = h.nodes[-1]
+    *_, rec = start_loop(h, sim_params={"step_period": 0.01})
     assert h.wait_until(lambda: len(rec.beliefs) > 40, timeout=30)
     with h.cond:
         observations = list(rec.observations["observation"])

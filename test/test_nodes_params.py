@@ -41,7 +41,7 @@ def _set(client, **values):
 def test_set_parameters_while_running_take_effect_at_next_decision(harness):
     h = harness
     _, _, _, rec = start_loop(h, time_budget=0.02, max_depth=2)
-    client = AsyncParameterClient(h.nodes[-1], "planner")
+    client = AsyncParameterClient(rec, "planner")
     assert client.wait_for_services(timeout_sec=10.0)
     assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=30)
 

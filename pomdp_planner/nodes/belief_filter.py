@@ -125,6 +125,7 @@ class BeliefFilter(Node):
         self.last_warning = text
         self.get_logger().warning(text)
 
+    @common.callback
     def _on_action(self, msg: Int64MultiArray) -> None:
         try:
             act = decode_action(msg, self.model.A)
@@ -135,6 +136,7 @@ class BeliefFilter(Node):
         while len(self.commanded) > ACTION_MEMORY:
             self.commanded.popitem(last=False)
 
+    @common.callback
     def _on_observation(self, sensor: int, msg: Int64MultiArray) -> None:
         Z = self.sensor_O[sensor].shape[2]
         try:
@@ -153,6 +155,7 @@ class BeliefFilter(Node):
         self._release()
 
     # ----------------------------------------------------------- filtering
+    @common.callback
     def _release(self) -> None:
         for entry in self.buffer.pop_ready():
             self._apply_epoch(entry)
@@ -199,6 +202,7 @@ class BeliefFilter(Node):
         self.belief_pub.publish(encode_belief(self.epoch, self.belief))
         self.entropy_pub.publish(Float64(data=common.shannon_entropy(self.belief)))
 
+    @common.callback
     def _publish_diagnostics(self) -> None:
         bad = sum(v for k, v in self.counts.items() if k not in ("readings", "duplicates"))
         level = DiagnosticStatus.WARN if bad else DiagnosticStatus.OK

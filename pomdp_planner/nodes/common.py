@@ -13,6 +13,7 @@ So ``config/models/tracking_s8_info.yaml`` works both installed and from source.
 
 from __future__ import annotations
 
+import functools
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -172,7 +173,40 @@ def _fmt(v) -> str:
     return str(v)
 
 
+# ----------------------------------------------------------------- callbacks
+def callback(method):
+    """Decorate a node callback: an exception raised while the context is shutting down (e.g. a
+    publish after Ctrl-C, while a search was still running) is expected and swallowed, so the
+    exit stays clean; any other exception propagates."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except Exception:
+            if self.context.ok():
+                raise
+            return None
+
+    return wrapper
+
+
 # ----------------------------------------------------------------- main
+def shutdown_executor(executor, timeout_sec: float = 2.0) -> None:
+    """Stop ``executor`` and let callbacks already running finish before nodes are destroyed.
+
+    Jazzy's ``Executor.shutdown`` does not wait for running callbacks, and
+    ``MultiThreadedExecutor`` never stops its thread pool; a callback that then touches a
+    destroyed node leaves "exception was never retrieved" on stderr. So also stop the pool
+    (``_executor``, a ``concurrent.futures.ThreadPoolExecutor``): queued callbacks are
+    cancelled, running ones (e.g. a search, at most ``time_budget``) complete.
+    """
+    executor.shutdown(timeout_sec=timeout_sec)
+    pool = getattr(executor, "_executor", None)
+    if pool is not None and hasattr(pool, "shutdown"):
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
     """The Jazzy idiom: init, build nodes, spin a MultiThreadedExecutor, clean exit on Ctrl-C/SIGTERM.
 
@@ -199,7 +233,7 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         # A second Ctrl-C during teardown must not print a traceback either.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
+            shutdown_executor(executor)
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()

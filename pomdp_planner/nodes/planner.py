@@ -157,6 +157,7 @@ class PlannerNode(Node):
         self._planner = planner
         self._planner_variant = variant
 
+    @common.callback
     def _on_belief(self, msg: Float64MultiArray) -> None:
         t0 = time.perf_counter()
         try:
@@ -227,6 +228,7 @@ class PlannerNode(Node):
             return DiagnosticStatus.OK, "waiting for a belief", values
         return DiagnosticStatus.OK, f"depth {r.depth}, {'certified' if r.certified else 'not certified'}", values
 
+    @common.callback
     def _publish_diagnostics(self) -> None:
         level, text, values = self.diagnostics_values()
         msg = DiagnosticArray()

@@ -104,6 +104,7 @@ class TargetSimulator(Node):
             pub.publish(encode_observation(epoch, priority, z))
         self.state_pub.publish(encode_true_state(epoch, self.state))
 
+    @common.callback
     def _on_action(self, msg: Int64MultiArray) -> None:
         try:
             act = decode_action(msg, self.model.A)
@@ -123,9 +124,11 @@ class TargetSimulator(Node):
             self.get_logger().warning(f"action jumps from epoch {self.epoch} to {act.epoch} (actions lost?)")
         self.step(act.epoch, act.priority)
 
+    @common.callback
     def _on_tick(self) -> None:
         self.step(self.epoch + 1, self.last_priority)
 
+    @common.callback
     def _publish_diagnostics(self) -> None:
         level = DiagnosticStatus.WARN if self.counts["malformed_actions"] else DiagnosticStatus.OK
         msg = DiagnosticArray()
