@@ -60,6 +60,8 @@ ETA_SKIP = ETA_MIN
 ETA_FUSED_MIN = 1e-100
 #: Leaf chunks of at most this many parents evaluate all actions in one batch.
 LEAF_STACK_MAX = 256
+#: A leaf chunk's action computed for all parents (and masked) if at least this share may take it.
+LEAF_GATHER_FRACTION = 0.7
 #: Default memory budget (bytes) for one chunk of the leaf level.
 DEFAULT_CHUNK_BYTES = 4 * 2**20
 
@@ -503,15 +505,18 @@ class Planner:
                 return out
         QT = np.full((A, n), -np.inf)
         count = 0
-        all_allowed = bool(allowed.all())
+        n_allowed = allowed.sum(axis=1)
         for a in range(A):
-            if all_allowed:
+            masked = None  # columns computed but not allowed (cheaper than gathering when few)
+            if n_allowed[a] == 0:
+                continue
+            if n_allowed[a] >= LEAF_GATHER_FRACTION * n:
                 idx = slice(None)
                 Ba = _mm(self._PT[a], BT)  # predicted beliefs as columns, (S, m)
+                if n_allowed[a] < n:
+                    masked = ~allowed[a]
             else:
                 idx = np.flatnonzero(allowed[a])
-                if idx.size == 0:
-                    continue
                 Ba = _mm(self._PT[a], BT[:, idx])
             XT = _mm(self._WT[a], Ba)  # rows: eta (Z), then u . r_a' for each a' (Z each)
             eta = XT[:Z]
@@ -539,12 +544,14 @@ class Planner:
                 tiny = ok & (eta < ETA_FUSED_MIN)
                 if tiny.any():
                     val[tiny] = self._leaf_generic(Ba, a, eta, tiny)[tiny]
-            if ok.all():
-                count += ok.size
-            else:
+            if not ok.all():
                 val = np.where(ok, val, 0.0)
+            if masked is None:
                 count += int(np.count_nonzero(ok))
-            QT[a, idx] = rhoT[a, idx] + self._gamma * val.sum(axis=0)
+                QT[a, idx] = rhoT[a, idx] + self._gamma * val.sum(axis=0)
+            else:
+                count += int(np.count_nonzero(ok[:, ~masked]))
+                QT[a] = np.where(masked, -np.inf, rhoT[a] + self._gamma * val.sum(axis=0))
         return QT, count
 
     def _leaf_q_stacked(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int] | None:
