@@ -133,18 +133,20 @@ def plot_peers(path: Path, results: Sequence, budgets: Sequence[float], models: 
     fig, axes = plt.subplots(1, len(models), figsize=(5.5 * len(models), 4), squeeze=False)
     for ax, mname in zip(axes[0], models, strict=True):
         rows = [r for r in results if r.model == mname]
+        markers = {"bnb": "o", "exhaustive": "s", "pouct": "^"}
+        offsets = {"bnb": 0.94, "exhaustive": 1.0, "pouct": 1.06}  # side by side, not on top of each other
         for i, planner in enumerate(dict.fromkeys(r.planner for r in rows)):
             pr = [r for r in rows if r.planner == planner]
             col = f"C{i}"
             if pr[0].budget is None:
-                m, lo, hi = pr[0].mean, pr[0].ci[0], pr[0].ci[1]
-                ax.axhline(m, color=col, ls=":", label=planner)
-                ax.axhspan(lo, hi, color=col, alpha=0.12)
+                ax.axhline(pr[0].mean, color=col, ls=":", label=f"{planner} (no search; 95 % CI +-"
+                           f"{(pr[0].ci[1] - pr[0].ci[0]) / 2:.2f})")
             else:
                 pr = sorted(pr, key=lambda r: r.budget)
-                xs = [r.budget for r in pr]
+                xs = [r.budget * offsets.get(planner, 1.0) for r in pr]
                 err = [[r.mean - r.ci[0] for r in pr], [r.ci[1] - r.mean for r in pr]]
-                ax.errorbar(xs, [r.mean for r in pr], yerr=err, marker="o", capsize=3, color=col, label=planner)
+                ax.errorbar(xs, [r.mean for r in pr], yerr=err, marker=markers.get(planner, "o"), capsize=3,
+                            color=col, label=planner)
         ax.set_xscale("log")
         ax.set_xlabel("time budget per decision (s)")
         ax.set_ylabel("mean discounted return (true $\\rho$)")
