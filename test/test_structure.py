@@ -27,6 +27,7 @@ from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.structure import (
     PROVEN_ELEMENTWISE,
+    PROVEN_EXACT,
     PROVEN_SDP,
     REFUTED,
     UNKNOWN,
@@ -37,6 +38,7 @@ from pomdp_planner.core.structure import (
     check_tp2,
     classify_copositive,
     copositivity_matrices,
+    is_proven,
     psd_plus_nonnegative,
     tp2_minors,
     worst_tp2_minor,
@@ -199,8 +201,11 @@ def test_copositivity_known_matrices():
     mixed = np.outer(v, v) + 2.0 * np.array([[0, 0, 1], [0, 0, 1], [1, 1, 0]])
     assert np.linalg.eigvalsh(mixed)[0] < -0.1 and mixed.min() < 0
     assert psd_plus_nonnegative(mixed)[0]
-    assert classify_copositive(mixed[None])[0][0] == PROVEN_SDP
-    assert classify_copositive(mixed[None], sdp_max_states=2)[0][0] == UNKNOWN_SDP_SKIPPED
+    assert classify_copositive(mixed[None], exact_max_states=0)[0][0] == PROVEN_SDP
+    assert classify_copositive(mixed[None], exact_max_states=0, sdp_max_states=2)[0][0] == UNKNOWN_SDP_SKIPPED
+    # it has 2 positive eigenvalues, so the exact small-support test decides it too
+    assert np.count_nonzero(np.linalg.eigvalsh(mixed) > 0) == 2
+    assert classify_copositive(mixed[None])[0][0] == PROVEN_EXACT
 
 
 def test_horn_matrix_is_unknown_not_refuted():
@@ -216,19 +221,22 @@ def test_horn_matrix_is_unknown_not_refuted():
 
 
 def test_sdp_certificate_exact_for_small_s():
-    """S <= 4 (Diananda): every D of these models is decided, and verdicts are consistent."""
+    """S <= 4 (Diananda): with the SDP and the search (exact tier off) every D of these models is
+    decided, consistently with sampling and with the exact small-support tier."""
     rng = np.random.default_rng(7)
     seen = set()
     for seed in range(12):
         model = tp2ish_model(seed)
-        rep = check_copositivity(model)
+        rep = check_copositivity(model, exact_max_states=0)
         seen |= set(np.unique(rep.codes).tolist())
         assert not np.any(rep.codes >= UNKNOWN)
+        exact = check_copositivity(model)
+        np.testing.assert_array_equal(is_proven(exact.codes), is_proven(rep.codes))
         xs = rng.dirichlet(np.ones(model.S), size=2000)
         for a in range(model.A - 1):
             D = copositivity_matrices(model, a)
             quad = np.einsum("nm,jzmk,nk->jzn", xs, D, xs).min(axis=-1)
-            proven = rep.codes[a] <= PROVEN_SDP
+            proven = is_proven(rep.codes[a])
             assert np.all(quad[proven] >= -rep.tol)  # sampled: no violation of a proven D (up to tol)
     assert {PROVEN_ELEMENTWISE, PROVEN_SDP, REFUTED} <= seen  # all three verdicts exercised
 
@@ -240,7 +248,7 @@ def test_copositivity_verdicts_match_lemma1_through_the_filter(seed):
     model = tp2ish_model(seed) if seed % 2 else random_model(seed)
     rep = check_copositivity(model)
     B = random_beliefs(np.random.default_rng(seed), 50, model.S)
-    for a, j, z in np.argwhere(rep.codes <= PROVEN_SDP):
+    for a, j, z in np.argwhere(is_proven(rep.codes)):
         for b in B:
             ea, eb = observation_probabilities(model, b, a)[z], observation_probabilities(model, b, a + 1)[z]
             if min(ea, eb) < 1e-12:
@@ -329,9 +337,10 @@ def test_unknown_is_not_holds():
     # In this S = 5 model every D is elementwise non-negative except one, which only the SDP
     # proves. Without the SDP it must stay "unknown", and the report must not claim Assumption 1.
     model = tp2ish_model(34, S=5, A=2, Z=3)
-    full = check_assumptions(model, seed=1)
+    full = check_assumptions(model, seed=1, exact_max_states=0)
     assert full.holds and full.copositivity.counts()["proven_sdp"] == 1
-    rep = check_assumptions(model, sdp_max_states=4, seed=1)
+    assert check_assumptions(model, seed=1).copositivity.counts()["proven_exact"] == 1  # default: exact tier
+    rep = check_assumptions(model, sdp_max_states=4, seed=1, exact_max_states=0)
     assert rep.copositivity.counts()["unknown_sdp_skipped"] == 1 and rep.copositivity.counts()["refuted"] == 0
     assert not rep.holds and rep.status == {"A1": "holds", "A2": "unknown", "A3": "holds"}
     text = rep.summary()
@@ -441,11 +450,12 @@ def test_three_tiers_decide_3x3_like_the_closed_form(seed):
     expected, margin = hadeler_copositive_3x3(M)
     if abs(margin) < 1e-6:
         return  # too close to the boundary of the copositive cone for a numerical verdict
-    (code,), (x,), (val,) = classify_copositive(M[None], rng=rng)
-    assert code != UNKNOWN
-    assert (code <= PROVEN_SDP) == expected
-    if code == REFUTED:
-        assert np.all(x >= 0) and x @ M @ x == pytest.approx(val) and val < 0
+    for exact_max_states in (0, 3):  # SDP + search (Diananda), and the exact tier where it applies
+        (code,), (x,), (val,) = classify_copositive(M[None], rng=rng, exact_max_states=exact_max_states)
+        assert code != UNKNOWN
+        assert is_proven(code) == expected
+        if code == REFUTED:
+            assert np.all(x >= 0) and x @ M @ x == pytest.approx(val) and val < 0
 
 
 def test_pair_counterexamples_are_the_exact_edge_minimum():
@@ -460,3 +470,71 @@ def test_pair_counterexamples_are_the_exact_edge_minimum():
         grid = min(((1 - s) ** 2 * M[i, i] + 2 * s * (1 - s) * M[i, j] + s**2 * M[j, j]).min()
                    for i, j in combinations(range(4), 2))
         assert v <= grid + 1e-12 and v >= grid - 1e-5  # the grid minimum, up to the grid step
+
+
+def slsqp_simplex_minimum(M: np.ndarray, rng: np.random.Generator, starts: int = 40) -> float:
+    """min x^T M x on the simplex by scipy SLSQP from random starts and all vertices
+    (independent of core/structure.py)."""
+    from scipy.optimize import minimize
+
+    n = M.shape[0]
+    best = float(np.diag(M).min())
+    cons = ({"type": "eq", "fun": lambda x: x.sum() - 1.0, "jac": lambda x: np.ones_like(x)},)
+    for x0 in rng.dirichlet(np.full(n, 0.5), size=starts):
+        res = minimize(lambda x: x @ M @ x, x0, jac=lambda x: 2 * M @ x, bounds=[(0, 1)] * n,
+                       constraints=cons, method="SLSQP", options={"ftol": 1e-14, "maxiter": 500})
+        x = np.clip(res.x, 0, None)
+        x /= x.sum()
+        best = min(best, float(x @ M @ x))
+    return best
+
+
+def _hard_rank_structured_ds(limit: int = 12) -> list[np.ndarray]:
+    """D^{j,a,z}-shaped matrices (alpha F1 - t beta F2 from tp2ish models, t in {1, 1.3}) that
+    neither the elementwise test nor the 2-element supports decide."""
+    out = []
+    for seed in (0, 3, 4):
+        model = tp2ish_model(seed, S=8, A=3, Z=8)
+        for a in range(model.A - 1):
+            alpha, beta, F1, F2 = structure._rank_factors(model, a, np.arange(model.S - 1))
+            for j, z in np.ndindex(alpha.shape):
+                for t in (1.0, 1.3):
+                    M = alpha[j, z] * F1[j] - t * beta[j, z] * F2[j]
+                    sc = np.abs(M).max()
+                    if M.min() < -1e-9 * sc and structure._pair_counterexamples(M[None])[1][0] >= -1e-9 * sc:
+                        out.append(M)
+    return out[:limit]
+
+
+def test_exact_small_support_tier_matches_independent_minimisation():
+    """The exact tier on hard D-shaped matrices (S = 8 > 4, so the SDP is not exact there)
+    agrees with SLSQP minimisation on the simplex."""
+    Ds = _hard_rank_structured_ds()
+    assert len(Ds) >= 8
+    rng = np.random.default_rng(0)
+    codes, X, vals = classify_copositive(np.stack(Ds), sdp_max_states=0, search=False)
+    assert np.all(codes != UNKNOWN_SDP_SKIPPED)  # all decided by the exact tier
+    for M, code, x, v in zip(Ds, codes, X, vals, strict=True):
+        assert np.count_nonzero(np.linalg.eigvalsh(M) > 1e-12 * np.abs(M).max()) <= 2
+        ref = slsqp_simplex_minimum(M, rng, starts=20)
+        if code == REFUTED:
+            assert x @ M @ x == pytest.approx(v) and v <= ref + 1e-9 * np.abs(M).max()
+        else:
+            assert code == PROVEN_EXACT and ref >= -1e-9 * np.abs(M).max()
+
+
+def test_exact_tier_needs_three_element_supports():
+    """Q has 2 positive eigenvalues, every 2-element face is >= 0, the centre is < 0. Padded to
+    S = 6 as [[Q, Q], [Q, Q]] (same values on the simplex), only a 3-element support refutes it;
+    with a copositive, non-PSD block it is proven exactly (no SDP: S = 6 > 4)."""
+    Q = np.full((3, 3), -0.6) + 1.6 * np.eye(3)
+    big = np.block([[Q, Q], [Q, Q]])
+    assert structure._pair_counterexamples(big[None])[1][0] > 0
+    (code,), (x,), (val,) = classify_copositive(big[None], sdp_max_states=0, search=False)
+    assert code == REFUTED and np.count_nonzero(x) == 3 and val == pytest.approx(-0.6 / 9)
+    assert x @ big @ x == pytest.approx(val)
+    v = np.array([1.0, -1.0, 0.0])
+    mixed = np.outer(v, v) + 2.0 * np.array([[0, 0, 1], [0, 0, 1], [1, 1, 0]])
+    big = np.block([[mixed, mixed], [mixed, mixed]])
+    assert classify_copositive(big[None], sdp_max_states=0, search=False)[0][0] == PROVEN_EXACT
+    assert classify_copositive(big[None], sdp_max_states=0, exact_max_states=5)[0][0] == UNKNOWN_SDP_SKIPPED

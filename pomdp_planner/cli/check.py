@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from ..core.model import POMDP
-from ..core.structure import SDP_MAX_STATES, check_assumptions
+from ..core.structure import EXACT_MAX_STATES, SDP_MAX_STATES, check_assumptions
 from ._common import add_json_argument, add_model_argument, emit_json, load_model_arg
 
 
@@ -41,7 +41,8 @@ def _text(model: POMDP, report) -> str:
 
 def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
-    report = check_assumptions(model, tol=args.tol, sdp_max_states=args.sdp_max_states, seed=args.seed)
+    report = check_assumptions(model, tol=args.tol, sdp_max_states=args.sdp_max_states, seed=args.seed,
+                               exact_max_states=args.exact_max_states)
     if args.json:
         emit_json({"model": model_summary(model), "valid": True, "assumptions": report.to_dict()})
     else:
@@ -62,5 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--tol", type=float, default=1e-9, help="absolute tolerance of every test (default 1e-9)")
     p.add_argument("--sdp-max-states", type=int, default=SDP_MAX_STATES, metavar="N",
                    help=f"attempt the (A2) SDP certificate only for S <= N (default {SDP_MAX_STATES})")
+    p.add_argument("--exact-max-states", type=int, default=EXACT_MAX_STATES, metavar="N",
+                   help=f"exact (A2) small-support test only for S <= N (default {EXACT_MAX_STATES})")
     p.add_argument("--seed", type=int, default=0, help="seed of the counterexample search (default 0)")
     p.set_defaults(func=run)

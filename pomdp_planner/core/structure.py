@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from itertools import combinations
 
 import numpy as np
 import scipy.sparse as sp
@@ -65,19 +66,33 @@ TP2_FULL_MAX = 1_000_000
 #: Largest number of ``D`` entries materialised at once.
 _D_BLOCK = 4_000_000
 
-# Status codes of each D^{j,a,z}.
+#: Default largest S for the exact small-support test of matrices with <= 2 positive eigenvalues.
+EXACT_MAX_STATES = 96
+#: Eigenvalues of ``D / max|D|`` above this count as positive (the small-support test).
+_POS_EIG = 1e-10
+#: Largest number of (matrix, triple) pairs handled in one numpy block.
+_TRIPLE_BLOCK = 2_000_000
+
+# Status codes of each D^{j,a,z}; codes <= PROVEN_EXACT are proofs.
 PROVEN_ELEMENTWISE = 0
 PROVEN_SDP = 1
-REFUTED = 2
-UNKNOWN = 3
-UNKNOWN_SDP_SKIPPED = 4
+PROVEN_EXACT = 2
+REFUTED = 3
+UNKNOWN = 4
+UNKNOWN_SDP_SKIPPED = 5
 STATUS_NAMES = {
     PROVEN_ELEMENTWISE: "proven (A2': elementwise non-negative)",
     PROVEN_SDP: "proven (certificate D = PSD + N, N >= 0: eigenvalues if N = 0, else SDP)",
+    PROVEN_EXACT: "proven (exact: <= 2 positive eigenvalues, minimum over supports of size <= 3)",
     REFUTED: "refuted (x >= 0 with x^T D x < 0)",
     UNKNOWN: "unknown (no certificate, no counterexample found)",
     UNKNOWN_SDP_SKIPPED: "unknown (SDP skipped above S = {cap}; no counterexample found)",
 }
+
+
+def is_proven(codes: np.ndarray | int) -> np.ndarray | bool:
+    """True where a status code is a proof of copositivity."""
+    return np.asarray(codes) <= PROVEN_EXACT
 
 
 def _status(holds: bool, refuted: bool = False) -> str:
@@ -325,13 +340,55 @@ def _pair_counterexamples(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return X, best
 
 
-def _search_counterexamples(D: np.ndarray, rng: np.random.Generator, starts: int = 16,
-                            iters: int = 300) -> tuple[np.ndarray, np.ndarray]:
+def _triple_counterexamples(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum of ``x^T D x`` over simplex points supported on exactly 3 indices, at interior
+    critical points: on the face ``J``, ``D_JJ x = lambda 1`` gives ``x ∝ adj(D_JJ) 1`` (also when
+    ``D_JJ`` is singular but ``D`` is positive definite on ``{y : sum y = 0}``, the only case a
+    minimiser needs). Vectorised over all triples in blocks. Returns ``(x, value)`` per matrix
+    (``+inf`` where no triple has an interior critical point)."""
+    B, S, _ = D.shape
+    best_x = np.zeros((B, S))
+    best_v = np.full(B, np.inf)
+    if S < 3:
+        return best_x, best_v
+    tri = np.array(list(combinations(range(S), 3)))
+    i, j, l = tri[:, 0], tri[:, 1], tri[:, 2]
+    step = max(1, _TRIPLE_BLOCK // B)
+    rows = np.arange(B)[:, None]
+    for t0 in range(0, len(tri), step):
+        ii, jj, ll = i[t0:t0 + step], j[t0:t0 + step], l[t0:t0 + step]
+        a, d, f = D[:, ii, ii], D[:, jj, jj], D[:, ll, ll]
+        b, c, e = D[:, ii, jj], D[:, ii, ll], D[:, jj, ll]
+        y = np.stack([d * f - e * e + c * e - b * f + b * e - c * d,
+                      c * e - b * f + a * f - c * c + b * c - a * e,
+                      b * e - c * d + b * c - a * e + a * d - b * b], axis=-1)  # adj(D_JJ) 1
+        tot = y.sum(axis=-1, keepdims=True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = y / tot
+        ok = np.all(x > 0, axis=-1) & np.isfinite(x).all(axis=-1)
+        vals = (a * x[..., 0] ** 2 + d * x[..., 1] ** 2 + f * x[..., 2] ** 2
+                + 2 * (b * x[..., 0] * x[..., 1] + c * x[..., 0] * x[..., 2] + e * x[..., 1] * x[..., 2]))
+        vals = np.where(ok, vals, np.inf)
+        k = vals.argmin(axis=1)
+        v = vals[rows[:, 0], k]
+        better = np.nonzero(v < best_v)[0]
+        if better.size:
+            best_v[better] = v[better]
+            best_x[better] = 0.0
+            kb = k[better]
+            for col, idx in enumerate((ii, jj, ll)):
+                best_x[better, idx[kb]] = x[better, kb, col]
+    return best_x, best_v
+
+
+def _search_counterexamples(D: np.ndarray, rng: np.random.Generator, starts: int = 16, iters: int = 300,
+                            target: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Heuristic minimisation of ``x^T D x`` on the simplex for a batch ``(B, S, S)``.
 
     Projected gradient descent from random Dirichlet starts and from the clipped positive and
     negative parts of the eigenvector of the most negative eigenvalue of ``D`` and of ``D``
-    restricted to that part's support. Returns the best ``x`` per matrix and its value.
+    restricted to that part's support. Matrices whose best value is already below ``target``
+    (per matrix) stop early. Returns the best ``x`` per matrix and its value.
     """
     B, S, _ = D.shape
     w, V = np.linalg.eigh(D)
@@ -349,12 +406,25 @@ def _search_counterexamples(D: np.ndarray, rng: np.random.Generator, starts: int
     C = np.where(sums > 0, C / np.where(sums > 0, sums, 1.0), 1.0 / S)
     X = np.concatenate([C, rng.dirichlet(np.ones(S), size=(B, starts))], axis=1)
     lip = 2.0 * np.maximum(np.abs(w).max(axis=1), 1e-300)[:, None, None]
-    for _ in range(iters):
-        G = 2.0 * np.einsum("bmn,bkn->bkm", D, X)
-        X = _project_simplex(X - G / lip)
-    vals = np.einsum("bkm,bmn,bkn->bk", X, D, X)
-    k = vals.argmin(axis=1)
-    return X[np.arange(B), k], vals[np.arange(B), k]
+    target = np.full(B, -np.inf) if target is None else np.asarray(target, dtype=float)
+    best_x = np.zeros((B, S))
+    best_v = np.full(B, np.inf)
+    active = np.arange(B)
+    done = 0
+    while active.size and done < iters:
+        Da, Xa, La = D[active], X[active], lip[active]
+        for _ in range(min(50, iters - done)):
+            Xa = _project_simplex(Xa - 2.0 * (Xa @ Da) / La)  # D symmetric: gradient 2 D x
+        done += 50
+        X[active] = Xa
+        vals = np.einsum("bkm,bkm->bk", Xa @ Da, Xa)
+        k = vals.argmin(axis=1)
+        v = vals[np.arange(active.size), k]
+        better = v < best_v[active]
+        best_v[active[better]] = v[better]
+        best_x[active[better]] = Xa[np.nonzero(better)[0], k[better]]
+        active = active[best_v[active] >= target[active]]
+    return best_x, best_v
 
 
 def psd_plus_nonnegative(D: np.ndarray, tol: float = SDP_TOL) -> tuple[bool, float]:
@@ -418,7 +488,7 @@ class CopositivityReport:
 
     @property
     def holds(self) -> bool:
-        return bool(np.all(self.codes <= PROVEN_SDP))
+        return bool(np.all(is_proven(self.codes)))
 
     @property
     def refuted(self) -> bool:
@@ -429,8 +499,8 @@ class CopositivityReport:
         return _status(self.holds, self.refuted)
 
     def counts(self) -> dict[str, int]:
-        keys = {PROVEN_ELEMENTWISE: "proven_elementwise", PROVEN_SDP: "proven_sdp", REFUTED: "refuted",
-                UNKNOWN: "unknown", UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped"}
+        keys = {PROVEN_ELEMENTWISE: "proven_elementwise", PROVEN_SDP: "proven_sdp", PROVEN_EXACT: "proven_exact",
+                REFUTED: "refuted", UNKNOWN: "unknown", UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped"}
         return {name: int(np.count_nonzero(self.codes == code)) for code, name in keys.items()}
 
     def worst_refutation(self) -> tuple[tuple[int, int, int], np.ndarray, float] | None:
@@ -475,17 +545,28 @@ class CopositivityReport:
 
 
 def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
-                        rng: np.random.Generator | None = None,
-                        search: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        rng: np.random.Generator | None = None, search: bool = True,
+                        exact_max_states: int = EXACT_MAX_STATES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Copositivity verdicts for a batch of symmetric matrices ``D`` of shape ``(B, S, S)``.
 
     Tolerances are relative to ``max|D|`` (for ``x`` on the simplex, ``|x^T D x| <= max|D|``).
-    Cheapest test first: (1) A2', ``min(D) >= -tol max|D|``, proves; (2) 1- and 2-element supports in
-    closed form refute (exact on those faces); (3) ``D`` PSD (eigenvalues, any S), or for
-    ``S <= sdp_max_states`` the Clarabel SDP ``D = PSD + N``, proves; (4) projected-gradient
-    search on the simplex refutes (skipped with ``search=False``). Returns
-    ``(codes (B,), X (B, S), values (B,))``: the status code of :data:`STATUS_NAMES` and, for
-    refuted matrices, ``x`` on the simplex with ``x^T D x = value < -tol max|D|`` (NaN elsewhere).
+    Cheapest test first:
+
+    1. A2': ``min(D) >= -tol max|D|`` proves.
+    2. 1- and 2-element supports, exact minimum in closed form, refute.
+    3. ``D`` PSD (eigenvalues, any S) proves (``D = PSD + N`` with ``N = 0``).
+    4. Exact small-support test (``S <= exact_max_states``): if ``D`` has at most 2 positive
+       eigenvalues, some minimiser of ``x^T D x`` on the simplex has support <= 3 (on its face
+       the form must be positive definite on ``{sum y = 0}``, a space of dimension
+       ``|support| - 1`` <= the number of positive eigenvalues), so the minimum over supports
+       of size <= 3 decides: proves or refutes. Every ``D^{j,a,z}`` of (A2) qualifies: it is
+       ``alpha (u v^T + v u^T) - beta (u' v'^T + v' u'^T)``, at most 2 positive eigenvalues.
+    5. For ``S <= sdp_max_states``, the Clarabel SDP ``D = PSD + N`` proves (exact for S <= 4).
+    6. Projected-gradient search on the simplex refutes (``search=False`` skips it).
+
+    Returns ``(codes (B,), X (B, S), values (B,))``: the status code of :data:`STATUS_NAMES` and,
+    for refuted matrices, ``x`` on the simplex with ``x^T D x = value < -tol max|D|`` (NaN
+    elsewhere).
     """
     D = np.asarray(D, dtype=float)
     B, S, _ = D.shape
@@ -498,23 +579,39 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     if todo.size == 0:
         return codes, X, values
     Xp, vp = _pair_counterexamples(D[todo])
-    Dt = D[todo]
-    st = scale[todo]
-    psd = np.linalg.eigvalsh(Dt / st[:, None, None])[:, 0] >= -SDP_TOL  # N = 0 certificate
+    thr = -tol * scale[todo]
+    refuted = vp < thr
+    codes[todo[refuted]], X[todo[refuted]], values[todo[refuted]] = REFUTED, Xp[refuted], vp[refuted]
+    rest = todo[~refuted]
+    if rest.size == 0:
+        return codes, X, values
+    eig = np.linalg.eigvalsh(D[rest] / scale[rest, None, None])
+    psd = eig[:, 0] >= -SDP_TOL
+    codes[rest[psd]] = PROVEN_SDP
+    rest, eig = rest[~psd], eig[~psd]
+    if rest.size and S <= exact_max_states:
+        low = np.count_nonzero(eig > _POS_EIG, axis=1) <= 2
+        exact = rest[low]
+        if exact.size:
+            Xt, vt = _triple_counterexamples(D[exact])
+            Xq, vq = _pair_counterexamples(D[exact])
+            use_t = vt < vq
+            xbest = np.where(use_t[:, None], Xt, Xq)
+            vbest = np.minimum(vt, vq)
+            bad = vbest < -tol * scale[exact]
+            codes[exact[~bad]] = PROVEN_EXACT
+            codes[exact[bad]], X[exact[bad]], values[exact[bad]] = REFUTED, xbest[bad], vbest[bad]
+        rest = rest[~low]
     undecided = []
-    for k, b in enumerate(todo):
-        if vp[k] < -tol * st[k]:
-            codes[b], X[b], values[b] = REFUTED, Xp[k], vp[k]
-        elif psd[k]:
-            codes[b] = PROVEN_SDP
-        elif S <= sdp_max_states and psd_plus_nonnegative(D[b])[0]:
+    for b in rest:
+        if S <= sdp_max_states and psd_plus_nonnegative(D[b])[0]:
             codes[b] = PROVEN_SDP
         else:
             codes[b] = UNKNOWN if S <= sdp_max_states else UNKNOWN_SDP_SKIPPED
             undecided.append(b)
     if search and undecided:
         idx = np.asarray(undecided)
-        Xs, vs = _search_counterexamples(D[idx], rng)
+        Xs, vs = _search_counterexamples(D[idx], rng, target=-tol * scale[idx])
         bad = vs < -tol * scale[idx]
         codes[idx[bad]], X[idx[bad]], values[idx[bad]] = REFUTED, Xs[bad], vs[bad]
     return codes, X, values
@@ -533,7 +630,8 @@ def _rank_factors(model: POMDP, a: int, js: np.ndarray) -> tuple[np.ndarray, ...
 
 
 def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
-                       seed: int = 0, search: bool = True) -> CopositivityReport:
+                       seed: int = 0, search: bool = True,
+                       exact_max_states: int = EXACT_MAX_STATES) -> CopositivityReport:
     """(A2): copositivity of every ``D^{j,a,z}`` (:func:`classify_copositive` on each).
 
     Every ``D^{j,a,z}`` is ``alpha F1 - beta F2`` with non-negative rank-2 matrices ``F1``,
@@ -563,7 +661,7 @@ def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SD
                 jj, zz = todo[k0:k0 + kstep, 0], todo[k0:k0 + kstep, 1]
                 D = alpha[jj, zz, None, None] * F1[jj] - beta[jj, zz, None, None] * F2[jj]
                 min_entry[a, j0 + jj, zz] = D.min(axis=(1, 2))
-                c, X, v = classify_copositive(D, tol, sdp_max_states, rng, search)
+                c, X, v = classify_copositive(D, tol, sdp_max_states, rng, search, exact_max_states)
                 codes[a, j0 + jj, zz] = c
                 for k in np.nonzero(c == REFUTED)[0]:
                     refutations[(a, j0 + int(jj[k]), int(zz[k]))] = (X[k], float(v[k]))
@@ -659,7 +757,9 @@ class AssumptionReport:
         total = int(c.codes.size)
         parts = [f"{n['proven_elementwise']} elementwise (A2')"]
         if n["proven_sdp"]:
-            parts.append(f"{n['proven_sdp']} by SDP")
+            parts.append(f"{n['proven_sdp']} as PSD + N")
+        if n["proven_exact"]:
+            parts.append(f"{n['proven_exact']} by the exact small-support test")
         detail = f"{total} matrices D^(j,a,z): proven {' + '.join(parts)}"
         if n["refuted"]:
             detail += f", refuted {n['refuted']}"
@@ -696,12 +796,14 @@ class AssumptionReport:
 
 
 def check_assumptions(model: POMDP, *, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
-                      seed: int = 0, search: bool = True) -> AssumptionReport:
+                      seed: int = 0, search: bool = True,
+                      exact_max_states: int = EXACT_MAX_STATES) -> AssumptionReport:
     """Check Assumption 1 (A1)-(A3) of the paper for ``model`` (see the module docstring)."""
     t0 = time.perf_counter()
     tp2 = check_tp2(model, tol)
     t1 = time.perf_counter()
-    cop = check_copositivity(model, tol=tol, sdp_max_states=sdp_max_states, seed=seed, search=search)
+    cop = check_copositivity(model, tol=tol, sdp_max_states=sdp_max_states, seed=seed, search=search,
+                             exact_max_states=exact_max_states)
     t2 = time.perf_counter()
     dom = check_dominance(model, tol)
     t3 = time.perf_counter()
