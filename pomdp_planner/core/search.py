@@ -37,7 +37,19 @@ posterior beliefs: for a batch of parents with predicted beliefs ``b^a``, with
   ``sum_s u_s log u_s = (b^a log b^a) @ O[a] + b^a @ (O[a] log O[a])``
 
 are all matrix products. Branches with tiny ``eta < ETA_FUSED_MIN`` (where ``u_s^2`` could
-underflow) are recomputed from the normalised posterior, so no division blows up.
+underflow) are recomputed from the normalised posterior, so no division blows up. Products
+over the small ``S`` dimension are ``einsum`` loops, not BLAS calls: on a shared 2-core
+machine multi-threaded BLAS waiting for a busy core made the leaf level several times slower.
+
+Anytime (:meth:`Planner.plan`): iterative deepening ``1..max_depth``; the deadline is checked
+before every chunk (about 4 MB of work, a few ms), an interrupted depth is discarded and the
+deepest completed one returned; depth 1 ignores the deadline. If the root bounds agree the
+action is certified (Proposition 1) and ``plan`` returns after depth 1 of that one action (the
+other Q values are ``nan``); :meth:`Planner.search` always searches the depth it is given.
+The bounds bracket the infinite-horizon optimal action, not a finite lookahead's argmax, so
+B&B and exhaustive search may choose differently; B&B's value never exceeds exhaustive's, and
+they agree whenever no node of the exhaustive-optimal subtree has its argmax pruned
+(docs/THEORY.md).
 """
 
 from __future__ import annotations
