@@ -6,17 +6,21 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import REPO, S3, make_harness
+from nodes_support import REPO, S3, S8, make_harness
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 from rclpy.parameter_client import AsyncParameterClient
+from std_msgs.msg import Float64MultiArray
 from test_nodes_closed_loop import start_loop
 
+from pomdp_planner.nodes import common
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.common import NodeConfigError
+from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.target_simulator import TargetSimulator
 
@@ -137,3 +141,21 @@ def test_shipped_yaml_loads_and_matches_declared_parameters(harness, path):
             if isinstance(expected, list):
                 got = list(got)
             assert got == expected, f"{path.name}: {node_name}.{name} = {got!r}, file says {expected!r}"
+
+
+def test_parameter_service_answers_during_a_search(harness):
+    """Planning runs in its own callback group: a parameter set is answered while a search runs."""
+    h = harness
+    planner = h.add(PlannerNode(context=h.context, parameter_overrides=[
+        Parameter("model_file", value=S8), Parameter("time_budget", value=1.0), Parameter("max_depth", value=8)]))
+    node = h.add(rclpy_node(h))
+    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    client = AsyncParameterClient(node, "planner")
+    h.start()
+    assert client.wait_for_services(timeout_sec=10.0)
+    pub.publish(encode_belief(0, np.full(8, 1 / 8)))
+    assert h.wait_until(lambda: planner.planning_epoch == 0, timeout=10)
+    (res,) = _set(client, time_budget=0.3)
+    assert res.successful
+    assert planner.planning_epoch == 0  # answered before the 1 s search ended
+    assert planner.counts["decisions"] == 0

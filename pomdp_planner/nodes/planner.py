@@ -98,6 +98,7 @@ class PlannerNode(Node):
         self._bounds_message = ""
         self._ensure_planner(self.params["bound_variant"])
         self.last_epoch = -1
+        self.planning_epoch: int | None = None
         self.last = None
         self.last_latency = float("nan")
         self.last_params: dict = {}
@@ -179,8 +180,12 @@ class PlannerNode(Node):
             params = dict(self.params)
         self._ensure_planner(params["bound_variant"])
         use_bounds = bool(params["use_bounds"]) and self._bounds_ok
-        result = self._planner.plan(bel.belief, max_depth=params["max_depth"],
-                                    time_budget=params["time_budget"], use_bounds=use_bounds)
+        self.planning_epoch = bel.epoch  # the belief being planned for (None when idle)
+        try:
+            result = self._planner.plan(bel.belief, max_depth=params["max_depth"],
+                                        time_budget=params["time_budget"], use_bounds=use_bounds)
+        finally:
+            self.planning_epoch = None
         self.action_pub.publish(encode_action(bel.epoch + 1, int(result.priority)))
         latency = time.perf_counter() - t0
         pruned = result.percent_pruned[-1] if result.percent_pruned else 0.0
