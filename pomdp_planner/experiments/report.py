@@ -328,6 +328,51 @@ def section_when(data: dict) -> list[str]:
     return lines
 
 
+def section_differences(data: dict) -> list[str]:
+    """Where our figures differ from the paper's, with the measured numbers."""
+    lines = ["## Where and why we differ from the paper", ""]
+    t2 = data.get("table2")
+    if t2:
+        for r in t2["models"]:
+            if r.get("pruning") and r["S"] == 8:
+                ours = ", ".join(f"{p['percent_pruned_mean']:.1f}" for p in r["pruning"])
+                paper = ", ".join(f"{PAPER_TABLE2[p['depth']]:.1f}" for p in r["pruning"] if p["depth"] in PAPER_TABLE2)
+                lines.append(f"- **Table II** (S = 8): we prune {ours} % at d = "
+                             f"{', '.join(str(p['depth']) for p in r['pruning'])} against the paper's {paper} %. "
+                             "The paper does not publish its S = 8 reward, weights or x, y; ours "
+                             "(`tracking_s8_info.yaml`) is the S = 3 problem stretched to 8 states, and on it the "
+                             f"root bounds agree at {100 * r['root_bounds_agree']:.0f} % of the beliefs. Pruning is a "
+                             "property of the model's bounds, so a different S = 8 model gives different numbers; "
+                             "on the paper's own S = 3 model the bounds prune far more (second table).")
+    t3 = data.get("table3")
+    if t3:
+        for variant, v in t3.items():
+            cells = [c for c in v["cells"] if c.feasible]
+            if not cells:
+                continue
+            avg = float(np.mean([c.pct[1] for c in cells]))
+            paper = [PAPER_TABLE3[c.S][PAPER_A.index(c.A)] for c in cells if c.S in PAPER_TABLE3 and c.A in PAPER_A]
+            pavg = float(np.mean([p[1] for p in paper if p is not None])) if paper else float("nan")
+            n_inf = sum(1 for c in v["cells"] if not c.feasible)
+            lines.append(f"- **Table III, `{variant}` bounds**: mean of the cell averages {avg:.1f} % pruned vs "
+                         f"{pavg:.1f} % in the paper over the same cells; {n_inf} infeasible cell(s) (the paper: "
+                         "S = 256, A = 64 only). Our Sec. VI-B model is not the paper's (its x, y are unknown and "
+                         "the natural ones are degenerate, see above), and the numbers depend on which feasible "
+                         "g, h the LP returns: the plain L1-minimal (`feasible`) vectors give valid but loose "
+                         "bounds, the `tight` ones (the package default) maximise agreement on sampled beliefs.")
+    lines += [
+        "- **The Renyi constant.** The paper bounds `(b(i+1) - b(i)) / sum_j b(j)^2` by -1; that is false for "
+        "S >= 3 (the supremum grows like sqrt(S)). Our bounds use the exact constant (docs/THEORY.md), so they "
+        "are valid where the paper's are not guaranteed to be.",
+        "- **Looseness figure**: the paper computed the optimal policy with incremental pruning for every size; "
+        "our optimal reference (PBVI, cross-checked with exact alpha vectors on S = 4) reaches S = "
+        f"{data.get('configs', {}).get('table3', {}).get('looseness_max_states', '?')} in our time budget, larger "
+        "sizes show `upper - lower` only.",
+        "- **Peers** are not in the paper. Fewer episodes were run at the larger budgets (stated in that section).",
+        ""]
+    return lines
+
+
 def write_report(path: Path, data: dict) -> Path:
     lines = section_header(data)
     if "fig1" in data:
@@ -343,6 +388,7 @@ def write_report(path: Path, data: dict) -> Path:
         lines += section_looseness(data)
     if "peers" in data:
         lines += section_peers(data["peers"], data)
+    lines += section_differences(data)
     lines += section_when(data)
     path.write_text("\n".join(lines) + "\n")
     return path
