@@ -223,15 +223,17 @@ def test_agreeing_real_bounds_certify_the_exhaustive_action() -> None:
     assert certified >= 5
 
 
-@pytest.mark.parametrize(("S", "depth", "count"), [(3, 3, 25), (8, 2, 8)])
-def test_disagreements_are_traced_to_pruning(S: int, depth: int, count: int) -> None:
+@pytest.mark.parametrize(("S", "depth", "count", "kind"), [(3, 3, 25, "lp"), (8, 2, 8, "lp"), (3, 3, 25, "random")])
+def test_disagreements_are_traced_to_pruning(S: int, depth: int, count: int, kind: str) -> None:
     """B&B value <= exhaustive value always; they differ only if, somewhere on the exhaustive
-    optimal subtree, the bounds excluded that node's exhaustive argmax."""
+    optimal subtree, the bounds excluded that node's exhaustive argmax. With the LP's bounds
+    no such node occurs on these beliefs; arbitrary (invalid) bounds produce traced
+    disagreements, so both branches of the check are exercised."""
     model = tracking(S)
-    bounds = model_bounds(model)
+    bounds = model_bounds(model) if kind == "lp" else random_bounds(model, 5)
     planner = Planner(model, bounds)
     rng = np.random.default_rng(100 + S)
-    pruned_somewhere = 0
+    pruned_somewhere = disagreements = 0
     for _ in range(count):
         b = rng.dirichlet(np.ones(S))
         bnb = planner.search(b, depth)
@@ -244,8 +246,11 @@ def test_disagreements_are_traced_to_pruning(S: int, depth: int, count: int) -> 
             assert bnb.action == exh.action or math.isclose(
                 exh.q_values[bnb.action], exh.value, rel_tol=1e-12)
         if bnb.action != exh.action:
+            disagreements += 1
             assert violated, f"unexplained disagreement at b={b.tolist()}"
     assert pruned_somewhere > 0  # the test exercises pruning
+    if kind == "random":
+        assert disagreements > 0
 
 
 @settings(max_examples=25, deadline=None)
