@@ -362,8 +362,8 @@ def section_differences(data: dict) -> list[str]:
                          "bounds, the `tight` ones (the package default) maximise agreement on sampled beliefs.")
     lines += [
         "- **The Renyi constant.** The paper bounds `(b(i+1) - b(i)) / sum_j b(j)^2` by -1; that is false for "
-        "S >= 3 (the supremum grows like sqrt(S)). Our bounds use the exact constant (docs/THEORY.md), so they "
-        "are valid where the paper's are not guaranteed to be.",
+        "S >= 3: the supremum is (1 + sqrt(S - 1)) / 2 (`core/bounds.py: renyi_constant`). Our bounds use the "
+        "exact constant, so they are valid where the paper's are not guaranteed to be.",
         "- **Looseness figure**: the paper computed the optimal policy with incremental pruning for every size; "
         "our optimal reference (PBVI, cross-checked with exact alpha vectors on S = 4) reaches S = "
         f"{data.get('configs', {}).get('table3', {}).get('looseness_max_states', '?')} in our time budget, larger "
