@@ -301,7 +301,9 @@ def _cutting_planes(G: np.ndarray, rhs: np.ndarray, solve: Any, violation: Any,
         bad = np.flatnonzero(viol > 0)
         if bad.size == 0:
             return res, rows
-        add = bad[np.argsort(-viol[bad], kind="stable")[: 2 * S + 10]]
+        # add the most violated rows and, with them, the nearly active ones (fewer rounds)
+        cand = np.flatnonzero(np.isfinite(viol))
+        add = cand[np.argsort(-viol[cand], kind="stable")[: 4 * S + 10]]
         rows = np.union1d(rows, add)
     return _LPResult("MaxCuttingRounds", None, None, math.nan), rows
 
