@@ -100,6 +100,7 @@ class Monitor:
         self.states: dict[int, int] = {}
         self.info: dict[int, dict] = {}
         self.observations: dict[int, tuple[int, int]] = {}
+        self.observation_time: dict[int, float] = {}
         self.planner_diag: dict[str, str] = {}
         S = self.model.S
         self.node.create_subscription(Float64MultiArray, "belief",
@@ -122,6 +123,7 @@ class Monitor:
     def _on_observation(self, msg):
         obs = self._m.decode_observation(msg, self.model.A, self.model.Z)
         self.observations[obs.epoch] = (obs.priority, obs.observation)
+        self.observation_time.setdefault(obs.epoch, time.monotonic())
 
     def _on_diag(self, msg):
         for st in msg.status:
@@ -131,10 +133,13 @@ class Monitor:
     def spin_once(self, timeout: float = 0.05) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
-    def row_ready(self, t: int) -> bool:
-        """Belief and true state of epoch ``t`` and the observation of ``t + 1`` (it carries the action
-        chosen from that belief); the planner's ``plan_info`` is shown if it has arrived."""
-        return t in self.beliefs and t in self.states and (t + 1) in self.observations
+    def row_ready(self, t: int, info_wait: float = 1.0) -> bool:
+        """Belief and true state of epoch ``t``, the observation of ``t + 1`` (it carries the action
+        chosen from that belief) and the planner's ``plan_info`` of ``t + 1``, or, if that has not
+        come ``info_wait`` s after the observation (missed before discovery), the row without it."""
+        if not (t in self.beliefs and t in self.states and (t + 1) in self.observations):
+            return False
+        return (t + 1) in self.info or time.monotonic() - self.observation_time[t + 1] > info_wait
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)
