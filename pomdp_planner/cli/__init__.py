@@ -17,6 +17,7 @@ from ..core.model import ModelError
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMANDS = [
     "check",
+    "bounds",
     "export",
     "simulate",
     "plan",

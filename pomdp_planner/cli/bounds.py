@@ -1,0 +1,152 @@
+"""``pomdp-planner bounds MODEL``: the vectors g, h of Theorem 2 and the myopic bound policies.
+
+Prints g, h, feasibility, the belief-independent constants, the LP solve time and, for each
+belief (from ``--beliefs FILE.csv`` or ``--samples N`` reachable beliefs drawn with
+``--seed K``), the lower and upper bound actions as tracking priorities 1..A and whether they
+agree (then the optimal action is known), plus the agreement rate. Exit code 0 when g and h
+are feasible, 1 when the LP is infeasible (the most violated constraint is reported), 2 on bad
+input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from ..core.bounds import BOUND_VARIANTS, BoundsSolution, sample_beliefs, solve_bounds
+from ..core.model import POMDP, ModelError, priority_of
+from ._common import add_json_argument, add_model_argument, emit_json, format_table, load_model_arg
+
+#: Beliefs used to fit the "tight" variant (independent of the beliefs displayed).
+FIT_SAMPLES = 400
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "bounds", help="solve the Theorem 2 LP for g/h and show the myopic policy bounds",
+        description=__doc__.split("\n\n", 1)[1].replace("``", "'"),
+    )
+    add_model_argument(p)
+    p.add_argument("--variant", choices=BOUND_VARIANTS, default=BOUND_VARIANTS[0],
+                   help="choice of g/h: 'tight' (default, maximises agreement of the bounds on sampled "
+                        "reachable beliefs) or 'feasible' (L1-minimal)")
+    p.add_argument("--beliefs", metavar="FILE.csv",
+                   help="beliefs to evaluate, one per line, S comma-separated probabilities ('#' comments "
+                        "and a non-numeric header line are skipped)")
+    p.add_argument("--samples", type=int, default=20, metavar="N",
+                   help="number of sampled reachable beliefs to evaluate when --beliefs is not given (default 20)")
+    p.add_argument("--seed", type=int, default=0, metavar="K",
+                   help="seed for the sampled beliefs and for fitting the tight variant (default 0)")
+    add_json_argument(p)
+    p.set_defaults(func=run)
+
+
+def read_beliefs_csv(path: str | Path, model: POMDP) -> np.ndarray:
+    """Read beliefs (rows of S probabilities) from a CSV file; errors name file and line."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ModelError(f"--beliefs: cannot read {path}: {exc.strerror or exc}") from None
+    rows = []
+    for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
+        cells = [c.strip() for c in row if c.strip() != ""]
+        if not cells or cells[0].startswith("#"):
+            continue
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            if not rows and lineno == 1:  # a header line
+                continue
+            raise ModelError(f"--beliefs: {path}:{lineno}: not a row of numbers: {','.join(cells)!r}") from None
+        b = np.asarray(values)
+        where = f"--beliefs: {path}:{lineno}"
+        if b.size != model.S:
+            raise ModelError(f"{where}: expected {model.S} probabilities (one per state), got {b.size}")
+        if not np.all(np.isfinite(b)) or np.any(b < 0):
+            raise ModelError(f"{where}: probabilities must be finite and non-negative")
+        if abs(b.sum() - 1.0) > 1e-6:
+            raise ModelError(f"{where}: probabilities sum to {b.sum():.9g}, not 1")
+        rows.append(b / b.sum())
+    if not rows:
+        raise ModelError(f"--beliefs: {path} contains no beliefs")
+    return np.array(rows)
+
+
+def evaluate(sol: BoundsSolution, B: np.ndarray) -> dict:
+    """Per-belief lower/upper priorities and the agreement rate (None if infeasible)."""
+    mb = sol.myopic
+    if mb is None:
+        return {"beliefs": [{"belief": b.tolist(), "lower": None, "upper": None, "agree": None} for b in B],
+                "agreement_rate": None}
+    lo, up = mb.actions(B)
+    items = [{"belief": b.tolist(), "lower": int(priority_of(lo_)), "upper": int(priority_of(up_)),
+              "agree": bool(lo_ == up_)} for b, lo_, up_ in zip(B, lo, up, strict=True)]
+    return {"beliefs": items, "agreement_rate": float(np.mean(lo == up))}
+
+
+def run(args: argparse.Namespace) -> int:
+    model = load_model_arg(args)
+    if args.beliefs is not None:
+        B = read_beliefs_csv(args.beliefs, model)
+        source = f"file {args.beliefs}"
+    else:
+        if args.samples < 1:
+            raise ModelError(f"--samples: must be a positive integer, got {args.samples}")
+        # displayed beliefs come from a different stream than the tight variant's fitting samples
+        B = sample_beliefs(model, args.samples, seed=args.seed + 1)
+        source = f"{args.samples} sampled reachable beliefs (seed {args.seed})"
+    sol = solve_bounds(model, args.variant, samples=FIT_SAMPLES, seed=args.seed)
+    ev = evaluate(sol, B)
+    if args.json:
+        out = sol.to_dict()
+        out.update({"belief_source": source, **ev})
+        emit_json(out)
+    else:
+        print(_text(model, sol, ev, source))
+    return 0 if sol.feasible else 1
+
+
+def _vec(v: np.ndarray | None) -> str:
+    return "-" if v is None else "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
+
+
+def _text(model: POMDP, sol: BoundsSolution, ev: dict, source: str) -> str:
+    c = sol.constants
+    const = f"K_f = {c['K_f']:.6g}"
+    if "C_S" in c:
+        const += f" (Renyi: C_S = {c['C_S']:.6g}; the paper uses {c['C_S_paper']:g})"
+    if "epsilon" in c:
+        const += f" (Shannon on B_epsilon, epsilon = {c['epsilon']:g}; the paper uses -log eps = " \
+                 f"{c['log_ratio_bound_paper']:.6g})"
+    lines = [
+        model.describe(),
+        f"variant: {sol.variant}   feasible: {'yes' if sol.feasible else 'NO'} "
+        f"(g: {'yes' if sol.g_feasible else 'no'}, h: {'yes' if sol.h_feasible else 'no'})   "
+        f"solve time: {sol.solve_time:.3f} s",
+        f"constants: {const}",
+        f"guarantee covers: {sol.covers}",
+        f"g = {_vec(sol.g)}",
+        f"h = {_vec(sol.h)}",
+        sol.message,
+    ]
+    if not sol.feasible:
+        for which, mv in (sol.most_violated or {}).items():
+            if "violation" in mv:
+                conf = ", ".join(f"(priority {x['priority']}, states {x['state_pair'][0]}-{x['state_pair'][1]})"
+                                 for x in mv["conflicting"])
+                lines.append(f"most violated ({which}): priority {mv['priority']}, states "
+                             f"{mv['state_pair'][0]}-{mv['state_pair'][1]}, by {mv['violation']:.6g}; "
+                             f"conflicting constraints: {conf}")
+        lines.append("no myopic bounds: the planner must search all actions")
+        return "\n".join(lines)
+    rows = [[k + 1, ", ".join(f"{x:.4f}" for x in it["belief"]), it["lower"], it["upper"],
+             "yes" if it["agree"] else "no"] for k, it in enumerate(ev["beliefs"])]
+    lines += ["", f"beliefs: {source}",
+              format_table(["#", "belief", "lower", "upper", "agree"], rows),
+              f"agreement rate: {ev['agreement_rate']:.3f} "
+              f"({sum(it['agree'] for it in ev['beliefs'])}/{len(ev['beliefs'])})"]
+    return "\n".join(lines)
