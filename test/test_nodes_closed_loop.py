@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from nodes_support import S3, make_harness
@@ -27,14 +28,14 @@ def _params(**kw):
 
 
 def start_loop(h, *, time_budget=0.02, max_depth=2, seed=3, sim_params=None, filter_params=None,
-               planner_params=None):
+               planner_params=None, obs_topics=("observation",)):
     """The three nodes on the S = 3 model plus a recorder, spinning; returns (sim, filter, planner, rec)."""
     sim = TargetSimulator(context=h.context, parameter_overrides=_params(
         model_file=S3, seed=seed, **(sim_params or {})))
     flt = BeliefFilter(context=h.context, parameter_overrides=_params(model_file=S3, **(filter_params or {})))
     planner = PlannerNode(context=h.context, parameter_overrides=_params(
         model_file=S3, time_budget=time_budget, max_depth=max_depth, **(planner_params or {})))
-    rec = h.recorder()
+    rec = h.recorder(obs_topics)
     h.start()  # only the recorder spins so far: the loop cannot advance yet
     for pub, n in ((flt.belief_pub, 2), (planner.action_pub, 3), (sim.obs_pubs[0], 2), (sim.state_pub, 1)):
         assert h.wait_matched(pub, n), f"{pub.topic_name}: subscribers not matched"
@@ -98,4 +99,30 @@ def test_closed_loop_timer_mode_pairs_by_carried_action(harness):
     b = np.full(model.S, 1.0 / model.S)
     for t in range(1, 41):
         b = update(model, b, obs[t][0] - 1, obs[t][1])
+        np.testing.assert_allclose(beliefs[t], b, rtol=1e-9, atol=1e-12)
+
+
+def test_closed_loop_two_sensors(harness, tmp_path):
+    """Two sensors (the model's O and a coarser one): one prediction, then one update per reading."""
+    h = harness
+    model = load_model(S3)
+    O2 = np.array([[[0.9, 0.1], [0.5, 0.5], [0.1, 0.9]]] * 3)
+    doc = {"name": "coarse", "discount": 0.9, "transition": model.P.tolist(), "observation": O2.tolist(),
+           "reward": np.zeros((3, 3)).tolist()}
+    coarse = tmp_path / "coarse.yaml"
+    coarse.write_text(yaml.safe_dump(doc))
+    sensors = {"observation_topics": ["cam", "radar"], "observation_model_files": ["", str(coarse)]}
+    *_, rec = start_loop(h, sim_params=sensors, filter_params=sensors, obs_topics=("cam", "radar"))
+    assert h.wait_until(lambda: len(rec.beliefs) > 50, timeout=30)
+    with h.cond:
+        cam = {t: (p, z) for t, p, z in rec.observations["cam"]}
+        radar = {t: (p, z) for t, p, z in rec.observations["radar"]}
+        actions = dict(rec.actions)
+    beliefs = {b.epoch: b.belief for b in rec.decoded_beliefs(model.S)}
+    b = np.full(3, 1 / 3)
+    for t in range(1, 51):
+        assert cam[t][0] == radar[t][0] == actions[t]
+        a = actions[t] - 1
+        b = (b @ model.P[a]) * model.O[a, :, cam[t][1]] * O2[a, :, radar[t][1]]  # independent formula
+        b = b / b.sum()
         np.testing.assert_allclose(beliefs[t], b, rtol=1e-9, atol=1e-12)
