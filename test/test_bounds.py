@@ -412,3 +412,21 @@ def test_comparison_s256_a64_is_decided_and_checked() -> None:
         assert bd.is_feasible(m, sol.g, "g") and bd.is_feasible(m, sol.h, "h")
     else:
         assert sol.most_violated
+
+
+def test_comparison_s256_a64_has_a_strictly_feasible_ray() -> None:
+    """The paper says no g exists for S = 256, A = 64 (comparison reward, f = 0). A solver-free
+    certificate says otherwise for our generator: g0 = (0, 1, ..., S-1) makes every constraint
+    row strictly positive, so t * g0 (and -t * g0 for h) is feasible for t large enough."""
+    S, A = 256, 64
+    m = tracking_model(S, A, 0.8, comparison_reward(S, A), gamma=0.99)
+    g0 = np.arange(S, dtype=float)
+    # the rows written from the definition: 1 - gamma (E[next | i+1, a] - E[next | i, a])
+    expected_next = m.P @ g0  # (A, S)
+    rows = 1.0 - m.gamma * np.diff(expected_next, axis=1)
+    assert rows.min() > 0.9
+    for which, sign in (("g", 1.0), ("h", -1.0)):
+        G, rhs = bd.constraint_system(m, which)
+        assert np.allclose(G @ (sign * g0), rows.reshape(-1))
+        t = max(0.0, rhs.max()) / rows.min() + 1.0
+        assert bd.is_feasible(m, sign * t * g0, which)
