@@ -43,7 +43,7 @@ from ..core.belief import ImpossibleObservation, predict, update
 from ..core.model import POMDP, action_of_priority
 from . import common
 from .epoch_buffer import EpochBuffer, EpochReadings
-from .messages import MessageError, decode_action, decode_observation, encode_belief
+from .messages import MessageError, OutOfRangeError, decode_action, decode_observation, encode_belief
 
 #: How many commanded actions (by epoch) are remembered for gap handling and cross-checks.
 ACTION_MEMORY = 256
@@ -142,7 +142,7 @@ class BeliefFilter(Node):
         try:
             obs = decode_observation(msg, self.model.A, Z)
         except MessageError as exc:
-            counter = "out_of_range_observations" if "out of range" in str(exc) else "malformed_messages"
+            counter = "out_of_range_observations" if isinstance(exc, OutOfRangeError) else "malformed_messages"
             self._warn(counter, f"{self.topics[sensor]}: ignored {exc}")
             return
         self.counts["readings"] += 1

@@ -52,6 +52,10 @@ class MessageError(ValueError):
     """A message on a node topic does not follow the documented layout."""
 
 
+class OutOfRangeError(MessageError):
+    """A well-formed message whose action priority or observation is out of range."""
+
+
 @dataclass(frozen=True)
 class ActionMsg:
     epoch: int
@@ -102,7 +106,7 @@ def encode_action(epoch: int, priority: int) -> Int64MultiArray:
 def decode_action(msg: Int64MultiArray, num_actions: int) -> ActionMsg:
     epoch, priority = _decode_record(msg, ACTION_LABEL, "action")
     if not 1 <= priority <= num_actions:
-        raise MessageError(f"action: action_priority {priority} out of range 1..{num_actions}")
+        raise OutOfRangeError(f"action: action_priority {priority} out of range 1..{num_actions}")
     return ActionMsg(epoch, priority)
 
 
@@ -113,9 +117,9 @@ def encode_observation(epoch: int, priority: int, observation: int) -> Int64Mult
 def decode_observation(msg: Int64MultiArray, num_actions: int, num_observations: int) -> ObservationMsg:
     epoch, priority, z = _decode_record(msg, OBSERVATION_LABEL, "observation")
     if not 1 <= priority <= num_actions:
-        raise MessageError(f"observation: action_priority {priority} out of range 1..{num_actions}")
+        raise OutOfRangeError(f"observation: action_priority {priority} out of range 1..{num_actions}")
     if not 0 <= z < num_observations:
-        raise MessageError(f"observation: observation {z} out of range 0..{num_observations - 1}")
+        raise OutOfRangeError(f"observation: observation {z} out of range 0..{num_observations - 1}")
     return ObservationMsg(epoch, priority, z)
 
 
