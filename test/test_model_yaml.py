@@ -44,7 +44,9 @@ def test_shipped_models_exist_and_load():
 def test_s8_model_is_the_table_ii_size():
     m = load_model(ROOT / "config/models/tracking_s8_info.yaml")
     assert (m.S, m.A, m.Z) == (8, 3, 8) and m.uncertainty.name == "renyi2" and m.gamma == 0.99
-    np.testing.assert_allclose(m.P, tracking_transitions(8, 3), rtol=0, atol=1e-15)
+    # x = 1..8, y = 24 points evenly spaced on [-9, -1] (printed to 6 digits in the file)
+    expected = tracking_transitions(8, 3, x=np.arange(1, 9), y=np.linspace(-9.0, -1.0, 24))
+    np.testing.assert_allclose(m.P, expected, rtol=0, atol=1e-5)
     np.testing.assert_allclose(m.O, tracking_observations(8, 3, 0.7), rtol=0, atol=1e-15)
 
 
