@@ -339,8 +339,8 @@ def section_differences(data: dict) -> list[str]:
                 paper = ", ".join(f"{PAPER_TABLE2[p['depth']]:.1f}" for p in r["pruning"] if p["depth"] in PAPER_TABLE2)
                 lines.append(f"- **Table II** (S = 8): we prune {ours} % at d = "
                              f"{', '.join(str(p['depth']) for p in r['pruning'])} against the paper's {paper} %. "
-                             "The paper does not publish its S = 8 reward, weights or x, y; ours "
-                             "(`tracking_s8_info.yaml`) is the S = 3 problem stretched to 8 states, and on it the "
+                             "The paper does not publish its S = 8 reward, weights or x, y; ours are the choices "
+                             "documented in the header of `tracking_s8_info.yaml` (and docs/THEORY.md), and on it the "
                              f"root bounds agree at {100 * r['root_bounds_agree']:.0f} % of the beliefs. Pruning is a "
                              "property of the model's bounds, so a different S = 8 model gives different numbers; "
                              "on the paper's own S = 3 model the bounds prune far more (second table).")
