@@ -94,6 +94,7 @@ class BeliefFilter(Node):
             "readings", "impossible_observations", "out_of_range_observations", "malformed_messages",
             "duplicates", "conflicts", "gaps", "incomplete_epochs", "action_mismatches", "bad_beliefs")}
         self.last_warning = ""
+        self._reported_problems = 0
 
         self.belief_pub = self.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
         self.entropy_pub = self.create_publisher(Float64, "belief_entropy", common.LATCHED_QOS)
@@ -204,9 +205,12 @@ class BeliefFilter(Node):
 
     @common.callback
     def _publish_diagnostics(self) -> None:
-        bad = sum(v for k, v in self.counts.items() if k not in ("readings", "duplicates"))
-        level = DiagnosticStatus.WARN if bad else DiagnosticStatus.OK
-        text = f"epoch {self.epoch}" + (f"; last warning: {self.last_warning}" if self.last_warning else "")
+        problems = sum(v for k, v in self.counts.items() if k not in ("readings", "duplicates"))
+        recent, self._reported_problems = problems - self._reported_problems, problems
+        # WARN while problems keep coming (since the previous report), OK again once they stop
+        level = DiagnosticStatus.WARN if recent else DiagnosticStatus.OK
+        text = f"epoch {self.epoch}" + (f"; {recent} problem(s) since the last report, last: {self.last_warning}"
+                                        if recent else "")
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [common.status(

@@ -105,6 +105,7 @@ class PlannerNode(Node):
         self.counts = {"decisions": 0, "deadline_misses": 0, "budget_exhausted": 0, "certified": 0,
                        "bad_beliefs": 0, "stale_beliefs": 0}
         self.last_warning = ""
+        self._reported = {"deadline_misses": 0, "bad_beliefs": 0}  # counts at the previous diagnostics
 
         self.action_pub = self.create_publisher(Int64MultiArray, "action", common.LATCHED_QOS)
         self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", common.STREAM_QOS)
@@ -207,6 +208,7 @@ class PlannerNode(Node):
 
     # ----------------------------------------------------------- diagnostics
     def diagnostics_values(self) -> tuple[bytes, str, dict]:
+        """Level, message and values of the next diagnostics message (WARN: problems since the last one)."""
         with self._lock:
             r, counts, lp, params = self.last, dict(self.counts), dict(self.last_params), dict(self.params)
             latency, warning = self.last_latency, self.last_warning
@@ -223,12 +225,15 @@ class PlannerNode(Node):
                 "last.time_budget": lp.get("time_budget"), "last.max_depth": lp.get("max_depth"),
                 "last.use_bounds": lp.get("use_bounds_effective"),
             })
+        recent = {k: counts[k] - n for k, n in self._reported.items()}
+        self._reported = {k: counts[k] for k in self._reported}
         if self.refusing:
             return DiagnosticStatus.ERROR, "refusing to plan: model fails the structural assumptions", values
         if not self.report.holds:
             return DiagnosticStatus.WARN, "assumptions fail: exhaustive search", values
-        if counts["deadline_misses"] or counts["bad_beliefs"]:
-            return DiagnosticStatus.WARN, warning or "deadline misses or bad beliefs", values
+        if any(recent.values()):  # WARN while problems keep coming, OK again once they stop
+            return DiagnosticStatus.WARN, (f"since the last report: {recent['deadline_misses']} deadline misses, "
+                                           f"{recent['bad_beliefs']} bad beliefs; last: {warning}"), values
         if r is None:
             return DiagnosticStatus.OK, "waiting for a belief", values
         return DiagnosticStatus.OK, f"depth {r.depth}, {'certified' if r.certified else 'not certified'}", values
