@@ -144,3 +144,29 @@ def test_demo_runs_and_exits_cleanly(domain):
     assert all(1 <= int(r[5]) <= 3 for r in rows)
     assert "summary over 5 steps: mean reward" in proc.stdout
     assert "Traceback" not in proc.stderr
+
+
+def test_closed_loop_entry_point_one_process(domain, tmp_path):
+    """``closed_loop``: the three nodes in one process, with the shipped combined parameter file."""
+    ctx = Context()
+    rclpy.init(context=ctx)
+    rec = Recorder(ctx, threading.Condition())
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(rec)
+    err = tmp_path / "closed_loop.err"
+    with open(err, "wb") as fh:
+        proc = subprocess.Popen([*node_command("closed_loop"), "--ros-args", "--params-file",
+                                 str(REPO / "config" / "closed_loop_s3.yaml"), "-p", "planner:time_budget:=0.02"],
+                                env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=fh)
+        try:
+            ok = _spin_until(executor, lambda: len(rec.beliefs) >= 10 and rec.diag_values("planner"), 60)
+        finally:
+            codes = stop_nodes({"closed_loop": (proc, err)}, timeout=15.0)
+            executor.shutdown(timeout_sec=1.0)
+            rec.destroy_node()
+            ctx.try_shutdown()
+    text = err.read_text(errors="replace")
+    assert ok, text[-2000:]
+    assert codes["closed_loop"] == 0 and "Traceback" not in text, text[-2000:]
+    epochs = [b.epoch for b in rec.decoded_beliefs(S3_MODEL.S)]
+    assert epochs == sorted(epochs) and len(set(epochs)) == len(epochs)
