@@ -415,6 +415,10 @@ def sample_beliefs(model: POMDP, n: int, seed: int = 0, horizon: int = 8) -> np.
     return allB[np.sort(idx)]
 
 
+#: At most this many hinge rows in the tightness LP.
+MAX_HINGE_ROWS = 1500
+
+
 def _hinge_rows(model: POMDP, B: np.ndarray, target: np.ndarray, which: str,
                 margin: float) -> tuple[np.ndarray, np.ndarray]:
     """Rows ``H v >= d`` asking the transformed reward of ``target[k]`` to beat every action
@@ -432,6 +436,10 @@ def _hinge_rows(model: POMDP, B: np.ndarray, target: np.ndarray, which: str,
             others.append(a)
     if not ks:
         return np.zeros((0, model.S)), np.zeros(0)
+    if len(ks) > MAX_HINGE_ROWS:  # keep the LP small: an evenly spaced, deterministic subset
+        keep = np.linspace(0, len(ks) - 1, MAX_HINGE_ROWS).round().astype(int)
+        ks = [ks[i] for i in keep]
+        others = [others[i] for i in keep]
     k_idx = np.array([k for k, _ in ks])
     t_idx = np.array([t for _, t in ks])
     a_idx = np.array(others)
@@ -463,21 +471,31 @@ def _tight_vector(model: POMDP, which: str, B: np.ndarray, target: np.ndarray,
     return v if is_feasible(model, v, which) else None
 
 
-def _score(mb_actions: np.ndarray) -> float:
-    return float(np.mean(mb_actions))
+def _score(lo: np.ndarray, up: np.ndarray) -> tuple[float, float]:
+    """Agreement rate, then minus the mean distance ``|upper - lower|`` (larger is better).
+
+    Under Assumption 1 ``lower <= upper`` and the distance is ``E[upper] - E[lower]``; the
+    absolute value also penalises crossed bounds (``lower > upper``), which can only occur when
+    Assumption 1 fails (then pushing the bounds towards each other would cross them further).
+    """
+    return float(np.mean(lo == up)), -float(np.mean(np.abs(up - lo)))
+
+
+def _better(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    return a[0] > b[0] + 1e-12 or (abs(a[0] - b[0]) <= 1e-12 and a[1] > b[1] + 1e-12)
 
 
 def _tighten(model: POMDP, g: np.ndarray, h: np.ndarray, B: np.ndarray, rounds: int = 3
              ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """Alternate hinge LPs for ``g`` (target: current upper action) and ``h`` (target: current
-    lower action); keep, separately, the ``g`` with the largest mean lower action and the ``h``
-    with the smallest mean upper action among all candidates (including the inputs)."""
+    """Alternate hinge LPs for ``g`` (target: one action above the current lower action where
+    the bounds disagree) and ``h`` (one below the current upper action); a candidate replaces
+    the current vector only if it improves :func:`_score` on the samples, so the result is
+    never worse there than the L1-minimal start."""
     rho = model.rho(B)
     best_g, best_h = g, h
-    mb = MyopicBounds(model, g, h)
-    lo, up = mb.actions(B, rho)
-    best_lo, best_up = _score(lo), _score(up)
-    history = [{"round": 0, "mean_lower": best_lo, "mean_upper": best_up, "agreement": float(np.mean(lo == up))}]
+    lo, up = MyopicBounds(model, g, h).actions(B, rho)
+    best = _score(lo, up)
+    history = [{"round": 0, "agreement": best[0], "mean_distance": -best[1]}]
     for r in range(1, rounds + 1):
         if np.all(lo == up):
             break
@@ -487,15 +505,14 @@ def _tighten(model: POMDP, g: np.ndarray, h: np.ndarray, B: np.ndarray, rounds: 
         cand_g = _tight_vector(model, "g", B, np.where(lo < up, lo + 1, lo), best_g)
         if cand_g is not None:
             lo_c = MyopicBounds(model, cand_g, best_h).lower(B, rho)
-            if _score(lo_c) > best_lo + 1e-12:
-                best_g, lo, best_lo, changed = cand_g, lo_c, _score(lo_c), True
+            if _better(_score(lo_c, up), best):
+                best_g, lo, best, changed = cand_g, lo_c, _score(lo_c, up), True
         cand_h = _tight_vector(model, "h", B, np.where(up > lo, up - 1, up), best_h)
         if cand_h is not None:
             up_c = MyopicBounds(model, best_g, cand_h).upper(B, rho)
-            if _score(up_c) < best_up - 1e-12:
-                best_h, up, best_up, changed = cand_h, up_c, _score(up_c), True
-        history.append({"round": r, "mean_lower": best_lo, "mean_upper": best_up,
-                        "agreement": float(np.mean(lo == up))})
+            if _better(_score(lo, up_c), best):
+                best_h, up, best, changed = cand_h, up_c, _score(lo, up_c), True
+        history.append({"round": r, "agreement": best[0], "mean_distance": -best[1]})
         if not changed:
             break
     return best_g, best_h, {"rounds": history}
@@ -522,6 +539,7 @@ class BoundsSolution:
     samples: int = 0
     sample_agreement: float | None = None
     sample_mean_gap: float | None = None
+    sample_crossed: float | None = None
     tightening: dict[str, Any] | None = None
 
     @property
@@ -541,7 +559,7 @@ class BoundsSolution:
             "solve_time": self.solve_time, "message": self.message, "constants": dict(self.constants),
             "covers": self.covers, "most_violated": self.most_violated, "min_margin": dict(self.min_margin),
             "samples": self.samples, "sample_agreement": self.sample_agreement,
-            "sample_mean_gap": self.sample_mean_gap,
+            "sample_mean_gap": self.sample_mean_gap, "sample_crossed": self.sample_crossed,
         }
 
 
@@ -564,7 +582,7 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
     feasible = rg.feasible and rh.feasible
     g, h = rg.v, rh.v
     tightening = None
-    agreement = gap = None
+    agreement = gap = crossed = None
     n_samples = 0
     if feasible:
         B = sample_beliefs(model, samples, seed)
@@ -574,6 +592,7 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
         lo, up = MyopicBounds(model, g, h).actions(B)
         agreement = float(np.mean(lo == up))
         gap = float(np.mean(up - lo))
+        crossed = float(np.mean(lo > up))
     # final guarantee: never report an infeasible vector as feasible
     g_ok = g is not None and is_feasible(model, g, "g")
     h_ok = h is not None and is_feasible(model, h, "h")
@@ -582,6 +601,9 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
     parts = [rg.message, rh.message]
     if feasible:
         parts.append(f"agreement of lower and upper bound on {n_samples} sampled beliefs: {agreement:.3f}")
+        if crossed:
+            parts.append(f"WARNING: lower > upper on {crossed:.1%} of them, impossible under Assumption 1 "
+                         "(check the model with 'pomdp-planner check')")
     most = None
     if not feasible:
         most = {k: r.most_violated for k, r in (("g", rg), ("h", rh)) if r.most_violated is not None}
@@ -592,7 +614,7 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
         g=None if g is None else _ro(g), h=None if h is None else _ro(h),
         solve_time=time.perf_counter() - t0, message="; ".join(parts), constants=constants,
         covers=covered_domain(model), most_violated=most, min_margin=margins, samples=n_samples,
-        sample_agreement=agreement, sample_mean_gap=gap, tightening=tightening,
+        sample_agreement=agreement, sample_mean_gap=gap, sample_crossed=crossed, tightening=tightening,
     )
 
 
