@@ -128,6 +128,9 @@ def _test_beliefs(model: POMDP, n: int = 3000, seed: int = 0) -> np.ndarray:
         E[np.arange(200), i] = t[:, 0]
         E[np.arange(200), j] += 1 - t[:, 0]
         parts.append(E)
+    if S >= 2:  # the worst case of the Renyi constraint for every pair, and its mirror image
+        W = np.array([bd.renyi_maximiser(S, i) for i in range(S - 1)])
+        parts += [W, W[:, ::-1]]
     B = np.concatenate(parts)
     if model.uncertainty.name == "shannon":
         eps = model.epsilon
