@@ -193,18 +193,29 @@ def callback(method):
 
 # ----------------------------------------------------------------- main
 def shutdown_executor(executor, timeout_sec: float = 2.0) -> None:
-    """Stop ``executor`` and let callbacks already running finish before nodes are destroyed.
+    """Stop ``executor``; let callbacks already running finish before nodes are destroyed.
 
     Jazzy's ``Executor.shutdown`` does not wait for running callbacks, and
     ``MultiThreadedExecutor`` never stops its thread pool; a callback that then touches a
-    destroyed node leaves "exception was never retrieved" on stderr. So also stop the pool
-    (``_executor``, a ``concurrent.futures.ThreadPoolExecutor``): queued callbacks are
-    cancelled, running ones (e.g. a search, at most ``time_budget``) complete.
+    destroyed node or a shut-down context leaves "exception was never retrieved" (or "coroutine
+    was never awaited") on stderr at exit. So also stop the pool (``_executor``, a
+    ``concurrent.futures.ThreadPoolExecutor``: running callbacks, e.g. a search of at most
+    ``time_budget``, complete; queued ones are cancelled) and settle the executor's leftover
+    tasks (``_futures``): the exceptions of finished ones are retrieved (expected at shutdown),
+    unstarted ones are cancelled and their coroutines closed. Private attributes, hence the guards.
     """
     executor.shutdown(timeout_sec=timeout_sec)
     pool = getattr(executor, "_executor", None)
     if pool is not None and hasattr(pool, "shutdown"):
         pool.shutdown(wait=True, cancel_futures=True)
+    for task in list(getattr(executor, "_futures", [])):
+        if task.done():
+            task.exception()
+        else:
+            task.cancel()
+            handler = getattr(task, "_handler", None)
+            if hasattr(handler, "close"):
+                handler.close()
 
 
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
