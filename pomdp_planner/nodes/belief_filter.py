@@ -172,8 +172,10 @@ class BeliefFilter(Node):
         else:
             commanded = self.commanded.get(entry.epoch)
             if commanded is not None and commanded != priority:
-                self._warn("action_mismatches", f"epoch {entry.epoch}: observations taken under priority "
-                                                f"{priority}, commanded {commanded}; using {priority}")
+                # informational: expected in the simulator's timer mode, which numbers epochs itself
+                self.counts["action_mismatches"] += 1
+                self.get_logger().debug(f"epoch {entry.epoch}: observations taken under priority {priority}, "
+                                        f"commanded {commanded}; using {priority}")
             if not entry.complete:
                 missing = [self.topics[k] for k in range(len(self.topics)) if k not in entry.readings]
                 self._warn("incomplete_epochs", f"epoch {entry.epoch}: no reading from {missing}; "
@@ -205,7 +207,7 @@ class BeliefFilter(Node):
 
     @common.callback
     def _publish_diagnostics(self) -> None:
-        problems = sum(v for k, v in self.counts.items() if k not in ("readings", "duplicates"))
+        problems = sum(v for k, v in self.counts.items() if k not in ("readings", "duplicates", "action_mismatches"))
         recent, self._reported_problems = problems - self._reported_problems, problems
         # WARN while problems keep coming (since the previous report), OK again once they stop
         level = DiagnosticStatus.WARN if recent else DiagnosticStatus.OK
