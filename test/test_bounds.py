@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -425,17 +424,14 @@ def test_transformed_rewards_leave_policy_unchanged_and_shift_value(unc: str) ->
 
 
 # ------------------------------------------------------------------ the paper's S = 256, A = 64 case
-@pytest.mark.skipif(not os.environ.get("POMDP_PLANNER_SLOW_TESTS"),
-                    reason="slow (minutes): set POMDP_PLANNER_SLOW_TESTS=1; run in the bench")
-def test_comparison_s256_a64_is_decided_and_checked() -> None:
+def test_comparison_s256_a64_lp_is_solved_and_verified() -> None:
+    """The paper's largest comparison case (16 320 rows per vector; ~6 s here)."""
     m = tracking_model(256, 64, 0.8, comparison_reward(256, 64), gamma=0.99)
-    sol = bd.solve_bounds(m, "feasible", samples=100)
-    # With our tracking generator the system has a strictly feasible ray (see THEORY.md), so
-    # unlike the paper's report it is feasible; whatever the answer, it must be verified.
-    if sol.feasible:
-        assert bd.is_feasible(m, sol.g, "g") and bd.is_feasible(m, sol.h, "h")
-    else:
-        assert sol.most_violated
+    sol = bd.solve_bounds(m, "feasible", samples=50)
+    # feasible, unlike the paper's report: see the certificate in the next test and THEORY.md
+    assert sol.feasible, sol.message
+    assert bd.is_feasible(m, sol.g, "g") and bd.is_feasible(m, sol.h, "h")
+    assert sol.solve_time > 0
 
 
 def test_comparison_s256_a64_has_a_strictly_feasible_ray() -> None:
