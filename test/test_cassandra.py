@@ -298,7 +298,7 @@ def test_export_without_uncertainty_does_not_warn_and_writes_start(tmp_path):
 
 
 def test_yaml_to_pomdp_to_model(tmp_path):
-    model = load_model(MODELS[0])
+    model = load_model(ROOT / "config" / "models" / "tracking_s3_info.yaml")
     plain = POMDP(P=model.P, O=model.O, r=model.r, gamma=model.gamma, name="plain",
                   state_names=["low", "mid", "high"], action_names=["p1", "p2", "p3"],
                   metadata={"start": [0.2, 0.3, 0.5]})
