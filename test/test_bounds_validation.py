@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.core.belief import posterior_floor as core_posterior_floor
+from pomdp_planner.core.bounds import covered_domain
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.myopic import MyopicBounds
@@ -228,6 +230,9 @@ def test_shannon_guarantee_on_b_eps_fails_when_posteriors_leave_b_eps():
         if not clear:
             continue
         found.append(describe(model, bounds, ref, clear[0]))
+        # solve_bounds tells the user that this model's Shannon bounds carry no guarantee
+        assert covered_domain(model).startswith("none")
+        assert core_posterior_floor(model) == pytest.approx(posterior_floor(model), abs=1e-12)
         # rho_lower is increasing on B_eps (the LP did its job) but not on the whole simplex
         x = np.linspace(0.0, 1.0, 4001)
         rl, _ = bounds.transformed_rewards(np.stack([1 - x, x], axis=1))
@@ -241,4 +246,5 @@ def test_shannon_guarantee_on_b_eps_fails_when_posteriors_leave_b_eps():
         cbounds = minimal_bounds(closed)
         if cbounds is not None:
             assert validate(closed, cbounds, reference_policy(closed, 100)).violations.size == 0
+            assert covered_domain(closed) == f"B_epsilon({closed.epsilon:g})"
     assert len(found) >= 3, found

@@ -172,3 +172,16 @@ def start_belief(model: POMDP) -> np.ndarray | None:
         return check_belief(model, b, field="start")
     except BeliefError as exc:
         raise ModelError(str(exc)) from None
+
+
+def posterior_floor(model: POMDP) -> float:
+    """Smallest coordinate of any posterior ``tau(b, a, z)`` (with ``eta > 0``) over the simplex.
+
+    Each coordinate of ``tau(b, a, z)`` (Eq. 2) is a linear-fractional function of ``b`` with a
+    positive denominator, so its minimum over the simplex is attained at a vertex ``e_i``: the
+    minimum over the posteriors of the point-mass beliefs. If ``epsilon <= posterior_floor``,
+    every posterior lies in ``B_epsilon``, which the Shannon bounds need (docs/THEORY.md).
+    """
+    tau, eta = posteriors_all(model, np.eye(model.S))  # (S, A, Z, S), (S, A, Z)
+    mins = tau.min(axis=-1)[eta > ETA_MIN]
+    return float(mins.min()) if mins.size else 0.0

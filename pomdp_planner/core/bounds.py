@@ -57,7 +57,7 @@ import clarabel
 import numpy as np
 from scipy import sparse
 
-from .belief import update_batch
+from .belief import posterior_floor, update_batch
 from .model import POMDP
 from .myopic import MyopicBounds
 
@@ -145,9 +145,20 @@ def bound_constants(model: POMDP) -> dict[str, Any]:
 
 
 def covered_domain(model: POMDP) -> str:
-    """Where the guarantee holds: the whole simplex, or ``B_epsilon`` for Shannon entropy."""
+    """Where the guarantee holds: the whole simplex, or ``B_epsilon`` for Shannon entropy.
+
+    For Shannon entropy the LP makes the transformed rewards monotone on ``B_epsilon`` only,
+    and Corollary 1's induction evaluates ``V`` at posteriors ``tau(b, a, z)``: the guarantee
+    holds on ``B_epsilon`` only when every posterior stays in it, i.e. when ``epsilon`` is at
+    most :func:`~.belief.posterior_floor`. The paper claims ``B_epsilon`` without this
+    condition; a counterexample is in ``test/test_bounds_validation.py`` (docs/THEORY.md).
+    """
     if model.uncertainty.name == "shannon":
-        return f"B_epsilon({model.epsilon:g})"
+        floor = posterior_floor(model)
+        if model.epsilon <= floor:
+            return f"B_epsilon({model.epsilon:g})"
+        return (f"none: epsilon = {model.epsilon:g} exceeds the posterior floor {floor:.3g}, so posteriors "
+                f"can leave B_epsilon({model.epsilon:g}) and the Shannon bounds are not guaranteed")
     return "simplex"
 
 
@@ -602,6 +613,9 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
     if (rg.feasible and not g_ok) or (rh.feasible and not h_ok):  # pragma: no cover - defensive
         raise RuntimeError("internal error: a vector reported feasible fails the exact post-check")
     parts = [rg.message, rh.message]
+    covers = covered_domain(model)
+    if covers.startswith("none"):
+        parts.append(f"WARNING: guarantee covers {covers}")
     if feasible:
         parts.append(f"agreement of lower and upper bound on {n_samples} sampled beliefs: {agreement:.3f}")
         if crossed:
@@ -616,7 +630,7 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
         model=model, variant=variant, feasible=feasible, g_feasible=rg.feasible, h_feasible=rh.feasible,
         g=None if g is None else _ro(g), h=None if h is None else _ro(h),
         solve_time=time.perf_counter() - t0, message="; ".join(parts), constants=constants,
-        covers=covered_domain(model), most_violated=most, min_margin=margins, samples=n_samples,
+        covers=covers, most_violated=most, min_margin=margins, samples=n_samples,
         sample_agreement=agreement, sample_mean_gap=gap, sample_crossed=crossed, tightening=tightening,
     )
 
