@@ -70,7 +70,7 @@ class PlannerNode(Node):
             float_range=(0.0, 10.0)))
         self.declare_parameter("chunk_kib", 1024, d(
             "Memory per search chunk (KiB); the deadline is checked between chunks, so smaller = tighter "
-            "deadlines (the core default of 32 MiB overshot a 0.2 s budget by up to 0.7 s on S = 8)",
+            "deadlines (32 MiB chunks overshot a 0.2 s budget by up to 0.7 s on S = 8)",
             read_only=True, int_range=(16, 1 << 20)))
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
