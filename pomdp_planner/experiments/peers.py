@@ -119,7 +119,9 @@ def _pomdp_py_agent(pp, model: POMDP, rng: random.Random):
     P, O, r = np.asarray(model.P), np.asarray(model.O), np.asarray(model.r)
     cP, cO = np.cumsum(P, axis=-1), np.cumsum(O, axis=-1)
 
-    class St(pp.State):
+    class _Indexed:
+        """Equality and hashing by index, shared by the state, action and observation classes."""
+
         def __init__(self, i):
             self.index = i
 
@@ -127,27 +129,16 @@ def _pomdp_py_agent(pp, model: POMDP, rng: random.Random):
             return self.index
 
         def __eq__(self, other):
-            return isinstance(other, St) and other.index == self.index
+            return type(other) is type(self) and other.index == self.index
 
-    class Ac(pp.Action):
-        def __init__(self, i):
-            self.index = i
+    class St(_Indexed, pp.State):
+        pass
 
-        def __hash__(self):
-            return self.index
+    class Ac(_Indexed, pp.Action):
+        pass
 
-        def __eq__(self, other):
-            return isinstance(other, Ac) and other.index == self.index
-
-    class Ob(pp.Observation):
-        def __init__(self, i):
-            self.index = i
-
-        def __hash__(self):
-            return self.index
-
-        def __eq__(self, other):
-            return isinstance(other, Ob) and other.index == self.index
+    class Ob(_Indexed, pp.Observation):
+        pass
 
     states = [St(i) for i in range(S)]
     actions = [Ac(a) for a in range(A)]
