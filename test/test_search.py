@@ -21,7 +21,7 @@ from pomdp_planner.core.domains.tracking import tracking_transitions
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.myopic import MyopicBounds
-from pomdp_planner.core.search import Planner, SearchResult, complete_tree_nodes
+from pomdp_planner.core.search import Planner, SearchResult, complete_tree_nodes, next_depth_cannot_finish
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 
@@ -387,7 +387,7 @@ def test_deadline_is_checked_inside_a_depth_and_interrupted_depths_are_discarded
     readings = []  # (budget in clock ticks, depth returned, deadline hit)
     for budget in range(1, 5000):
         planner = Planner(_S8, chunk_bytes=4096, clock=FakeClock())
-        res = planner.plan(b, max_depth=3, time_budget=float(budget), use_bounds=False)
+        res = planner.plan(b, max_depth=3, time_budget=float(budget), use_bounds=False, predict_stop=False)
         readings.append((budget, res.depth, res.deadline_hit))
         reference = planner.search(b, res.depth, use_bounds=False)
         np.testing.assert_array_equal(res.q_values, reference.q_values)
@@ -452,3 +452,34 @@ def test_tracking_transitions_are_used_unchanged() -> None:
     P = tracking_transitions(8, 3)
     expected = P @ np.arange(8.0)
     assert np.all(np.diff(expected, axis=0) > 0)
+
+
+def test_stop_rule_predicts_from_the_growth_of_the_last_two_depths() -> None:
+    # next depth predicted at t_d * max(1, t_d / t_{d-1}); hopeless beyond margin * remaining
+    assert not next_depth_cannot_finish([0.01], remaining=1e-9)  # one depth: no growth known
+    assert next_depth_cannot_finish([0.01, 0.1], remaining=0.6, margin=1.5)  # predicted 1.0 > 1.5 * 0.6
+    assert not next_depth_cannot_finish([0.01, 0.1], remaining=0.7, margin=1.5)  # 1.0 < 1.5 * 0.7
+    assert not next_depth_cannot_finish([0.2, 0.1], remaining=0.06, margin=2.0)  # shrinking: 0.1 < 0.12
+    assert next_depth_cannot_finish([0.2, 0.1], remaining=0.04, margin=2.0)
+    assert next_depth_cannot_finish([0.0, 0.1], remaining=0.0)
+
+
+def test_predicted_stop_returns_the_same_decision_without_costing_depth() -> None:
+    """Over a sweep of deadlines (deterministic clock), the predictive stop never returns a
+    shallower depth than running into the deadline, returns the same decision, and when it
+    stops it saves the time of the hopeless depth."""
+    b = np.random.default_rng(4).dirichlet(np.ones(8))
+    stopped = 0
+    for budget in range(1, 3000, 7):
+        kw = dict(max_depth=3, time_budget=float(budget), use_bounds=False)
+        plain = Planner(_S8, chunk_bytes=4096, clock=FakeClock()).plan(b, predict_stop=False, **kw)
+        pred = Planner(_S8, chunk_bytes=4096, clock=FakeClock()).plan(b, **kw)
+        assert pred.depth == plain.depth
+        assert pred.action == plain.action
+        np.testing.assert_array_equal(pred.q_values, plain.q_values)
+        assert pred.time_used <= plain.time_used
+        if pred.predicted_stop:
+            stopped += 1
+            assert pred.deadline_hit and pred.time_used < plain.time_used
+    assert stopped > 0  # the rule did fire somewhere in the sweep
+    assert pred.depth == 3 and not pred.deadline_hit and not pred.predicted_stop  # big budgets: no stop

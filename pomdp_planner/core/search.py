@@ -43,7 +43,8 @@ machine multi-threaded BLAS waiting for a busy core made the leaf level several 
 
 Anytime (:meth:`Planner.plan`): iterative deepening ``1..max_depth``; the deadline is checked
 before every chunk (about 4 MB of work, a few ms), an interrupted depth is discarded and the
-deepest completed one returned; depth 1 ignores the deadline. If the root bounds agree the
+deepest completed one returned; depth 1 ignores the deadline; a depth predicted not to finish
+is not started (:func:`next_depth_cannot_finish`). If the root bounds agree the
 action is certified (Proposition 1) and ``plan`` returns after depth 1 of that one action (the
 other Q values are ``nan``); :meth:`Planner.search` always searches the depth it is given.
 The bounds bracket the infinite-horizon optimal action, not a finite lookahead's argmax, so
@@ -74,6 +75,9 @@ ETA_FUSED_MIN = 1e-100
 LEAF_STACK_MAX = 256
 #: A leaf chunk's action computed for all parents (and masked) if at least this share may take it.
 LEAF_GATHER_FRACTION = 0.7
+#: Anytime stop rule: depth ``d + 1`` is not started when its predicted time exceeds this many
+#: times the budget left (prediction: last depth's time times its growth over the depth before).
+PREDICT_MARGIN = 1.5
 #: Default memory budget (bytes) for one chunk of the leaf level.
 DEFAULT_CHUNK_BYTES = 4 * 2**20
 
@@ -88,6 +92,20 @@ def complete_level_sizes(A: int, Z: int, depth: int) -> tuple[int, ...]:
 def complete_tree_nodes(A: int, Z: int, depth: int) -> int:
     """``sum_{i=0}^depth (A Z)^i``: belief nodes of the complete tree of ``depth`` (Sec. VI-A)."""
     return sum(complete_level_sizes(A, Z, depth))
+
+
+def next_depth_cannot_finish(depth_times: Sequence[float], remaining: float, margin: float = PREDICT_MARGIN) -> bool:
+    """The anytime stop rule of :meth:`Planner.plan`: is the next depth hopeless?
+
+    ``depth_times`` are the times of the completed depths ``1..d``; the next depth is predicted
+    to take ``t_d * max(1, t_d / t_{d-1})`` and is hopeless when that exceeds ``margin *
+    remaining``. With fewer than two depths there is no growth to go by: never hopeless.
+    """
+    if len(depth_times) < 2:
+        return False
+    t_prev, t_last = float(depth_times[-2]), float(depth_times[-1])
+    growth = t_last / t_prev if t_prev > 0.0 else 1.0
+    return t_last * max(1.0, growth) > margin * max(remaining, 0.0)
 
 
 class _DeadlineExceeded(Exception):
@@ -119,6 +137,7 @@ class SearchResult:
     level_sizes: tuple[int, ...] = ()
     used_bounds: bool = True
     depth_times: tuple[float, ...] = field(default=())
+    predicted_stop: bool = False
 
     @property
     def complete_nodes(self) -> tuple[int, ...]:
@@ -147,6 +166,7 @@ class SearchResult:
             "used_bounds": bool(self.used_bounds),
             "time_used": float(self.time_used),
             "deadline_hit": bool(self.deadline_hit),
+            "predicted_stop": bool(self.predicted_stop),
         }
 
 
@@ -270,7 +290,7 @@ class Planner:
         return self._result(q, sizes, depth, rb, t, False, (t,))
 
     def plan(self, belief: np.ndarray, max_depth: int, time_budget: float | None = None,
-             use_bounds: bool = True) -> SearchResult:
+             use_bounds: bool = True, predict_stop: bool = True) -> SearchResult:
         """Anytime search: iterative deepening ``1, 2, ..., max_depth`` under a deadline.
 
         The deadline (``time_budget`` seconds from the call) is checked between chunks inside
@@ -278,6 +298,13 @@ class Planner:
         depth is returned (``deadline_hit=True``). Depth 1 always completes. If the bounds
         agree at the root the action is certified: the planner returns at once after the
         (tiny) depth-1 search of that single action, so the other Q values are ``nan``.
+
+        ``predict_stop``: after two completed depths, depth ``d + 1`` is not started when it
+        cannot finish: its predicted time (time of depth ``d`` times the growth ``t_d / t_{d-1}``)
+        exceeds :data:`PREDICT_MARGIN` times the budget left. An interrupted depth is discarded
+        anyway, so this returns the same decision sooner (``deadline_hit`` and
+        ``predicted_stop`` set); the growth measured at shallow depths underestimates the real
+        one (fixed per-call costs), so the rule errs towards trying.
         """
         max_depth = self._check_depth(max_depth, "max_depth")
         if time_budget is not None:
@@ -289,7 +316,7 @@ class Planner:
         deadline = None if time_budget is None else t0 + time_budget
         bounds = self.bounds if use_bounds else self.trivial
         best: tuple[np.ndarray, list[int], int, tuple[int, int] | None] | None = None
-        hit = False
+        hit = predicted = False
         times: list[float] = []
         certified = use_bounds and self._certified(b, bounds)
         last = 1 if certified else max_depth
@@ -301,13 +328,19 @@ class Planner:
                 hit = True
                 break
             best = (q, sizes, d, rb)
-            times.append(self.clock() - ts)
-            if deadline is not None and d < last and self.clock() >= deadline:
+            now = self.clock()
+            times.append(now - ts)
+            if deadline is None or d == last:
+                continue
+            if now >= deadline:
                 hit = True
+                break
+            if predict_stop and next_depth_cannot_finish(times, deadline - now):
+                hit = predicted = True
                 break
         assert best is not None  # depth 1 runs without a deadline
         q, sizes, d, rb = best
-        return self._result(q, sizes, d, rb, self.clock() - t0, hit, tuple(times))
+        return self._result(q, sizes, d, rb, self.clock() - t0, hit, tuple(times), predicted)
 
     def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
         """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
@@ -420,7 +453,7 @@ class Planner:
         return first[0], self.model.A - 1 - first[1]
 
     def _result(self, q: np.ndarray, sizes: Sequence[int], depth: int, rb: tuple[int, int] | None,
-                t: float, hit: bool, times: tuple[float, ...]) -> SearchResult:
+                t: float, hit: bool, times: tuple[float, ...], predicted: bool = False) -> SearchResult:
         A, Z = self.model.A, self.model.Z
         finite = np.isfinite(q)
         action = int(np.argmax(np.where(finite, q, -np.inf)))
@@ -434,7 +467,7 @@ class Planner:
             nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
             time_used=float(t), deadline_hit=bool(hit), value=float(q[action]),
             level_sizes=tuple(int(x) for x in sizes), used_bounds=rb is not None,
-            depth_times=times,
+            depth_times=times, predicted_stop=bool(predicted),
         )
 
     def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None
