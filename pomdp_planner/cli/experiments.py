@@ -23,6 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"run only these sections ({', '.join(SECTIONS)})")
     parser.add_argument("--report-only", action="store_true",
                         help="run nothing: rewrite RESULTS.md and the plots from DIR/.experiments-cache")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="worker processes for the peer comparison (default 1; budgeted planners are timed, "
+                             "so use at most one per idle core)")
+    parser.add_argument("--resume", action="store_true",
+                        help="peer comparison: reuse the chunks of episodes an interrupted run left in "
+                             "DIR/.experiments-cache/peers-chunks instead of starting afresh")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.set_defaults(func=run)
 
@@ -36,8 +42,12 @@ def run(args: argparse.Namespace) -> int:
         print("pomdp-planner: error: the experiments need matplotlib: pip install 'pomdp_planner[experiments]'",
               file=sys.stderr)
         return 2
+    if args.jobs < 1:
+        print(f"pomdp-planner: error: --jobs: must be >= 1, got {args.jobs}", file=sys.stderr)
+        return 2
     data = run_all(args.output, quick=args.quick, progress=not args.no_progress,
-                   sections=() if args.report_only else tuple(args.only) if args.only else SECTIONS)
+                   sections=() if args.report_only else tuple(args.only) if args.only else SECTIONS,
+                   jobs=args.jobs, resume=args.resume)
     mode = "report only" if args.report_only else "quick mode" if args.quick else "full mode"
     print(f"wrote {args.output}/RESULTS.md ({mode}; "
           + ", ".join(f"{k} {v:.0f} s" for k, v in data["timings"].items()) + ")")

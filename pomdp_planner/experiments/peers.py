@@ -23,9 +23,14 @@ Planners
 from __future__ import annotations
 
 import math
+import multiprocessing
+import pickle
 import random
 import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import t as student_t
@@ -217,87 +222,170 @@ class PeerResult:
         return d
 
 
-def run_planner(model: POMDP, make_policy, episodes: int, steps: int, seed: int, model_label: str,
-                planner_label: str, budget: float | None, progress=None) -> PeerResult:
-    """``episodes`` closed-loop runs of a fresh policy from ``make_policy(episode)``."""
-    returns, state_returns, times, depths, certified = [], [], [], [], 0
-    for k in range(episodes):
-        pol = make_policy(k)
-        tr = simulate(model, pol, steps, seed=seed + k)
-        returns.append(tr.discounted_return)
-        state_returns.append(tr.discounted_state_return)
-        times.extend(pol.times)
-        depths.extend(getattr(pol, "depths", []))
-        certified += getattr(pol, "certified", 0)
-        if progress is not None:
-            progress.advance(note=f"{model_label} {planner_label} {'' if budget is None else budget}")
-    m, ci = mean_ci(np.array(returns))
-    n_dec = max(len(times), 1)
-    is_search = planner_label in ("bnb", "exhaustive")
-    return PeerResult(model=model_label, planner=planner_label, budget=budget, episodes=episodes, steps=steps,
-                      mean=m, ci=ci, mean_state_return=float(np.mean(state_returns)),
-                      mean_depth=float(np.mean(depths)) if depths and planner_label != "pouct" else None,
-                      mean_time=float(np.mean(times)), max_time=float(np.max(times)),
-                      certified_fraction=certified / n_dec if is_search and planner_label == "bnb" else None,
-                      returns=[float(x) for x in returns])
+@dataclass(frozen=True)
+class PeerChunk:
+    """Episodes ``start .. stop - 1`` of one (model, planner, budget) cell: the unit of work,
+    of parallelism (``jobs``) and of the resumable cache (``cache_dir``)."""
+
+    model: str
+    planner: str
+    budget: float | None
+    start: int
+    stop: int
+
+    @property
+    def filename(self) -> str:
+        b = "none" if self.budget is None else f"{self.budget:g}"
+        return f"{self.model}__{self.planner}__{b}__{self.start:04d}-{self.stop:04d}.pickle"
 
 
 @dataclass
 class PeerPlan:
-    """What to run: budgets, and episodes per budget (fewer at big budgets; stated in the report)."""
+    """What to run: budgets and episodes per budget (stated in the report)."""
 
     budgets: tuple[float, ...] = (0.05, 0.2, 1.0)
     episodes_cheap: int = 100
-    episodes_by_budget: dict = field(default_factory=lambda: {0.05: 40, 0.2: 10, 1.0: 3})
+    episodes_by_budget: dict = field(default_factory=lambda: {0.05: 100, 0.2: 100, 1.0: 100})
     steps: int = 50
     max_depth: int = 12
     seed: int = 1000
     with_pouct: bool = True
+    chunk: int = 10  # episodes per unit of work / cache file
+    jobs: int = 1  # worker processes
+
+    def cells(self, models: Sequence[str]) -> list[tuple[str, str, float | None, int]]:
+        """``(model, planner, budget, episodes)``, cheapest first (so a cut-short run has whole cells)."""
+        out = [(m, p, None, self.episodes_cheap) for m in models for p in CHEAP_PLANNERS]
+        budgeted = ("bnb", "exhaustive") + (("pouct",) if self.with_pouct else ())
+        for b in sorted(self.budgets):
+            out += [(m, p, b, self.episodes_by_budget[b]) for m in models for p in budgeted]
+        return out
+
+    def chunks(self, models: Sequence[str]) -> list[PeerChunk]:
+        return [PeerChunk(m, p, b, k, min(k + self.chunk, n)) for m, p, b, n in self.cells(models)
+                for k in range(0, n, self.chunk)]
+
+    def signature(self) -> dict:
+        """What a cached chunk must match to be reused."""
+        return {"steps": self.steps, "max_depth": self.max_depth, "seed": self.seed}
 
     def total_units(self, n_models: int) -> int:
-        n_budgeted = 3 if self.with_pouct else 2
-        per = 3 * self.episodes_cheap + n_budgeted * sum(self.episodes_by_budget[b] for b in self.budgets)
-        return n_models * per
+        return sum(n for *_, n in self.cells([str(i) for i in range(n_models)]))
 
 
-def _cheap_factories(model: POMDP, planner, seed: int) -> list:
-    rho, lower = model.rho, planner.bounds.lower
-    rng_random = np.random.default_rng(seed)
+CHEAP_PLANNERS = ("greedy", "lower-bound", "random")
 
-    def greedy(k: int) -> FunctionPolicy:
-        return FunctionPolicy("greedy", lambda b: int(np.argmax(rho(b))))
-
-    def lower_bound(k: int) -> FunctionPolicy:
-        return FunctionPolicy("lower-bound", lambda b: int(lower(b[None, :])[0]))
-
-    def uniform(k: int) -> FunctionPolicy:
-        return FunctionPolicy("random", lambda b: int(rng_random.integers(model.A)))
-
-    return [("greedy", greedy), ("lower-bound", lower_bound), ("random", uniform)]
+_PLANNERS: dict = {}  # per process: model name -> Planner (the LP is solved once per process)
 
 
-def _search_factory(name: str, planner, budget: float, max_depth: int, use_bounds: bool):
-    return lambda k: SearchPolicy(name, planner, budget, max_depth, use_bounds)
+def _planner_for(label: str, model: POMDP):
+    if label not in _PLANNERS:
+        from ..core.search import Planner
+
+        _PLANNERS[label] = Planner.from_model(model, "tight")
+    return _PLANNERS[label]
 
 
-def _pouct_factory(model: POMDP, budget: float, seed: int):
-    return lambda k: POUCTPolicy(model, budget, seed=seed + 7919 * k)
+def _policy(chunk: PeerChunk, model: POMDP, plan: PeerPlan, k: int) -> _Timed:
+    """A fresh policy for episode ``k`` of ``chunk`` (its randomness seeded by ``k`` alone)."""
+    name, budget = chunk.planner, chunk.budget
+    if name == "greedy":
+        return FunctionPolicy(name, lambda b: int(np.argmax(model.rho(b))))
+    if name == "lower-bound":
+        lower = _planner_for(chunk.model, model).bounds.lower
+        return FunctionPolicy(name, lambda b: int(lower(b[None, :])[0]))
+    if name == "random":
+        rng = np.random.default_rng([plan.seed, k])
+        return FunctionPolicy(name, lambda b: int(rng.integers(model.A)))
+    if name in ("bnb", "exhaustive"):
+        return SearchPolicy(name, _planner_for(chunk.model, model), budget, plan.max_depth, name == "bnb")
+    if name == "pouct":
+        return POUCTPolicy(model, budget, seed=plan.seed + 7919 * k)
+    raise ValueError(f"planner: unknown peer {name!r}")
 
 
-def compare_peers(models: dict[str, tuple[POMDP, object]], plan: PeerPlan, progress=None) -> list[PeerResult]:
-    """Run every planner on every model. ``models[label] = (model, planner_with_bounds)``."""
+def run_chunk(chunk: PeerChunk, model: POMDP, plan: PeerPlan) -> list[dict]:
+    """Run the episodes of ``chunk``; one record per episode (episode ``k`` uses world seed ``seed + k``)."""
+    records = []
+    for k in range(chunk.start, chunk.stop):
+        pol = _policy(chunk, model, plan, k)
+        tr = simulate(model, pol, plan.steps, seed=plan.seed + k)
+        records.append({"episode": k, "return": float(tr.discounted_return),
+                        "state_return": float(tr.discounted_state_return), "times": list(pol.times),
+                        "depths": list(getattr(pol, "depths", [])), "certified": int(getattr(pol, "certified", 0))})
+    return records
+
+
+def aggregate(model_label: str, planner_label: str, budget: float | None, steps: int,
+              records: Sequence[dict]) -> PeerResult:
+    """One table row from the episode records of a cell."""
+    records = sorted(records, key=lambda r: r["episode"])
+    returns = np.array([r["return"] for r in records])
+    times = [t for r in records for t in r["times"]]
+    depths = [d for r in records for d in r["depths"]]
+    certified = sum(r["certified"] for r in records)
+    m, ci = mean_ci(returns)
+    return PeerResult(model=model_label, planner=planner_label, budget=budget, episodes=len(records), steps=steps,
+                      mean=m, ci=ci, mean_state_return=float(np.mean([r["state_return"] for r in records])),
+                      mean_depth=float(np.mean(depths)) if depths and planner_label != "pouct" else None,
+                      mean_time=float(np.mean(times)), max_time=float(np.max(times)),
+                      certified_fraction=certified / max(len(times), 1) if planner_label == "bnb" else None,
+                      returns=[float(x) for x in returns])
+
+
+def _load_chunk(path: Path, plan: PeerPlan) -> list[dict] | None:
+    if not path.is_file():
+        return None
+    with open(path, "rb") as fh:
+        entry = pickle.load(fh)  # our own file, written by _save_chunk
+    return entry["records"] if entry.get("signature") == plan.signature() else None
+
+
+def _save_chunk(path: Path, plan: PeerPlan, records: list[dict]) -> None:
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "wb") as fh:
+        pickle.dump({"signature": plan.signature(), "records": records,
+                     "finished": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}, fh)
+    tmp.replace(path)  # atomic: a run killed mid-write leaves no half file
+
+
+def compare_peers(models: dict[str, POMDP], plan: PeerPlan, progress=None,
+                  cache_dir: Path | None = None) -> list[PeerResult]:
+    """Run every planner on every model (``models[label] = model``), ``plan.jobs`` processes.
+
+    With ``cache_dir`` every finished chunk of episodes is saved there and chunks already
+    there (same :meth:`PeerPlan.signature`) are reused, so a long run killed half-way resumes.
+    """
+    chunks = plan.chunks(list(models))
+    done: dict[PeerChunk, list[dict]] = {}
+    if cache_dir is not None:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        for c in chunks:
+            rec = _load_chunk(cache_dir / c.filename, plan)
+            if rec is not None:
+                done[c] = rec
+                if progress is not None:
+                    progress.advance(c.stop - c.start, note="cached")
+    todo = [c for c in chunks if c not in done]
+
+    def finish(c: PeerChunk, rec: list[dict]) -> None:
+        done[c] = rec
+        if cache_dir is not None:
+            _save_chunk(cache_dir / c.filename, plan, rec)
+        if progress is not None:
+            progress.advance(c.stop - c.start, note=f"{c.model} {c.planner} {'' if c.budget is None else c.budget}")
+
+    if plan.jobs <= 1:
+        for c in todo:
+            finish(c, run_chunk(c, models[c.model], plan))
+    else:
+        ctx = multiprocessing.get_context("spawn")  # no forked BLAS/ROS state in the workers
+        with ProcessPoolExecutor(max_workers=plan.jobs, mp_context=ctx) as pool:
+            futures = {pool.submit(run_chunk, c, models[c.model], plan): c for c in todo}
+            for f in as_completed(futures):
+                finish(futures[f], f.result())
     results = []
-    for label, (model, planner) in models.items():
-        for name, factory in _cheap_factories(model, planner, plan.seed):
-            results.append(run_planner(model, factory, plan.episodes_cheap, plan.steps, plan.seed, label, name,
-                                       None, progress))
-        for budget in plan.budgets:
-            n_ep = plan.episodes_by_budget[budget]
-            for name, use_bounds in (("bnb", True), ("exhaustive", False)):
-                factory = _search_factory(name, planner, budget, plan.max_depth, use_bounds)
-                results.append(run_planner(model, factory, n_ep, plan.steps, plan.seed, label, name, budget, progress))
-            if plan.with_pouct:
-                factory = _pouct_factory(model, budget, plan.seed)
-                results.append(run_planner(model, factory, n_ep, plan.steps, plan.seed, label, "pouct", budget,
-                                           progress))
+    for m, p, b, _ in plan.cells(list(models)):
+        rec = [r for c in chunks if (c.model, c.planner, c.budget) == (m, p, b) for r in done[c]]
+        results.append(aggregate(m, p, b, plan.steps, rec))
     return results

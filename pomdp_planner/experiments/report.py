@@ -249,10 +249,11 @@ def section_peers(d: dict, data: dict) -> list[str]:
              "'state return' is `sum_t gamma^t r(s_t, a_t)`. 95 % CIs are Student-t. B&B and exhaustive search are "
              f"`Planner.plan` (iterative deepening up to depth {plan['max_depth']} under the budget; B&B returns at "
              "once when the root bounds agree, a certified optimal decision). Decision time is the measured wall "
-             "time per decision (it can exceed the budget by the granularity of the deadline check). 'mean depth' is "
-             "the deepest completed search depth per decision; a certified B&B decision stops at depth 1 "
-             "(nothing deeper can change a proven-optimal action). All planners ran while other jobs shared "
-             "the 2 cores, so the depths reached within a budget are lower than on an idle machine.", "",
+             "time per decision (it can exceed the budget by the granularity of the deadline check, and it is often "
+             "well under it: a depth predicted not to finish in the time left is not started, the same decision "
+             "sooner). 'mean depth' is the deepest completed search depth per decision; a certified B&B decision "
+             "stops at depth 1 (nothing deeper can change a proven-optimal action). "
+             + _machine_note(plan), "",
              "**pomdp-py POUCT** "
              + ("(pip `pomdp-py`, the optional `bench` extra) " if d["pouct"]
                 else "was NOT installed, so it is missing below; ")
@@ -261,9 +262,7 @@ def section_peers(d: dict, data: dict) -> list[str]:
              "belief (histogram) each step, a fresh tree per decision, random rollouts, max depth 20.", "",
              "**Episode counts (what was actually run):** "
              f"{plan['episodes_cheap']} episodes for greedy / lower-bound / random; for the budgeted planners "
-             + ", ".join(f"{n} at {b:g} s" for b, n in plan["episodes_by_budget"].items())
-             + ". 100 episodes x 50 steps x 1 s would take 83 minutes per planner and model on this 2-core machine; "
-             "fewer episodes at the larger budgets give wider CIs, which are shown.", ""]
+             + ", ".join(f"{n} at {b:g} s" for b, n in plan["episodes_by_budget"].items()) + ".", ""]
     rows = []
     for r in d["results"]:
         rows.append([r.model, r.planner, "-" if r.budget is None else f"{r.budget:g}", r.episodes,
@@ -273,6 +272,14 @@ def section_peers(d: dict, data: dict) -> list[str]:
     lines += [_table(["model", "planner", "budget (s)", "episodes", "return (95 % CI)", "state return",
                       "mean depth", "decision ms mean / max", "certified"], rows), ""]
     return lines
+
+
+def _machine_note(plan: dict) -> str:
+    jobs = int(plan.get("jobs", 1))
+    return (f"The run used {jobs} worker process{'es' if jobs > 1 else ''} (`--jobs {jobs}`) on this 2-core "
+            "machine, in chunks of "
+            f"{plan.get('chunk', '?')} episodes; anything else running at the same time lowers the depth a "
+            "budgeted planner reaches, so the depths are those of this run, not of an idle machine.")
 
 
 def _overlap(a, b) -> bool:

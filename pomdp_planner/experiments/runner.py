@@ -46,6 +46,7 @@ class ExperimentConfig:
     peers_episodes: tuple[int, ...]  # per budget
     peers_steps: int
     peers_max_depth: int
+    peers_chunk: int = 10  # episodes per unit of work (parallel jobs, resumable cache)
     seed: int = 0
 
 
@@ -55,7 +56,7 @@ FULL = ExperimentConfig(
     table3_states=(4, 8, 16, 32, 64, 128, 256), table3_actions=(4, 8, 16, 32, 64), table3_beliefs=500,
     table3_variants=(("feasible", 256), ("tight", 64)), looseness_max_states=16,
     peers_models=("tracking_s3_info", "tracking_s8_info"), peers_budgets=(0.05, 0.2, 1.0),
-    peers_cheap_episodes=100, peers_episodes=(30, 8, 3), peers_steps=50, peers_max_depth=12,
+    peers_cheap_episodes=100, peers_episodes=(100, 100, 100), peers_steps=50, peers_max_depth=12,
 )
 
 QUICK = ExperimentConfig(
@@ -63,7 +64,7 @@ QUICK = ExperimentConfig(
     table2_depth6_beliefs=2, model_check_states=(4,), model_check_actions=4, model_check_horizon=200,
     table3_states=(4, 8), table3_actions=(4, 8), table3_beliefs=50, table3_variants=(("feasible", 8), ("tight", 8)),
     looseness_max_states=4, peers_models=("tracking_s3_info", "tracking_s8_info"), peers_budgets=(0.01, 0.05),
-    peers_cheap_episodes=3, peers_episodes=(2, 2), peers_steps=8, peers_max_depth=6,
+    peers_cheap_episodes=3, peers_episodes=(2, 2), peers_steps=8, peers_max_depth=6, peers_chunk=2,
 )
 
 
@@ -192,21 +193,24 @@ def run_table3(cfg: ExperimentConfig, progress: bool) -> dict:
     return out
 
 
-def run_peers(cfg: ExperimentConfig, progress: bool) -> dict:
-    from ..core.search import Planner
+def run_peers(cfg: ExperimentConfig, progress: bool, cache: Path, jobs: int = 1, resume: bool = False) -> dict:
+    """The peer comparison; finished chunks of episodes go to ``cache/peers-chunks`` and are
+    reused only with ``resume`` (otherwise that folder is emptied first)."""
     from .peers import PeerPlan, compare_peers, pouct_available
 
     with_pouct = pouct_available()
     plan = PeerPlan(budgets=cfg.peers_budgets, episodes_cheap=cfg.peers_cheap_episodes,
                     episodes_by_budget=dict(zip(cfg.peers_budgets, cfg.peers_episodes, strict=True)),
-                    steps=cfg.peers_steps, max_depth=cfg.peers_max_depth, seed=1000 + cfg.seed, with_pouct=with_pouct)
-    models = {}
-    for name in cfg.peers_models:
-        m = shipped_model(name)
-        models[name] = (m, Planner.from_model(m, "tight"))
+                    steps=cfg.peers_steps, max_depth=cfg.peers_max_depth, seed=1000 + cfg.seed, with_pouct=with_pouct,
+                    chunk=cfg.peers_chunk, jobs=max(int(jobs), 1))
+    chunk_dir = cache / "peers-chunks"
+    if not resume and chunk_dir.is_dir():
+        for f in chunk_dir.glob("*.pickle"):
+            f.unlink()
+    models = {name: shipped_model(name) for name in cfg.peers_models}
     t0 = time.perf_counter()
     with Progress("peers", plan.total_units(len(models)), enabled=progress) as bar:
-        results = compare_peers(models, plan, progress=bar)
+        results = compare_peers(models, plan, progress=bar, cache_dir=chunk_dir)
     return {"results": results, "plan": asdict(plan), "pouct": with_pouct, "time": time.perf_counter() - t0}
 
 
@@ -224,12 +228,14 @@ def _cache_dir(output: Path) -> Path:
 
 
 def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = True,
-            sections: tuple[str, ...] = SECTIONS) -> dict:
+            sections: tuple[str, ...] = SECTIONS, jobs: int = 1, resume: bool = False) -> dict:
     """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``.
 
     Each section's data is also pickled into ``output/.experiments-cache/`` (git-ignored).
     When only some ``sections`` are run, the other sections are taken from that cache if
     present, so a long run can be done in pieces; the report states each section's mode.
+    The peer comparison runs in ``jobs`` processes and, with ``resume``, reuses the chunks of
+    episodes an earlier, interrupted run left in ``output/.experiments-cache/peers-chunks``.
     """
     from .report import write_report
 
@@ -240,7 +246,8 @@ def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = T
     cache = _cache_dir(output)
     runners = {"fig1": lambda: run_fig1(cfg, img), "fig3": lambda: run_fig3(cfg, img),
                "table2": lambda: run_table2(cfg, progress), "model_check": lambda: run_model_check(cfg, progress),
-               "table3": lambda: run_table3(cfg, progress), "peers": lambda: run_peers(cfg, progress)}
+               "table3": lambda: run_table3(cfg, progress),
+               "peers": lambda: run_peers(cfg, progress, cache, jobs, resume)}
     data: dict = {"config": asdict(cfg), "configs": {}, "timings": {}, "modes": {},
                   "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
                   "machine": f"{platform.machine()}, {platform.python_implementation()} {platform.python_version()}"}
