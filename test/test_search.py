@@ -288,13 +288,14 @@ def test_fast_bound_actions_equal_myopic_bounds() -> None:
     planner = Planner(_S8, bounds)
     rng = np.random.default_rng(21)
     B = np.vstack([rng.dirichlet(np.ones(8) * 0.3, size=2000), np.eye(8), np.full((1, 8), 1 / 8)])
-    lo, up = planner._myopic_actions(bounds, np.ascontiguousarray(B.T), _S8.rho(B).T)
+    rhoT, lo, up = planner._rho_bounds(bounds, np.ascontiguousarray(B.T))
+    np.testing.assert_allclose(rhoT, _S8.rho(B).T, rtol=1e-12, atol=1e-12)
     lo_ref, up_ref = bounds.actions(B)
     np.testing.assert_array_equal(lo, lo_ref)
     np.testing.assert_array_equal(up, up_ref)
     flat = POMDP(P=_S3.P, O=_S3.O, r=np.ones((3, 3)), gamma=0.9)  # all actions tie
     tie = MyopicBounds(flat, np.zeros(3), np.zeros(3))
-    lo, up = Planner(flat, tie)._myopic_actions(tie, np.full((3, 1), 1 / 3), np.ones((3, 1)))
+    _, lo, up = Planner(flat, tie)._rho_bounds(tie, np.full((3, 1), 1 / 3))
     assert (int(lo[0]), int(up[0])) == (0, 2)
 
 

@@ -31,17 +31,17 @@ def transform_matrix(model: POMDP, v: np.ndarray) -> np.ndarray:
     return v[None, :] - model.gamma * (model.P @ v)
 
 
-def _argmax_smallest(Q: np.ndarray) -> np.ndarray:
-    top = Q.max(axis=-1, keepdims=True)
+def argmax_smallest(Q: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The smallest index maximising ``Q`` along ``axis``, values within ``TIE_RTOL`` (relative)
+    of the maximum counting as ties: the lower bound's tie rule (the search uses it too)."""
+    top = Q.max(axis=axis, keepdims=True)
     tol = TIE_RTOL * np.maximum(1.0, np.abs(top))
-    return np.argmax(Q >= top - tol, axis=-1)
+    return np.argmax(Q >= top - tol, axis=axis)
 
 
 def _argmax_largest(Q: np.ndarray) -> np.ndarray:
-    top = Q.max(axis=-1, keepdims=True)
-    tol = TIE_RTOL * np.maximum(1.0, np.abs(top))
-    A = Q.shape[-1]
-    return A - 1 - np.argmax((Q >= top - tol)[..., ::-1], axis=-1)
+    """The largest maximiser along the last axis (the upper bound's tie rule)."""
+    return Q.shape[-1] - 1 - argmax_smallest(Q[..., ::-1])
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,7 +80,7 @@ class MyopicBounds:
         B = np.asarray(B, dtype=float)
         if rho is None:
             rho = self.model.rho(B)
-        return _argmax_smallest(rho + B @ self._Cg.T)
+        return argmax_smallest(rho + B @ self._Cg.T)
 
     def upper(self, B: np.ndarray, rho: np.ndarray | None = None) -> np.ndarray:
         """Myopic upper-bound action (largest maximiser of ``rho_upper``)."""

@@ -65,7 +65,7 @@ import numpy as np
 
 from .belief import ETA_MIN, check_belief
 from .model import POMDP, priority_of
-from .myopic import TIE_RTOL, MyopicBounds, TrivialBounds, transform_matrix
+from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
 
 #: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
 ETA_SKIP = ETA_MIN
@@ -272,7 +272,7 @@ class Planner:
     def root_bounds(self, belief: np.ndarray) -> tuple[int, int]:
         """0-based ``(lower, upper)`` myopic bound actions at ``belief``."""
         b = check_belief(self.model, belief)
-        rb = self._root_bounds(b, self.bounds)
+        rb = self._root(b, self.bounds)[3]
         return (0, self.model.A - 1) if rb is None else rb
 
     def search(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> SearchResult:
@@ -318,12 +318,14 @@ class Planner:
         best: tuple[np.ndarray, list[int], int, tuple[int, int] | None] | None = None
         hit = predicted = False
         times: list[float] = []
-        certified = use_bounds and self._certified(b, bounds)
+        root = self._root(b, bounds)  # rho, allowed actions and bounds at b: once per call
+        rb = root[3]
+        certified = (rb[0] == rb[1]) if rb is not None else (use_bounds and self.model.A == 1)
         last = 1 if certified else max_depth
         for d in range(1, last + 1):
             ts = self.clock()
             try:
-                q, sizes, rb = self._run(b, d, bounds, None if d == 1 else deadline)
+                q, sizes, rb = self._run(b, d, bounds, None if d == 1 else deadline, root)
             except _DeadlineExceeded:
                 hit = True
                 break
@@ -363,21 +365,15 @@ class Planner:
             raise ValueError(f"{name}: must be an integer >= 1, got {depth!r}")
         return int(depth)
 
-    def _root_bounds(self, b: np.ndarray, bounds: Bounds) -> tuple[int, int] | None:
-        """0-based ``(lower, upper)`` at ``b``, ``None`` for :class:`TrivialBounds`."""
-        if isinstance(bounds, TrivialBounds):
-            return None
+    def _root(self, b: np.ndarray, bounds: Bounds
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int] | None]:
+        """``(BT, rho, allowed, root bounds)`` at ``b``: its column, ``rho(b, .)``, the allowed
+        actions and the 0-based ``(lower, upper)`` (``None`` for :class:`TrivialBounds`)."""
         BT = np.ascontiguousarray(b[:, None])
-        rhoT = self._rho(BT)
-        if type(bounds) is MyopicBounds:
-            lo, up = self._myopic_actions(bounds, BT, rhoT)
-        else:
-            lo, up = bounds.actions(BT.T, rhoT.T)
-        return int(lo[0]), int(up[0])
-
-    def _certified(self, b: np.ndarray, bounds: Bounds) -> bool:
-        rb = self._root_bounds(b, bounds)
-        return self.model.A == 1 if rb is None else rb[0] == rb[1]
+        rhoT, lo, up = self._rho_bounds(bounds, BT)
+        if lo is None:
+            return BT, rhoT, np.ones((self.model.A, 1), dtype=bool), None
+        return BT, rhoT, self._range_mask[:, lo, up], (int(lo[0]), int(up[0]))
 
     def _rho(self, BT: np.ndarray, linear: np.ndarray | None = None) -> np.ndarray:
         """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``.
@@ -397,12 +393,17 @@ class Planner:
         out -= self._w[:, None] * f[None, :]
         return out
 
-    def _rho_allowed(self, bounds: Bounds, BT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(rho, allowed)`` for the columns ``BT``; for ``MyopicBounds`` one product gives both
-        ``r^T b`` and the bound terms ``C_g b``, ``C_h b`` of Eq. 8."""
+    def _rho_bounds(self, bounds: Bounds, BT: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """``(rho, lower, upper)`` for the columns ``BT``; ``lower = upper = None`` for
+        :class:`TrivialBounds`. For ``MyopicBounds`` one product gives both ``r^T b`` and the
+        bound terms ``C_g b``, ``C_h b`` of Eq. 8."""
+        if isinstance(bounds, TrivialBounds):
+            return self._rho(BT), None, None
         if type(bounds) is not MyopicBounds:
             rhoT = self._rho(BT)
-            return rhoT, self._allowed(bounds, BT, rhoT)
+            lo, up = bounds.actions(np.ascontiguousarray(BT.T), np.ascontiguousarray(rhoT.T))
+            return rhoT, lo, up
         A = self.model.A
         X = _mm(self._bound_matrix(bounds), BT)  # rows: r^T b (A), C_g b (A), C_h b reversed (A)
         rhoT = self._rho(BT, X[:A])
@@ -410,30 +411,15 @@ class Planner:
         T[0] += rhoT
         T[1] += rhoT[::-1]
         lo, up = self._first_maximisers(T)
+        return rhoT, lo, up
+
+    def _rho_allowed(self, bounds: Bounds, BT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(rho, allowed)``: boolean ``(A, n)`` of the actions in ``[lower(b), upper(b)]``
+        (all of them if the bounds cross, or for :class:`TrivialBounds`)."""
+        rhoT, lo, up = self._rho_bounds(bounds, BT)
+        if lo is None:
+            return rhoT, np.ones((self.model.A, BT.shape[1]), dtype=bool)
         return rhoT, self._range_mask[:, lo, up]
-
-    def _allowed(self, bounds: Bounds, BT: np.ndarray, rhoT: np.ndarray) -> np.ndarray:
-        """Boolean ``(A, n)``: actions in ``[lower(b), upper(b)]`` (all if the bounds cross)."""
-        if isinstance(bounds, TrivialBounds):
-            return np.ones((self.model.A, BT.shape[1]), dtype=bool)
-        if type(bounds) is MyopicBounds:
-            lo, up = self._myopic_actions(bounds, BT, rhoT)
-        else:
-            lo, up = bounds.actions(np.ascontiguousarray(BT.T), np.ascontiguousarray(rhoT.T))
-        return self._range_mask[:, lo, up]
-
-    def _myopic_actions(self, bounds: MyopicBounds, BT: np.ndarray, rhoT: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
-        """``bounds.actions`` computed column-wise without BLAS (same Eq. 8, same ties).
-
-        ``lower`` is the smallest and ``upper`` the largest maximiser of the transformed rewards,
-        with :data:`~pomdp_planner.core.myopic.TIE_RTOL` ties, exactly as ``MyopicBounds``.
-        """
-        A = self.model.A
-        T = _mm(self._bound_matrix(bounds)[A:], BT).reshape(2, A, -1)  # b @ C_g[a]; b @ C_h[A-1-a]
-        T[0] += rhoT
-        T[1] += rhoT[::-1]
-        return self._first_maximisers(T)
 
     def _bound_matrix(self, bounds: MyopicBounds) -> np.ndarray:
         """``[r^T; C_g; C_h reversed]`` (``3A x S``), cached for the last bounds object."""
@@ -446,10 +432,9 @@ class Planner:
         return cache[1]
 
     def _first_maximisers(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Smallest maximiser of ``T[0]`` (lower) and largest of the un-reversed ``T[1]`` (upper),
-        ties within ``TIE_RTOL`` as in :mod:`~pomdp_planner.core.myopic`."""
-        top = T.max(axis=1, keepdims=True)
-        first = np.argmax(T >= top - TIE_RTOL * np.maximum(1.0, np.abs(top)), axis=1)
+        """Smallest maximiser of ``T[0]`` (lower) and largest of the un-reversed ``T[1]`` (upper):
+        the tie rule of :mod:`~pomdp_planner.core.myopic`, over the action axis of columns."""
+        first = argmax_smallest(T, axis=1)
         return first[0], self.model.A - 1 - first[1]
 
     def _result(self, q: np.ndarray, sizes: Sequence[int], depth: int, rb: tuple[int, int] | None,
@@ -470,15 +455,11 @@ class Planner:
             depth_times=times, predicted_stop=bool(predicted),
         )
 
-    def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None
+    def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None, root: tuple | None = None
              ) -> tuple[np.ndarray, list[int], tuple[int, int] | None]:
-        """Root Q values, level sizes and root bounds of the depth-``depth`` search."""
-        BT = np.ascontiguousarray(b[:, None])
-        rhoT, allowed = self._rho_allowed(bounds, BT)
-        rb = None
-        if not isinstance(bounds, TrivialBounds):
-            ok = np.flatnonzero(allowed[:, 0])
-            rb = (int(ok[0]), int(ok[-1])) if ok.size < self.model.A else self._root_bounds(b, bounds)
+        """Root Q values, level sizes and root bounds of the depth-``depth`` search
+        (``root``: :meth:`_root` of ``b``, if the caller already has it)."""
+        BT, rhoT, allowed, rb = self._root(b, bounds) if root is None else root
         sizes = [1] + [0] * depth
         QT = self._values(BT, rhoT, allowed, depth, 0, sizes, bounds, deadline)
         return QT[:, 0], sizes, rb
