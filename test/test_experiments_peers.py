@@ -78,3 +78,17 @@ def test_parallel_and_resumed_runs_match_the_sequential_run(tmp_path, monkeypatc
 def test_unknown_peer_is_rejected() -> None:
     with pytest.raises(ValueError, match="planner"):
         peers.run_chunk(PeerChunk("s3", "oracle", None, 0, 1), S3, _plan())
+
+
+def test_tree_depth_counts_action_observation_levels() -> None:
+    class Node:
+        def __init__(self, children=None):
+            self.children = children or {}
+
+    leaf = Node()
+    assert peers.tree_depth(leaf) == 0
+    # root -a0-> q -z1-> v1 -a1-> q -z0-> v2 (depth 2); a sibling branch stops at depth 1
+    v2 = Node()
+    v1 = Node({"a1": Node({"z0": v2})})
+    root = Node({"a0": Node({"z1": v1, "z2": Node()}), "a1": Node({"z0": Node()})})
+    assert peers.tree_depth(root) == 2

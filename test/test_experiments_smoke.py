@@ -133,6 +133,8 @@ def test_peer_results_valid(quick_run):
         assert r.mean_time >= 0.0 and r.max_time >= r.mean_time
         if r.planner in ("bnb", "exhaustive"):
             assert 1.0 <= r.mean_depth <= QUICK.peers_max_depth
+        if r.planner == "pouct":  # depth of its sampled tree, capped by its max_depth 20
+            assert 1.0 <= r.mean_depth <= 20 and r.mean_sims >= 1
         if r.certified_fraction is not None:
             assert 0.0 <= r.certified_fraction <= 1.0
     # same seeds, same world: B&B and exhaustive search at equal depth pick the same action when

@@ -17,7 +17,8 @@ Planners
 * ``pouct``: pomdp-py's POUCT (optional ``bench`` extra). It plans with sampled states and
   STATE rewards only, so it is given ``r(s, a)``: it cannot see the uncertainty term
   ``-w_a f(b)`` of ``rho``. It gets the exact belief as a histogram at every step, a fresh
-  tree per decision, random rollouts, ``max_depth`` 20 and the model's discount.
+  tree per decision, random rollouts, ``max_depth`` 20 and the model's discount. Its "depth" is
+  the deepest level its sampled tree reached (:func:`tree_depth`), with the simulations per decision.
 """
 
 from __future__ import annotations
@@ -100,6 +101,7 @@ class POUCTPolicy(_Timed):
         self.model, self.budget, self.max_depth = model, budget, max_depth
         self.rng = random.Random(seed)
         self.agent = _pomdp_py_agent(pomdp_py, model, self.rng)
+        self.sims: list[int] = []
 
     def _act(self, belief: np.ndarray) -> int:
         pp = self.pomdp_py
@@ -110,12 +112,29 @@ class POUCTPolicy(_Timed):
                            rollout_policy=self.agent.policy_model, show_progress=False)
         random.seed(self.rng.random())  # pomdp-py samples with the global `random`
         action = planner.plan(self.agent)
-        self.depths.append(self.max_depth)
+        self._planner = planner
         return int(action.index)
+
+    def act(self, belief: np.ndarray) -> int:
+        a = super().act(belief)  # timed: the planning only
+        self.depths.append(tree_depth(self.agent.tree))
+        self.sims.append(int(self._planner.last_num_sims))
+        return a
 
     @property
     def _states(self):
         return self.agent._pp_states
+
+
+def tree_depth(root) -> int:
+    """Depth of a pomdp-py search tree in action-observation levels (root 0): the deepest
+    belief node the sampled tree reached (not a complete tree of that depth)."""
+    best, stack = 0, [(root, 0)]
+    while stack:
+        v, d = stack.pop()
+        best = max(best, d)
+        stack.extend((child, d + 1) for q in v.children.values() for child in q.children.values())
+    return best
 
 
 def _pomdp_py_agent(pp, model: POMDP, rng: random.Random):
@@ -214,6 +233,7 @@ class PeerResult:
     mean_time: float
     max_time: float
     certified_fraction: float | None
+    mean_sims: float | None = None  # POUCT: simulations per decision
     returns: list[float] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -312,7 +332,8 @@ def run_chunk(chunk: PeerChunk, model: POMDP, plan: PeerPlan) -> list[dict]:
         tr = simulate(model, pol, plan.steps, seed=plan.seed + k)
         records.append({"episode": k, "return": float(tr.discounted_return),
                         "state_return": float(tr.discounted_state_return), "times": list(pol.times),
-                        "depths": list(getattr(pol, "depths", [])), "certified": int(getattr(pol, "certified", 0))})
+                        "depths": list(getattr(pol, "depths", [])), "certified": int(getattr(pol, "certified", 0)),
+                        "sims": list(getattr(pol, "sims", []))})
     return records
 
 
@@ -324,13 +345,14 @@ def aggregate(model_label: str, planner_label: str, budget: float | None, steps:
     times = [t for r in records for t in r["times"]]
     depths = [d for r in records for d in r["depths"]]
     certified = sum(r["certified"] for r in records)
+    sims = [x for r in records for x in r.get("sims", [])]
     m, ci = mean_ci(returns)
     return PeerResult(model=model_label, planner=planner_label, budget=budget, episodes=len(records), steps=steps,
                       mean=m, ci=ci, mean_state_return=float(np.mean([r["state_return"] for r in records])),
-                      mean_depth=float(np.mean(depths)) if depths and planner_label != "pouct" else None,
+                      mean_depth=float(np.mean(depths)) if depths else None,
                       mean_time=float(np.mean(times)), max_time=float(np.max(times)),
                       certified_fraction=certified / max(len(times), 1) if planner_label == "bnb" else None,
-                      returns=[float(x) for x in returns])
+                      mean_sims=float(np.mean(sims)) if sims else None, returns=[float(x) for x in returns])
 
 
 def _load_chunk(path: Path, plan: PeerPlan) -> list[dict] | None:

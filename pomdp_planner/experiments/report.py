@@ -259,7 +259,9 @@ def section_peers(d: dict, data: dict) -> list[str]:
                 else "was NOT installed, so it is missing below; ")
              + "plans with sampled states and can only use a STATE reward: it is given r(s, a), it cannot see the "
              "uncertainty term -w_a f(b) of rho, but it is evaluated with rho like everyone else. It gets the exact "
-             "belief (histogram) each step, a fresh tree per decision, random rollouts, max depth 20.", "",
+             "belief (histogram) each step, a fresh tree per decision, random rollouts, max depth 20. Its 'mean depth' "
+             "is the deepest level its sampled tree reached (one path, not a complete tree of that depth, so it is "
+             "not comparable with the search depths), with its simulations per decision.", "",
              "**Episode counts (what was actually run):** "
              f"{plan['episodes_cheap']} episodes for greedy / lower-bound / random; for the budgeted planners "
              + ", ".join(f"{n} at {b:g} s" for b, n in plan["episodes_by_budget"].items()) + ".", ""]
@@ -267,7 +269,9 @@ def section_peers(d: dict, data: dict) -> list[str]:
     for r in d["results"]:
         rows.append([r.model, r.planner, "-" if r.budget is None else f"{r.budget:g}", r.episodes,
                      f"{r.mean:.2f} [{r.ci[0]:.2f}, {r.ci[1]:.2f}]", f"{r.mean_state_return:.2f}",
-                     _f(r.mean_depth, 2), f"{1000 * r.mean_time:.1f} / {1000 * r.max_time:.0f}",
+                     _f(r.mean_depth, 2) + ("" if getattr(r, "mean_sims", None) is None
+                                            else f" (tree; {r.mean_sims:.0f} sims)"),
+                     f"{1000 * r.mean_time:.1f} / {1000 * r.max_time:.0f}",
                      "-" if r.certified_fraction is None else f"{100 * r.certified_fraction:.0f} %"])
     lines += [_table(["model", "planner", "budget (s)", "episodes", "return (95 % CI)", "state return",
                       "mean depth", "decision ms mean / max", "certified"], rows), ""]
