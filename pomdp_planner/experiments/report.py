@@ -383,9 +383,16 @@ def section_differences(data: dict) -> list[str]:
         "our optimal reference (PBVI, cross-checked with exact alpha vectors on S = 4) reaches S = "
         f"{data.get('configs', {}).get('table3', {}).get('looseness_max_states', '?')} in our time budget, larger "
         "sizes show `upper - lower` only.",
-        "- **Peers** are not in the paper. Fewer episodes were run at the larger budgets (stated in that section).",
+        "- **Peers** are not in the paper" + _peer_episode_note(data.get("peers")),
         ""]
     return lines
+
+
+def _peer_episode_note(peers: dict | None) -> str:
+    counts = sorted({r.episodes for r in peers["results"]}) if peers else []
+    if not counts or counts[0] >= 100:
+        return "."
+    return f"; some cells ran fewer than 100 episodes ({counts[0]} at least; see that section)."
 
 
 def write_report(path: Path, data: dict) -> Path:
