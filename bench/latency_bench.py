@@ -6,7 +6,7 @@ epoch ``t`` to receiving the planner's action of epoch ``t + 1``: belief filter 
 transport, planning (anytime search under ``time_budget``) and action transport. Both
 timestamps are taken by the same probe, so no clock synchronisation is involved.
 
-    python bench/latency_bench.py                        # in-process (one MultiThreadedExecutor)
+    python bench/latency_bench.py                        # in-process (one NodeExecutor)
     python bench/latency_bench.py --processes            # three processes, as ros2 run starts them
     python bench/latency_bench.py --budgets 0.05 0.1 0.5 --decisions 40 --model s8
 
@@ -32,7 +32,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -40,7 +39,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from pomdp_planner.nodes import demo
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.common import resolve_path
+from pomdp_planner.nodes.common import NodeExecutor, resolve_path, shutdown_executor
 from pomdp_planner.nodes.messages import decode_plan_info
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.target_simulator import TargetSimulator
@@ -72,6 +71,13 @@ class Probe(Node):
         info = decode_plan_info(msg)
         with self.cond:
             self.info[int(info["epoch"])] = info
+            self.cond.notify_all()
+
+    def complete_epochs(self) -> list[int]:
+        """Epochs ``t`` with observation ``t``, action ``t + 1`` and plan_info ``t + 1`` all received
+        (call with ``cond`` held). The probe may match the three topics at different times, and the
+        loop runs hundreds of epochs per second, so counting actions alone is not enough."""
+        return sorted(t for t in self.obs_time if t + 1 in self.act_time and t + 1 in self.info)
 
 
 def measure(budget: float, decisions: int, model_key: str, max_depth: int, processes: bool) -> dict:
@@ -82,7 +88,7 @@ def measure(budget: float, decisions: int, model_key: str, max_depth: int, proce
     ctx = Context()
     rclpy.init(context=ctx)
     probe = Probe(ctx)
-    executor = MultiThreadedExecutor(context=ctx)
+    executor = NodeExecutor(context=ctx)
     executor.add_node(probe)
     nodes, procs = [], {}
     if processes:
@@ -100,19 +106,18 @@ def measure(budget: float, decisions: int, model_key: str, max_depth: int, proce
     warmup = 5
     try:
         with probe.cond:
-            ok = probe.cond.wait_for(lambda: len(probe.act_time) >= decisions + warmup + 1, timeout=600)
+            ok = probe.cond.wait_for(lambda: len(probe.complete_epochs()) >= decisions + warmup, timeout=600)
         if not ok:
             raise RuntimeError("the loop did not produce enough decisions")
         with probe.cond:
-            epochs = sorted(t for t in probe.obs_time if t + 1 in probe.act_time and t + 1 in probe.info)
-            epochs = epochs[warmup:warmup + decisions]
+            epochs = probe.complete_epochs()[warmup:warmup + decisions]
             lat = np.array([probe.act_time[t + 1] - probe.obs_time[t] for t in epochs])
             used = np.array([probe.info[t + 1]["time_used"] for t in epochs])
             depth = np.array([probe.info[t + 1]["depth"] for t in epochs])
     finally:
         if procs:
             demo.stop_nodes(procs)
-        executor.shutdown(timeout_sec=2.0)
+        shutdown_executor(executor)
         thread.join(timeout=2.0)
         for n in [*nodes, probe]:
             n.destroy_node()
@@ -133,7 +138,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-depth", type=int, default=6)
     p.add_argument("--processes", action="store_true", help="three node processes instead of one executor")
     args = p.parse_args(argv)
-    mode = "three processes" if args.processes else "one process, MultiThreadedExecutor"
+    mode = "three processes" if args.processes else "one process, NodeExecutor"
     print(f"observation-to-action latency, {args.model}, max_depth {args.max_depth}, {mode}, "
           f"{args.decisions} decisions per budget (after 5 warm-up), load average {os.getloadavg()[0]:.1f}")
     print(f"{'budget s':>8} {'median ms':>9} {'p99 ms':>8} {'over med ms':>11} {'over p99 ms':>11} "

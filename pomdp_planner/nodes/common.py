@@ -16,7 +16,9 @@ from __future__ import annotations
 import functools
 import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -191,6 +193,68 @@ def callback(method):
     return wrapper
 
 
+# ----------------------------------------------------------------- executor
+class _StartReportingPool(ThreadPoolExecutor):
+    """A thread pool that reports each submitted callable when a worker starts it."""
+
+    def __init__(self, max_workers: int, on_start: Callable[[object], None]):
+        super().__init__(max_workers)
+        self._on_start = on_start
+
+    def submit(self, fn, /, *args, **kwargs):
+        def run():
+            self._on_start(fn)
+            return fn(*args, **kwargs)
+
+        return super().submit(run)
+
+
+class NodeExecutor(MultiThreadedExecutor):
+    """``MultiThreadedExecutor`` without the re-submission busy loop of rclpy 7.1 (Jazzy).
+
+    Jazzy's ``Executor._wait_for_ready_callbacks`` yields again every task that is "not executing
+    and not done" before it waits for new work. On a ``MultiThreadedExecutor`` a task it has just
+    handed to the thread pool is exactly that until a worker picks it up, so the spinning thread
+    submits the same task again and again without ever blocking in the wait set, holding the GIL
+    the workers need to start it (ros2/rclpy#1452, fixed upstream after Jazzy by ros2/rclpy#1469
+    and #1547). Measured on the node loop (2 cores): per epoch about 8 re-submissions, the pool's
+    queue up to 200 stale entries, the spinning thread at 70-100 % CPU while a message that the
+    DDS layer had received within 0.1 ms waited 50-900 ms to be taken; the loop ran 1-40x slower
+    depending on thread timing (see README, "Latency").
+
+    This subclass hands every task to the pool once: when the wait loop yields a task that is
+    still queued (submitted, not yet started), it waits, without the GIL, until a worker starts
+    it and then asks for the next ready work. A task that has run and is suspended (a coroutine
+    awaiting a future) is submitted again as before. Everything else (callback groups, wait sets,
+    number of threads) is rclpy's.
+    """
+
+    def __init__(self, num_threads: int | None = None, *, context=None):
+        super().__init__(num_threads, context=context)
+        workers = self._executor._max_workers
+        self._executor.shutdown(wait=False)
+        self._queued: set = set()  # tasks submitted to the pool that no worker has started yet
+        self._queued_cv = threading.Condition()
+        self._executor = _StartReportingPool(workers, self._task_started)
+
+    def _task_started(self, task) -> None:
+        with self._queued_cv:
+            self._queued.discard(task)
+            self._queued_cv.notify_all()
+
+    def wait_for_ready_callbacks(self, *args, **kwargs):
+        while True:
+            handler, entity, node = super().wait_for_ready_callbacks(*args, **kwargs)
+            with self._queued_cv:
+                if handler not in self._queued:
+                    self._queued.add(handler)  # the caller (_spin_once_impl) submits it now
+                    return handler, entity, node
+                # Yielded again while still in the pool's queue: do not queue it twice; wait for
+                # a worker to start it (bounded, so that shutdown is noticed), then look again.
+                self._queued_cv.wait_for(lambda h=handler: h not in self._queued or self._is_shutdown,
+                                         timeout=0.05)
+
+
 # ----------------------------------------------------------------- main
 def shutdown_executor(executor, timeout_sec: float = 2.0) -> None:
     """Stop ``executor``; let callbacks already running finish before nodes are destroyed.
@@ -219,7 +283,7 @@ def shutdown_executor(executor, timeout_sec: float = 2.0) -> None:
 
 
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
-    """The Jazzy idiom: init, build nodes, spin a MultiThreadedExecutor, clean exit on Ctrl-C/SIGTERM.
+    """The Jazzy idiom: init, build nodes, spin a :class:`NodeExecutor`, clean exit on Ctrl-C/SIGTERM.
 
     Returns the process exit code: 0 on a normal or signalled shutdown, 1 if a node could not
     start (bad parameter or model file; the reason is printed, without traceback).
@@ -231,7 +295,7 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     try:
         for make in factories:
             nodes.append(make())
-        executor = MultiThreadedExecutor()
+        executor = NodeExecutor()
         for n in nodes:
             executor.add_node(n)
         executor.spin()
