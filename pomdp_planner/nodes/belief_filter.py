@@ -3,10 +3,12 @@
 Topics (relative names, remappable):
 
 * subscribes each topic of ``observation_topics`` (``Int64MultiArray [epoch, action_priority,
-  observation]``) and ``action`` (``[epoch, action_priority]``, only to cross-check);
-* publishes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``,
-  latched: TRANSIENT_LOCAL, depth 1), ``belief_entropy`` (``Float64``, Shannon entropy in nats of
-  the same belief) and ``/diagnostics`` about once a second.
+  observation]``) and ``action`` (``[epoch, action_priority]``, only to cross-check), all with
+  ``common.STREAM_QOS`` (every sample);
+* publishes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``;
+  ``common.STREAM_QOS``: transient-local, so a late planner still gets the newest belief and a
+  recorder every one), ``belief_entropy`` (``Float64``, Shannon entropy in nats of the same
+  belief; latched, depth 1) and ``/diagnostics`` about once a second.
 
 Pairing by design: an observation is applied with the action *it carries* (the action the
 simulator or sensor was under), never with "the last action seen", and epochs are applied in
@@ -96,13 +98,13 @@ class BeliefFilter(Node):
         self.last_warning = ""
         self._reported_problems = 0
 
-        self.belief_pub = self.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+        self.belief_pub = self.create_publisher(Float64MultiArray, "belief", common.STREAM_QOS)
         self.entropy_pub = self.create_publisher(Float64, "belief_entropy", common.LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for k, topic in enumerate(self.topics):
             self.create_subscription(Int64MultiArray, topic, lambda msg, k=k: self._on_observation(k, msg),
                                      common.STREAM_QOS)
-        self.create_subscription(Int64MultiArray, "action", self._on_action, common.LATCHED_QOS)
+        self.create_subscription(Int64MultiArray, "action", self._on_action, common.STREAM_QOS)
         self.create_timer(0.02, self._release)
         self.create_timer(1.0, self._publish_diagnostics)
         self._publish()

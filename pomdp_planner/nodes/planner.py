@@ -2,8 +2,9 @@
 
 Topics (relative names, remappable):
 
-* subscribes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``, latched);
-* publishes ``action`` (``Int64MultiArray [epoch, action_priority]``, latched, depth 1) with
+* subscribes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``), latest
+  value only (``common.LATCHED_QOS``: a backlog of older beliefs is never planned for);
+* publishes ``action`` (``Int64MultiArray [epoch, action_priority]``, ``common.STREAM_QOS``) with
   ``epoch = t + 1``: the action computed from the belief of epoch ``t`` moves the system to epoch
   ``t + 1``; so every action names the belief it was computed from;
 * ``plan_info`` (``Float64MultiArray``, one record per decision: see ``messages``);
@@ -107,7 +108,7 @@ class PlannerNode(Node):
         self.last_warning = ""
         self._reported = {"deadline_misses": 0, "bad_beliefs": 0}  # counts at the previous diagnostics
 
-        self.action_pub = self.create_publisher(Int64MultiArray, "action", common.LATCHED_QOS)
+        self.action_pub = self.create_publisher(Int64MultiArray, "action", common.STREAM_QOS)
         self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", common.STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.plan_group = MutuallyExclusiveCallbackGroup()

@@ -2,7 +2,7 @@
 
 Topics (relative names, remappable):
 
-* subscribes ``action`` (``Int64MultiArray [epoch, action_priority]``, latched);
+* subscribes ``action`` (``Int64MultiArray [epoch, action_priority]``; every action: ``common.STREAM_QOS``);
 * publishes, per configured sensor, ``observation`` (default; parameter ``observation_topics``)
   as ``Int64MultiArray [epoch, action_priority, observation]`` and ``true_state``
   (``[epoch, state]``, 0-based; epoch 0 = the initial state) for evaluation;
@@ -81,7 +81,7 @@ class TargetSimulator(Node):
         self.obs_pubs = [self.create_publisher(Int64MultiArray, t, common.STREAM_QOS) for t in topics]
         self.state_pub = self.create_publisher(Int64MultiArray, "true_state", common.STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Int64MultiArray, "action", self._on_action, common.LATCHED_QOS)
+        self.create_subscription(Int64MultiArray, "action", self._on_action, common.STREAM_QOS)
         period = self.get_parameter("step_period").value
         self.timer_mode = period > 0.0
         if self.timer_mode:
