@@ -1,8 +1,8 @@
 """Launch-free test support for the ROS 2 node tests (see /work/shared/ROS_NOTES.md).
 
 One ``rclpy`` Context per test, discovery OFF (nodes of one context still talk, nothing leaks
-between tests), one MultiThreadedExecutor spinning in a daemon thread, waits on a condition
-variable that the recording callbacks notify (no fixed sleeps).
+between tests), one ``common.NodeExecutor`` (the nodes' MultiThreadedExecutor) spinning in a daemon
+thread, waits on a condition variable that the recording callbacks notify (no fixed sleeps).
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.context import Context  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float64MultiArray, Int64MultiArray  # noqa: E402
@@ -87,7 +86,7 @@ class RosHarness:
         self.context = Context()
         rclpy.init(context=self.context)
         self.cond = threading.Condition()
-        self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
+        self.executor = common.NodeExecutor(num_threads=4, context=self.context)
         self.nodes: list[Node] = []
         self._thread: threading.Thread | None = None
 

@@ -47,7 +47,7 @@ def test_set_parameters_while_running_take_effect_at_next_decision(harness):
     _, _, _, rec = start_loop(h, time_budget=0.02, max_depth=2)
     client = AsyncParameterClient(rec, "planner")
     assert client.wait_for_services(timeout_sec=10.0)
-    assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=30)
+    assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=15)
 
     results = _set(client, max_depth=1, time_budget=0.05)
     assert all(r.successful for r in results), [r.reason for r in results]
@@ -58,15 +58,15 @@ def test_set_parameters_while_running_take_effect_at_next_decision(harness):
     def changed():
         return any(d.get("last.max_depth") == "1" and d.get("last.time_budget") == "0.05"
                    and d.get("last.depth") == "1" for d in rec.diag_values("planner")[n0:])
-    # generous waits: the free-running loop can stall for seconds between nodes (README, Latency)
-    assert h.wait_until(changed, timeout=30), rec.diag_values("planner")[-1]
-    assert h.wait_until(lambda: len(rec.beliefs) > 60, timeout=30)  # still looping
+    # upper bounds for a loaded CI machine (diagnostics come about once a second)
+    assert h.wait_until(changed, timeout=15), rec.diag_values("planner")[-1]
+    assert h.wait_until(lambda: len(rec.beliefs) > 60, timeout=15)  # still looping
 
     results = _set(client, use_bounds=False, bound_variant="feasible", max_depth=3)
     assert all(r.successful for r in results), [r.reason for r in results]
     n1 = len(rec.diagnostics)
     assert h.wait_until(lambda: any(d.get("last.use_bounds") == "false" and d.get("last.max_depth") == "3"
-                                    for d in rec.diag_values("planner")[n1:]), timeout=30)
+                                    for d in rec.diag_values("planner")[n1:]), timeout=15)
 
 
 @pytest.mark.parametrize(("name", "value", "reason"), [
