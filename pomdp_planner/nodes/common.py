@@ -238,10 +238,11 @@ class NodeExecutor(MultiThreadedExecutor):
     handed to the thread pool is exactly that until a worker picks it up, so the spinning thread
     submits the same task again and again without ever blocking in the wait set, holding the GIL
     the workers need to start it (ros2/rclpy#1452, fixed upstream after Jazzy by ros2/rclpy#1469
-    and #1547). Measured on the node loop (2 cores): per epoch about 8 re-submissions, the pool's
-    queue up to 200 stale entries, the spinning thread at 70-100 % CPU while a message that the
-    DDS layer had received within 0.1 ms waited 50-900 ms to be taken; the loop ran 1-40x slower
-    depending on thread timing (see README, "Latency").
+    and #1547). Measured on the in-process node loop (2 cores, S = 8): about 8 re-submissions per
+    epoch, up to 250 stale entries in the pool's queue, the spinning thread on two thirds of a
+    CPU during a stall while the workers hardly ran, and messages that the DDS layer had received
+    within 0.1 ms of publication waiting 50-900 ms to be taken; in bad runs the loop ran up to
+    18x slower (README, "Latency"). The same happens in each node process.
 
     This subclass hands every task to the pool once: when the wait loop yields a task that is
     still queued (submitted, not yet started), it waits, without the GIL, until a worker starts
