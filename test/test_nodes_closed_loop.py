@@ -126,3 +126,26 @@ def test_closed_loop_two_sensors(harness, tmp_path):
         b = (b @ model.P[a]) * model.O[a, :, cam[t][1]] * O2[a, :, radar[t][1]]  # independent formula
         b = b / b.sum()
         np.testing.assert_allclose(beliefs[t], b, rtol=1e-9, atol=1e-12)
+
+
+def test_simulator_waits_for_min_subscribers_then_loses_no_epoch(harness):
+    """``min_subscribers``: the first step waits until every observation topic has that many
+    subscribers (the demo uses it so that its monitor sees epoch 1); the held action is applied then."""
+    h = harness
+    from rclpy.node import Node
+    from std_msgs.msg import Int64MultiArray
+
+    from pomdp_planner.nodes import common
+
+    sim, _flt, _planner, rec = start_loop(h, sim_params={"min_subscribers": 3})  # filter + recorder = 2
+    assert h.wait_until(lambda: sim._held_action is not None, timeout=10), "no action reached the simulator"
+    with h.cond:
+        assert rec.observations["observation"] == [] and sim.epoch == 0  # held, not stepped
+    late = h.add(Node("late_subscriber", context=h.context))
+    late.create_subscription(Int64MultiArray, "observation", lambda msg: None, common.STREAM_QOS)
+    assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=15), f"only {len(rec.beliefs)} beliefs"
+    with h.cond:
+        epochs = [t for t, _, _ in rec.observations["observation"]]
+        actions = dict(rec.actions)
+    assert epochs[:20] == list(range(1, 21))
+    assert [p for _, p, _ in rec.observations["observation"][:20]] == [actions[t] for t in range(1, 21)]

@@ -14,11 +14,13 @@ planner's rule: latency > ``time_budget + deadline_slack``, from each decision's
 Exit code 0 if all three processes exited cleanly (code 0, no traceback).
 
 The loop runs free (each action steps the simulator at once), hundreds of epochs per second on
-the S = 8 model, so the monitor must have matched every writer before the loop starts: the
-nodes are started planner, simulator, filter, each once the monitor has matched the previous
-one's topics; the loop starts when the filter's prior reaches the planner, and the monitor
-discovers the filter at about the same time (the writers' transient-local history covers the
-first epochs either way).
+the shipped models, and discovery between processes can take seconds, more than the writers'
+transient-local history (100 epochs) covers. So the monitor must have matched every writer
+before the loop starts: the nodes are started filter, planner, simulator, each once the monitor
+has the previous one's prior or has matched its writer, and the simulator gets
+``min_subscribers`` 2: it takes its first step only when the filter and the monitor both
+subscribe to its observations. If the monitor still misses the first epochs, the table starts
+at the first complete one and says so (no hang).
 """
 
 from __future__ import annotations
@@ -139,6 +141,13 @@ class Monitor:
     def spin_once(self, timeout: float = 0.05) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
+    def first_complete_epoch(self) -> int | None:
+        """The first epoch from which on belief, true state and next observation have all come (the
+        earliest each writer delivered), or None before all three have delivered something."""
+        if not (self.beliefs and self.states and self.observations):
+            return None
+        return max(min(self.beliefs), min(self.states), min(self.observations) - 1)
+
     def row_ready(self, t: int, info_wait: float = 1.0) -> bool:
         """Belief and true state of epoch ``t``, the observation of ``t + 1`` (it carries the action
         chosen from that belief) and the planner's ``plan_info`` of ``t + 1``, or, if that has not
@@ -171,7 +180,10 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
     domain_id = random.randint(1, 101) if domain_id is None else domain_id
     os.environ.update(ros_env(domain_id))
     model_path = resolve_path(f"config/models/tracking_{model_key}_info.yaml")
-    extra = {"planner": ["-p", f"time_budget:={time_budget}"]} if time_budget is not None else None
+    # min_subscribers 2: the simulator's first step waits for the filter and this monitor (docstring)
+    extra = {"target_simulator": ["-p", "min_subscribers:=2"]}
+    if time_budget is not None:
+        extra["planner"] = ["-p", f"time_budget:={time_budget}"]
     log_dir = Path(tempfile.mkdtemp(prefix="pomdp_planner_demo_"))
     monitor = Monitor(model_path)
     model = monitor.model
@@ -186,11 +198,10 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
     code = 0
     procs: dict = {}
     try:
-        # Start order (module docstring): planner, simulator, filter, each once the monitor has
-        # matched the previous one's topics, so that no row is missed although the loop runs free.
-        for name, ready in (("planner", lambda: monitor.matched("plan_info")),
-                            ("target_simulator", lambda: monitor.matched("observation") and 0 in monitor.states),
-                            ("belief_filter", lambda: 0 in monitor.beliefs)):
+        # Start order (module docstring): filter, planner, simulator (which waits for its subscribers)
+        for name, ready in (("belief_filter", lambda: 0 in monitor.beliefs),
+                            ("planner", lambda: monitor.matched("plan_info")),
+                            ("target_simulator", lambda: True)):
             procs.update(start_nodes(model_key, domain_id, log_dir, extra, names=(name,)))
             deadline = time.monotonic() + 30.0
             while not ready() and time.monotonic() < deadline and procs[name][0].poll() is None:
@@ -198,9 +209,14 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
         print(header, file=out)
         print("-" * len(header), file=out)
         last_progress = time.monotonic()
-        while t < steps:
+        t_end = steps
+        while t < t_end:
             monitor.spin_once()
-            while t < steps and monitor.row_ready(t):
+            first = monitor.first_complete_epoch() if not rewards else None
+            if first is not None and first > t:  # epochs before the monitor matched a writer never come
+                print(f"(the monitor matched the nodes late; the table starts at epoch {first})", file=out)
+                t, t_end = first, first + steps
+            while t < t_end and monitor.row_ready(t):
                 b, s = monitor.beliefs[t], monitor.states[t]
                 a = monitor.observations[t + 1][0] - 1
                 info = monitor.info.get(t + 1)

@@ -14,6 +14,11 @@ dropped and counted) moves the state ``s ~ P[a, s, :]`` and draws one observatio
 belief filter pairs them without relying on timing. A jump in epochs (an action was lost) is
 simulated as one step and counted as a gap.
 
+``min_subscribers`` (default 0): no step, in either mode, until every observation topic has at
+least that many matched subscriptions (e.g. 2: the belief filter and a recorder), so that they
+all get every epoch from the first; actions that arrive before are kept (the newest one) and
+applied once the subscribers are there.
+
 Timer mode (``step_period > 0``): the simulator is the clock. Every period it steps once with the
 most recent action (``default_priority`` before any arrives), numbering epochs itself; the
 observations again carry the action that was applied, so pairing stays exact.
@@ -28,7 +33,7 @@ from std_msgs.msg import Int64MultiArray
 
 from ..core.model import action_of_priority
 from . import common
-from .messages import MessageError, decode_action, encode_observation, encode_true_state
+from .messages import ActionMsg, MessageError, decode_action, encode_observation, encode_true_state
 
 
 class TargetSimulator(Node):
@@ -53,6 +58,9 @@ class TargetSimulator(Node):
         self.declare_parameter("step_period", 0.0, d(
             "0 = step on each new action; > 0 = step every period (s) with the latest action",
             read_only=True, float_range=(0.0, 3600.0)))
+        self.declare_parameter("min_subscribers", 0, d(
+            "Do not step until every observation topic has this many matched subscribers (0 = no wait)",
+            read_only=True, int_range=(0, 1000)))
         self.declare_parameter("default_priority", 1, d(
             "Action used in timer mode before the first action arrives", read_only=True, int_range=(1, 1000)))
 
@@ -82,6 +90,10 @@ class TargetSimulator(Node):
         self.state_pub = self.create_publisher(Int64MultiArray, "true_state", common.STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Int64MultiArray, "action", self._on_action, common.STREAM_QOS)
+        self.min_subscribers = self.get_parameter("min_subscribers").value
+        self._held_action: ActionMsg | None = None  # arrived before the subscribers (min_subscribers)
+        if self.min_subscribers > 0:
+            self._wait_timer = self.create_timer(0.01, self._check_subscribers)
         period = self.get_parameter("step_period").value
         self.timer_mode = period > 0.0
         if self.timer_mode:
@@ -115,6 +127,14 @@ class TargetSimulator(Node):
         self.last_priority = act.priority
         if self.timer_mode:
             return
+        if not self.subscribers_ready():
+            if self._held_action is None or act.epoch > self._held_action.epoch:
+                self._held_action = act
+            return
+        self._release_held()
+        self._apply_action(act)
+
+    def _apply_action(self, act: ActionMsg) -> None:
         if act.epoch <= self.epoch:
             self.counts["stale_actions"] += 1
             self.get_logger().debug(f"ignored action of epoch {act.epoch} (already at epoch {self.epoch})")
@@ -124,9 +144,30 @@ class TargetSimulator(Node):
             self.get_logger().warning(f"action jumps from epoch {self.epoch} to {act.epoch} (actions lost?)")
         self.step(act.epoch, act.priority)
 
+    def subscribers_ready(self) -> bool:
+        """Whether every observation topic has ``min_subscribers`` matched subscriptions (latched)."""
+        if self.min_subscribers > 0:
+            if any(p.get_subscription_count() < self.min_subscribers for p in self.obs_pubs):
+                return False
+            self.min_subscribers = 0
+            self.get_logger().info("observation subscribers matched; stepping")
+        return True
+
+    def _release_held(self) -> None:
+        held, self._held_action = self._held_action, None
+        if held is not None and not self.timer_mode:
+            self._apply_action(held)
+
+    @common.callback
+    def _check_subscribers(self) -> None:
+        if self.subscribers_ready():
+            self._wait_timer.cancel()
+            self._release_held()
+
     @common.callback
     def _on_tick(self) -> None:
-        self.step(self.epoch + 1, self.last_priority)
+        if self.subscribers_ready():
+            self.step(self.epoch + 1, self.last_priority)
 
     @common.callback
     def _publish_diagnostics(self) -> None:
