@@ -41,6 +41,8 @@ def test_plan_json_exhaustive_and_anytime(capsys: pytest.CaptureFixture[str]) ->
     out = run_json(capsys, "plan", S3, "--belief", "uniform", "--time-budget", "0.05", "--max-depth", "4",
                    "--exhaustive", "--json")
     assert out["mode"] == "anytime" and 1 <= out["depth"] <= 4
+    assert isinstance(out["predicted_stop"], bool)
+    assert out["deadline_hit"] or not out["predicted_stop"]  # a predicted stop is a budget-limited depth
 
 
 def test_plan_text(capsys: pytest.CaptureFixture[str]) -> None:

@@ -77,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
         f"action: priority {d['action']}" + ("  (certified: the root bounds agree)" if d["certified"] else ""),
         f"Q values by priority: {q}",
         f"root bounds: {rb}",
-        f"depth: {d['depth']}" + ("  (deadline hit; deeper depth discarded)" if d["deadline_hit"] else ""),
+        f"depth: {d['depth']}" + ("  (next depth predicted not to finish in time: not started)"
+                                  if d.get("predicted_stop") else
+                                  "  (deadline hit; deeper depth discarded)" if d["deadline_hit"] else ""),
         "nodes per depth: " + ", ".join(f"d={i + 1}: {n:,} ({p:.1f}% pruned)" for i, (n, p) in
                                         enumerate(zip(d["nodes_expanded"], d["percent_pruned"], strict=True))),
         f"time: {d['time_used'] * 1e3:.1f} ms",
