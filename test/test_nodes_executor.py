@@ -87,3 +87,22 @@ def test_stock_executor_resubmits_queued_tasks(harness):
     fails and NodeExecutor can go: see its docstring)."""
     submitted, _ = _run_busy_pool(harness.context, MultiThreadedExecutor)
     assert max(submitted.values()) > 1
+
+
+def test_node_executor_reports_a_shut_down_context_as_shutdown():
+    """Ctrl-C shuts the context down while the executor may be between two waits: it must say
+    so with rclpy's ExternalShutdownException (a clean exit in run_nodes), not fail building a
+    wait set on the dead context (RCLError; seen once as a node exiting 1 on SIGINT)."""
+    from rclpy.context import Context
+    from rclpy.executors import ExternalShutdownException
+
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("shutdown_probe", context=context)
+    executor = NodeExecutor(num_threads=2, context=context)
+    executor.add_node(node)
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+    with pytest.raises(ExternalShutdownException):
+        executor.wait_for_ready_callbacks(timeout_sec=0.1)
+    executor.shutdown()

@@ -25,7 +25,8 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, ShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -266,6 +267,13 @@ class NodeExecutor(MultiThreadedExecutor):
 
     def wait_for_ready_callbacks(self, *args, **kwargs):
         while True:
+            # Looking again after a wait below: the context may have been shut down meanwhile
+            # (Ctrl-C); say so the way rclpy's own wait does, instead of building a wait set on
+            # an invalid context (an RCLError).
+            if self._is_shutdown:
+                raise ShutdownException()
+            if not self._context.ok():
+                raise ExternalShutdownException()
             handler, entity, node = super().wait_for_ready_callbacks(*args, **kwargs)
             with self._queued_cv:
                 if handler not in self._queued:
@@ -323,6 +331,11 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy_impl.RCLError:
+        if rclpy.ok():
+            raise
+        # the context was shut down (Ctrl-C, SIGTERM) while rclpy was building a wait set: a
+        # clean exit like the others, not a traceback
     except NodeConfigError as exc:
         print(f"[FATAL] pomdp_planner: {exc}", file=sys.stderr)
         code = 1
