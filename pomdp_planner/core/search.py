@@ -285,9 +285,10 @@ class Planner:
         b = check_belief(self.model, belief)
         t0 = self.clock()
         bounds = self.bounds if use_bounds else self.trivial
-        q, sizes, rb = self._run(b, depth, bounds, None)
+        root = self._root(b, bounds)
+        q, sizes = self._run(root, depth, bounds, None)
         t = self.clock() - t0
-        return self._result(q, sizes, depth, rb, t, False, (t,))
+        return self._result(q, sizes, depth, root[3], t, False, (t,))
 
     def plan(self, belief: np.ndarray, max_depth: int, time_budget: float | None = None,
              use_bounds: bool = True, predict_stop: bool = True) -> SearchResult:
@@ -315,21 +316,19 @@ class Planner:
         t0 = self.clock()
         deadline = None if time_budget is None else t0 + time_budget
         bounds = self.bounds if use_bounds else self.trivial
-        best: tuple[np.ndarray, list[int], int, tuple[int, int] | None] | None = None
+        best: tuple[np.ndarray, list[int], int] | None = None
         hit = predicted = False
         times: list[float] = []
         root = self._root(b, bounds)  # rho, allowed actions and bounds at b: once per call
-        rb = root[3]
-        certified = (rb[0] == rb[1]) if rb is not None else (use_bounds and self.model.A == 1)
-        last = 1 if certified else max_depth
+        last = 1 if self._is_certified(root[3]) else max_depth
         for d in range(1, last + 1):
             ts = self.clock()
             try:
-                q, sizes, rb = self._run(b, d, bounds, None if d == 1 else deadline, root)
+                q, sizes = self._run(root, d, bounds, None if d == 1 else deadline)
             except _DeadlineExceeded:
                 hit = True
                 break
-            best = (q, sizes, d, rb)
+            best = (q, sizes, d)
             now = self.clock()
             times.append(now - ts)
             if deadline is None or d == last:
@@ -341,8 +340,8 @@ class Planner:
                 hit = predicted = True
                 break
         assert best is not None  # depth 1 runs without a deadline
-        q, sizes, d, rb = best
-        return self._result(q, sizes, d, rb, self.clock() - t0, hit, tuple(times), predicted)
+        q, sizes, d = best
+        return self._result(q, sizes, d, root[3], self.clock() - t0, hit, tuple(times), predicted)
 
     def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
         """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
@@ -371,9 +370,12 @@ class Planner:
         actions and the 0-based ``(lower, upper)`` (``None`` for :class:`TrivialBounds`)."""
         BT = np.ascontiguousarray(b[:, None])
         rhoT, lo, up = self._rho_bounds(bounds, BT)
-        if lo is None:
-            return BT, rhoT, np.ones((self.model.A, 1), dtype=bool), None
-        return BT, rhoT, self._range_mask[:, lo, up], (int(lo[0]), int(up[0]))
+        rb = None if lo is None else (int(lo[0]), int(up[0]))
+        return BT, rhoT, self._allowed(lo, up, 1), rb
+
+    def _is_certified(self, rb: tuple[int, int] | None) -> bool:
+        """Root bounds agree (Proposition 1), or there is only one action."""
+        return self.model.A == 1 if rb is None else rb[0] == rb[1]
 
     def _rho(self, BT: np.ndarray, linear: np.ndarray | None = None) -> np.ndarray:
         """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``.
@@ -417,9 +419,13 @@ class Planner:
         """``(rho, allowed)``: boolean ``(A, n)`` of the actions in ``[lower(b), upper(b)]``
         (all of them if the bounds cross, or for :class:`TrivialBounds`)."""
         rhoT, lo, up = self._rho_bounds(bounds, BT)
+        return rhoT, self._allowed(lo, up, BT.shape[1])
+
+    def _allowed(self, lo: np.ndarray | None, up: np.ndarray | None, n: int) -> np.ndarray:
+        """Boolean ``(A, n)``: ``a`` in ``[lo, up]`` (every action if the bounds cross or are absent)."""
         if lo is None:
-            return rhoT, np.ones((self.model.A, BT.shape[1]), dtype=bool)
-        return rhoT, self._range_mask[:, lo, up]
+            return np.ones((self.model.A, n), dtype=bool)
+        return self._range_mask[:, lo, up]
 
     def _bound_matrix(self, bounds: MyopicBounds) -> np.ndarray:
         """``[r^T; C_g; C_h reversed]`` (``3A x S``), cached for the last bounds object."""
@@ -446,7 +452,7 @@ class Planner:
         q.setflags(write=False)
         expanded = tuple(int(sum(sizes[: i + 2])) for i in range(depth))
         pruned = tuple(complete_tree_nodes(A, Z, i + 1) - expanded[i] for i in range(depth))
-        certified = A == 1 if rb is None else rb[0] == rb[1]
+        certified = self._is_certified(rb)
         return SearchResult(
             action=action, priority=int(priority_of(action)), q_values=q, depth=int(depth),
             nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
@@ -455,14 +461,13 @@ class Planner:
             depth_times=times, predicted_stop=bool(predicted),
         )
 
-    def _run(self, b: np.ndarray, depth: int, bounds: Bounds, deadline: float | None, root: tuple | None = None
-             ) -> tuple[np.ndarray, list[int], tuple[int, int] | None]:
-        """Root Q values, level sizes and root bounds of the depth-``depth`` search
-        (``root``: :meth:`_root` of ``b``, if the caller already has it)."""
-        BT, rhoT, allowed, rb = self._root(b, bounds) if root is None else root
+    def _run(self, root: tuple, depth: int, bounds: Bounds, deadline: float | None
+             ) -> tuple[np.ndarray, list[int]]:
+        """Root Q values and level sizes of the depth-``depth`` search from ``root`` (:meth:`_root`)."""
+        BT, rhoT, allowed, _ = root
         sizes = [1] + [0] * depth
         QT = self._values(BT, rhoT, allowed, depth, 0, sizes, bounds, deadline)
-        return QT[:, 0], sizes, rb
+        return QT[:, 0], sizes
 
     def _check_deadline(self, deadline: float | None) -> None:
         if deadline is not None and self.clock() > deadline:
