@@ -92,3 +92,13 @@ def test_tree_depth_counts_action_observation_levels() -> None:
     v1 = Node({"a1": Node({"z0": v2})})
     root = Node({"a0": Node({"z1": v1, "z2": Node()}), "a1": Node({"z0": Node()})})
     assert peers.tree_depth(root) == 2
+
+
+def test_planner_cache_follows_the_model_not_the_label() -> None:
+    import pickle
+
+    s8 = load_model(Path(__file__).resolve().parents[1] / "config" / "models" / "tracking_s8_info.yaml")
+    p3 = peers._planner_for("m", S3)
+    assert peers._planner_for("m", pickle.loads(pickle.dumps(S3))) is p3  # a worker's copy: reused
+    p8 = peers._planner_for("m", s8)  # same label, another model: its own planner
+    assert p8 is not p3 and p8.model.S == 8

@@ -519,13 +519,15 @@ def _tighten(model: POMDP, g: np.ndarray, h: np.ndarray, B: np.ndarray, rounds: 
         cand_g = _tight_vector(model, "g", B, np.where(lo < up, lo + 1, lo), best_g)
         if cand_g is not None:
             lo_c = MyopicBounds(model, cand_g, best_h).lower(B, rho)
-            if _better(_score(lo_c, up), best):
-                best_g, lo, best, changed = cand_g, lo_c, _score(lo_c, up), True
+            score = _score(lo_c, up)
+            if _better(score, best):
+                best_g, lo, best, changed = cand_g, lo_c, score, True
         cand_h = _tight_vector(model, "h", B, np.where(up > lo, up - 1, up), best_h)
         if cand_h is not None:
             up_c = MyopicBounds(model, best_g, cand_h).upper(B, rho)
-            if _better(_score(lo, up_c), best):
-                best_h, up, best, changed = cand_h, up_c, _score(lo, up_c), True
+            score = _score(lo, up_c)
+            if _better(score, best):
+                best_h, up, best, changed = cand_h, up_c, score, True
         history.append({"round": r, "agreement": best[0], "mean_distance": -best[1]})
         if not changed:
             break

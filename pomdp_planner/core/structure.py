@@ -594,7 +594,8 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
         exact = rest[low]
         if exact.size:
             Xt, vt = _triple_counterexamples(D[exact])
-            Xq, vq = _pair_counterexamples(D[exact])
+            pos = np.searchsorted(todo, exact)  # the pair minima of step 2, reused
+            Xq, vq = Xp[pos], vp[pos]
             use_t = vt < vq
             xbest = np.where(use_t[:, None], Xt, Xq)
             vbest = np.minimum(vt, vq)

@@ -295,15 +295,18 @@ class PeerPlan:
 
 CHEAP_PLANNERS = ("greedy", "lower-bound", "random")
 
-_PLANNERS: dict = {}  # per process: model name -> Planner (the LP is solved once per process)
+_PLANNERS: dict = {}  # per process: (label, pickled model) -> Planner; the LP is solved once per model
 
 
 def _planner_for(label: str, model: POMDP):
-    if label not in _PLANNERS:
+    """The B&B planner of ``model``. Each chunk brings its own unpickled copy of the model, so the
+    cache is keyed by the model's content (its pickle), not by the object."""
+    key = (label, pickle.dumps(model))
+    if key not in _PLANNERS:
         from ..core.search import Planner
 
-        _PLANNERS[label] = Planner.from_model(model, "tight")
-    return _PLANNERS[label]
+        _PLANNERS[key] = Planner.from_model(model, "tight")
+    return _PLANNERS[key]
 
 
 def _policy(chunk: PeerChunk, model: POMDP, plan: PeerPlan, k: int) -> _Timed:

@@ -6,8 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-#: The paper's Table II row (% belief states pruned, d = 2..6).
-PAPER_TABLE2 = {2: 26.3, 3: 36.3, 4: 44.9, 5: 52.3, 6: 58.8}
+from ..bench.search_bench import PAPER_TABLE_II
 
 #: The paper's Table III: S -> (min, avg, max) for A = 4, 8, 16, 32, 64 (None: n/a).
 PAPER_TABLE3 = {
@@ -119,7 +118,7 @@ def section_table2(d: dict) -> list[str]:
                 ["ours: min / max", *[f"{_f(p['percent_pruned_min'])} / {_f(p['percent_pruned_max'])}" for p in pr]],
                 ["beliefs", *[p["beliefs"] for p in pr]], ["complete tree nodes", *[p["complete_nodes"] for p in pr]]]
         if r["S"] == 8 and r["A"] == 3:
-            rows.append(["paper (S=Z=8, A=3)", *[_f(PAPER_TABLE2.get(p["depth"])) for p in pr]])
+            rows.append(["paper (S=Z=8, A=3)", *[_f(PAPER_TABLE_II.get(p["depth"])) for p in pr]])
         lines += [f"**{r['model']}** (S={r['S']}, A={r['A']}, Z={r['Z']}; root bounds agree at "
                   f"{100 * r['root_bounds_agree']:.0f} % of the beliefs)", "", _table(headers, rows), ""]
         if r.get("timing"):
@@ -269,7 +268,7 @@ def section_peers(d: dict, data: dict) -> list[str]:
     for r in d["results"]:
         rows.append([r.model, r.planner, "-" if r.budget is None else f"{r.budget:g}", r.episodes,
                      f"{r.mean:.2f} [{r.ci[0]:.2f}, {r.ci[1]:.2f}]", f"{r.mean_state_return:.2f}",
-                     _f(r.mean_depth, 2) + ("" if getattr(r, "mean_sims", None) is None
+                     _f(r.mean_depth, 2) + ("" if r.mean_sims is None
                                             else f" (tree; {r.mean_sims:.0f} sims)"),
                      f"{1000 * r.mean_time:.1f} / {1000 * r.max_time:.0f}",
                      "-" if r.certified_fraction is None else f"{100 * r.certified_fraction:.0f} %"])
@@ -351,7 +350,8 @@ def section_differences(data: dict) -> list[str]:
         for r in t2["models"]:
             if r.get("pruning") and r["S"] == 8:
                 ours = ", ".join(f"{p['percent_pruned_mean']:.1f}" for p in r["pruning"])
-                paper = ", ".join(f"{PAPER_TABLE2[p['depth']]:.1f}" for p in r["pruning"] if p["depth"] in PAPER_TABLE2)
+                paper = ", ".join(f"{PAPER_TABLE_II[p['depth']]:.1f}" for p in r["pruning"]
+                                  if p["depth"] in PAPER_TABLE_II)
                 lines.append(f"- **Table II** (S = 8): we prune {ours} % at d = "
                              f"{', '.join(str(p['depth']) for p in r['pruning'])} against the paper's {paper} %. "
                              "The paper does not publish its S = 8 reward, weights or x, y; ours are the choices "

@@ -202,7 +202,7 @@ def run_peers(cfg: ExperimentConfig, progress: bool, cache: Path, jobs: int = 1,
     plan = PeerPlan(budgets=cfg.peers_budgets, episodes_cheap=cfg.peers_cheap_episodes,
                     episodes_by_budget=dict(zip(cfg.peers_budgets, cfg.peers_episodes, strict=True)),
                     steps=cfg.peers_steps, max_depth=cfg.peers_max_depth, seed=1000 + cfg.seed, with_pouct=with_pouct,
-                    chunk=cfg.peers_chunk, jobs=max(int(jobs), 1))
+                    chunk=cfg.peers_chunk, jobs=jobs)
     chunk_dir = cache / "peers-chunks"
     if not resume and chunk_dir.is_dir():
         for f in chunk_dir.glob("*.pickle"):
