@@ -249,3 +249,17 @@ def test_planner_assumptions_fail_exhaustive_fallback_or_refusal(harness, non_tp
         # the exhaustive fallback is the core's exhaustive search
         expected = Planner(load_model(non_tp2_model)).plan(np.array([0.5, 0.5]), 2, use_bounds=False).priority
         assert rec.actions[0] == (1, expected)
+
+
+def test_plan_info_carries_the_deadline_miss_flag():
+    """plan_info round-trips every field, the planner's miss verdict included (the demo counts it)."""
+    from pomdp_planner.nodes.messages import PLAN_INFO_FIELDS, MessageError, decode_plan_info, encode_plan_info
+
+    fields = {k: float(i) for i, k in enumerate(PLAN_INFO_FIELDS)}
+    fields["deadline_miss"] = 1.0
+    msg = encode_plan_info(**fields)
+    assert decode_plan_info(msg) == fields
+    assert "deadline_miss" in msg.layout.dim[0].label
+    msg.data = list(msg.data)[:-1]
+    with pytest.raises(MessageError, match="plan_info"):
+        decode_plan_info(msg)

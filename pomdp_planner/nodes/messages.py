@@ -21,9 +21,11 @@ decision epoch it belongs to, and every observation carries the action it was ta
 
 * **plan_info** (``std_msgs/Float64MultiArray``), one record per decision, published right after
   the action: data ``[epoch, action_priority, depth, nodes_expanded, pruned_percent, certified,
-  time_used, latency, deadline_hit]`` with one dimension labelled with these names (comma
-  separated). ``nodes_expanded`` sums all completed depths, ``pruned_percent`` is that of the
-  deepest one, ``time_used`` is the search time and ``latency`` belief-in to action-out (s).
+  time_used, latency, deadline_hit, deadline_miss]`` with one dimension labelled with these
+  names (comma separated). ``nodes_expanded`` sums all completed depths, ``pruned_percent`` is
+  that of the deepest one, ``time_used`` is the search time and ``latency`` belief-in to
+  action-out (s); ``deadline_hit`` (1/0): the budget limited the depth; ``deadline_miss`` (1/0):
+  the planner's rule, ``latency > time_budget + deadline_slack`` with the parameters in force.
 
 Decoders raise :class:`MessageError` with a message that names the field and the problem.
 """
@@ -43,7 +45,7 @@ OBSERVATION_LABEL = "epoch,action_priority,observation"
 TRUE_STATE_LABEL = "epoch,state"
 BELIEF_STATE_LABEL = "state"
 PLAN_INFO_FIELDS = ("epoch", "action_priority", "depth", "nodes_expanded", "pruned_percent", "certified",
-                    "time_used", "latency", "deadline_hit")
+                    "time_used", "latency", "deadline_hit", "deadline_miss")
 PLAN_INFO_LABEL = ",".join(PLAN_INFO_FIELDS)
 _EPOCH_LABEL_RE = re.compile(r"^epoch=(\d+)$")
 

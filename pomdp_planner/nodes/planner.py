@@ -191,10 +191,11 @@ class PlannerNode(Node):
         self.action_pub.publish(encode_action(bel.epoch + 1, int(result.priority)))
         latency = time.perf_counter() - t0
         pruned = result.percent_pruned[-1] if result.percent_pruned else 0.0
+        missed = latency > params["time_budget"] + params["deadline_slack"]
         self.info_pub.publish(encode_plan_info(
             epoch=bel.epoch + 1, action_priority=result.priority, depth=result.depth,
             nodes_expanded=sum(result.nodes_expanded), pruned_percent=pruned, certified=result.certified,
-            time_used=result.time_used, latency=latency, deadline_hit=result.deadline_hit))
+            time_used=result.time_used, latency=latency, deadline_hit=result.deadline_hit, deadline_miss=missed))
         with self._lock:
             self.last = result
             self.last_latency = latency
@@ -202,7 +203,7 @@ class PlannerNode(Node):
             self.counts["decisions"] += 1
             self.counts["certified"] += bool(result.certified)
             self.counts["budget_exhausted"] += bool(result.deadline_hit)
-            if latency > params["time_budget"] + params["deadline_slack"]:
+            if missed:
                 self.counts["deadline_misses"] += 1
                 self.last_warning = (f"epoch {bel.epoch + 1}: decision took {latency * 1e3:.1f} ms "
                                      f"(budget {params['time_budget'] * 1e3:.0f} ms)")
