@@ -1,0 +1,48 @@
+"""The one path resolver (core/io/paths.py): order of lookup and errors that name the field."""
+
+from pathlib import Path
+
+import pytest
+
+from pomdp_planner.core.io.paths import SOURCE_ROOT, resolve_path, shipped_model_path
+from pomdp_planner.core.model import ModelError
+
+
+def test_relative_path_is_tried_from_the_current_directory_first(tmp_path, monkeypatch):
+    (tmp_path / "config" / "models").mkdir(parents=True)
+    mine = tmp_path / "config" / "models" / "tracking_s3_info.yaml"
+    mine.write_text("not the shipped one")
+    monkeypatch.chdir(tmp_path)
+    assert resolve_path("config/models/tracking_s3_info.yaml") == mine
+
+
+def test_relative_path_falls_back_to_the_package(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    p = resolve_path("config/models/tracking_s3_info.yaml")
+    assert p.is_file() and p.name == "tracking_s3_info.yaml"
+
+
+def test_bare_shipped_name(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert resolve_path("tracking_s8_info").name == "tracking_s8_info.yaml"
+    assert shipped_model_path("tracking_s3_info") == resolve_path("tracking_s3_info.yaml")
+
+
+def test_absolute_path_must_exist(tmp_path):
+    with pytest.raises(ModelError, match=r"^params file: file .*nope\.yaml does not exist"):
+        resolve_path(str(tmp_path / "nope.yaml"), "params file")
+
+
+def test_missing_relative_path_names_field_and_places(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ModelError) as err:
+        resolve_path("config/models/nope.yaml")
+    msg = str(err.value)
+    assert msg.startswith("model_file: 'config/models/nope.yaml' not found (looked in ")
+    assert str(Path(SOURCE_ROOT) / "config" / "models") in msg
+
+
+@pytest.mark.parametrize("bad", ["", "   "])
+def test_empty_path(bad):
+    with pytest.raises(ModelError, match=r"^model_file: empty path$"):
+        resolve_path(bad)
