@@ -273,19 +273,19 @@ def test_adversarial_search_finds_no_violation_and_has_teeth(S: int) -> None:
 
 # ------------------------------------------------------------------ tightness (step 3 of the proof)
 @pytest.mark.parametrize("S", [2, 3, 8, 64])
-@pytest.mark.parametrize("eta", [1e-3, 1e-2, 0.1, 0.5])
+@pytest.mark.parametrize("eta", [1e-3, 1e-2, 0.1, 0.5, 3.0])
 @pytest.mark.parametrize("w", [0.4, -0.4, 2.0, -2.0])
 def test_one_step_below_two_w_gives_an_explicit_violating_pair(S: int, eta: float, w: float) -> None:
     """Step ``k`` = 2|w|(1 - eta), all other steps arbitrary (here large). For ``w > 0`` the pair
     ``b = e_k``, ``b' = (1-x) e_k + x e_{k+1}``; for ``w < 0`` the mirrored pair
-    ``b = (1-x) e_{k+1} + x e_k``, ``b' = e_{k+1}``. With ``x = sqrt(eta)/2`` the proof gives
-    ``psi(b') - psi(b) <= -|w| eta x < 0``."""
+    ``b = (1-x) e_{k+1} + x e_k``, ``b' = e_{k+1}``. With ``x = min(sqrt(eta), 1)/2`` the proof
+    gives ``psi(b') - psi(b) <= -|w| eta x < 0`` (``eta > 1``: a negative step)."""
     rng = np.random.default_rng(S)
     k = int(rng.integers(0, S - 1))
     steps = 2 * abs(w) + rng.exponential(10.0, S - 1)
     steps[k] = 2 * abs(w) * (1 - eta)
     phi = rng.normal() + np.concatenate([[0.0], np.cumsum(steps)])
-    x = math.sqrt(eta) / 2
+    x = min(math.sqrt(eta), 1.0) / 2
     e = np.eye(S)
     if w > 0:
         b, bp = e[k], (1 - x) * e[k] + x * e[k + 1]
@@ -294,7 +294,9 @@ def test_one_step_below_two_w_gives_an_explicit_violating_pair(S: int, eta: floa
     assert mlr_geq(bp, b)
     gap = psi(phi, w, bp) - psi(phi, w, b)
     assert gap <= -abs(w) * eta * x * (1 - 1e-9)
-    # the other pair is not a counterexample for this sign: the sign of w decides which end bites
+    if eta >= 1:
+        return
+    # a positive step: the other pair is no counterexample, the sign of w decides which end bites
     if w > 0:
         c, cp = (1 - x) * e[k + 1] + x * e[k], e[k + 1]
     else:
