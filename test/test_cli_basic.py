@@ -53,7 +53,7 @@ def test_simulate_json_matches_core(capsys):
 
 
 def test_simulate_policy_options(capsys, monkeypatch):
-    from pomdp_planner.core import simulate as sim
+    from pomdp_planner.core import policies
 
     seen = {}
 
@@ -61,7 +61,8 @@ def test_simulate_policy_options(capsys, monkeypatch):
         seen.update(opts)
         return lambda b: int(opts["fixed"]) - 1
 
-    monkeypatch.setitem(sim.POLICIES, "fixed", sim.PolicyEntry(factory, "test policy"))
+    monkeypatch.setitem(policies.POLICIES, "fixed",
+                        policies.PolicyEntry(factory, "test policy", ("fixed", "seed", "label")))
     code, out, _ = run(capsys, "simulate", S3, "--steps", "3", "--policy", "fixed", "--option", "fixed=3",
                        "--option", "seed=11", "--option", "label=x", "--json")
     assert code == 0 and [row["priority"] for row in json.loads(out)["steps"]] == [3, 3, 3]

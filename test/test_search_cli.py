@@ -11,8 +11,8 @@ import pytest
 from pomdp_planner.bench.search_bench import BenchConfig, bench_model, format_report, run_search_bench
 from pomdp_planner.cli import main
 from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.policies import make_policy, policy_names
 from pomdp_planner.core.search import Planner, complete_tree_nodes
-from pomdp_planner.core.simulate import make_policy, policy_names
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 S3 = str(MODELS / "tracking_s3_info.yaml")

@@ -11,7 +11,8 @@ from __future__ import annotations
 import argparse
 
 from ..core.model import ModelError
-from ..core.simulate import POLICIES, make_policy, policy_names, simulate
+from ..core.policies import POLICIES, make_policy, policy_names
+from ..core.simulate import simulate
 from ._common import (
     add_belief_argument,
     add_json_argument,
@@ -37,12 +38,15 @@ def _option(text: str) -> tuple[str, object]:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("simulate", help="closed-loop simulation of a policy",
-                              description=__doc__.split("\n\n")[0].replace("``", ""))
+                              description=__doc__.split("\n\n")[0].replace("``", ""),
+                              epilog="policies (--policy NAME):\n" + "\n".join(
+                                  f"  {name:<11} {POLICIES[name].help}" for name in policy_names()),
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     add_model_argument(p)
     p.add_argument("--steps", type=int, default=20, help="number of steps (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same run")
     p.add_argument("--policy", default="myopic",
-                   help=f"policy name (built in: {', '.join(sorted(POLICIES))}; later modules add more)")
+                   help=f"policy name: {', '.join(policy_names())} (default myopic; see below)")
     p.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                    help="option passed to the policy factory (repeatable), e.g. --option depth=3")
     add_belief_argument(p, default="", help_text="initial belief: 'uniform' or p1,...,pS "
@@ -71,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
     if args.steps < 0:
         raise ModelError(f"--steps: must be non-negative, got {args.steps}")
-    if args.policy not in POLICIES and args.policy not in policy_names():
+    if args.policy not in POLICIES:
         raise ModelError(f"--policy: unknown policy {args.policy!r} (known: {', '.join(policy_names())})")
     belief = parse_belief(args.belief, model) if args.belief else None
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.

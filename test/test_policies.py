@@ -1,0 +1,71 @@
+"""The explicit policy table (core/policies.py): every policy listed always, options checked, no cycle."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.model import ModelError
+from pomdp_planner.core.policies import POLICIES, make_policy, policy_names
+from pomdp_planner.core.simulate import simulate
+
+REPO = Path(__file__).resolve().parents[1]
+S3 = str(REPO / "config" / "models" / "tracking_s3_info.yaml")
+PLANNERS = {"random", "myopic", "bnb", "exhaustive", "lower", "upper"}
+
+
+def test_the_table_holds_every_planner() -> None:
+    assert set(policy_names()) == set(POLICIES) >= PLANNERS
+    assert policy_names() == sorted(policy_names())
+    assert all(entry.help for entry in POLICIES.values())
+
+
+def test_simulate_help_lists_every_policy_in_a_fresh_interpreter() -> None:
+    """Nothing but the CLI is imported first: the list cannot depend on import order."""
+    out = subprocess.run([sys.executable, "-m", "pomdp_planner", "simulate", "--help"], cwd=REPO,
+                         capture_output=True, text=True, timeout=120, check=True).stdout
+    listed = out.split("policies (--policy NAME):", 1)[1]
+    for name in POLICIES:
+        assert f"  {name} " in listed, name
+        assert POLICIES[name].help in " ".join(listed.split())
+
+
+def _module_imports(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            names.add(("." * node.level) + (node.module or ""))
+        elif isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+    return names
+
+
+def test_no_import_cycle_between_search_and_simulate() -> None:
+    core = REPO / "pomdp_planner" / "core"
+    assert not {".simulate", ".policies", "importlib"} & _module_imports(core / "search.py")
+    assert not {".simulate", "importlib"} & _module_imports(core / "policies.py")
+    assert ".policies" in _module_imports(core / "simulate.py")
+    assert "importlib" not in _module_imports(core / "simulate.py")
+
+
+def test_a_name_and_the_built_policy_give_the_same_run() -> None:
+    model = load_model(S3)
+    by_name = simulate(model, "random", 12, seed=5)
+    by_object = simulate(model, make_policy("random", model, seed=6), 12, seed=5)
+    np.testing.assert_array_equal(by_name.actions, by_object.actions)
+
+
+def test_unknown_policy_and_option_are_errors_naming_them() -> None:
+    model = load_model(S3)
+    with pytest.raises(ModelError, match=r"unknown policy 'bogus'.*bnb"):
+        make_policy("bogus", model)
+    with pytest.raises(ModelError, match=r"policy bnb: unknown option 'dpth' \(known: .*depth"):
+        make_policy("bnb", model, dpth=2)
+    with pytest.raises(ModelError, match="variant"):
+        make_policy("lower", model, variant="loose")
