@@ -10,9 +10,10 @@ import pytest
 
 from pomdp_planner.bench.search_bench import BenchConfig, bench_model, format_report, run_search_bench
 from pomdp_planner.cli import main
+from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.policies import make_policy, policy_names
-from pomdp_planner.core.search import Planner, complete_tree_nodes
+from pomdp_planner.core.search import complete_tree_nodes
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 S3 = str(MODELS / "tracking_s3_info.yaml")
@@ -26,7 +27,7 @@ def run_json(capsys: pytest.CaptureFixture[str], *argv: str) -> dict:
 def test_plan_json_fixed_depth(capsys: pytest.CaptureFixture[str]) -> None:
     out = run_json(capsys, "plan", S3, "--belief", "0.2,0.5,0.3", "--depth", "3", "--json")
     model = load_model(S3)
-    ref = Planner.from_model(model).search(np.array([0.2, 0.5, 0.3]), 3)
+    ref = build_planner(model).planner.search(np.array([0.2, 0.5, 0.3]), 3)
     assert out["action"] == ref.priority and 1 <= out["action"] <= 3
     assert out["depth"] == 3 and out["mode"] == "fixed-depth"
     assert out["nodes_expanded"] == list(ref.nodes_expanded)
@@ -73,7 +74,7 @@ def test_bench_model_small_config() -> None:
     res = bench_model(model, cfg)
     rows = {p["depth"]: p for p in res["pruning"]}
     assert rows[4]["beliefs"] == 2 and rows[2]["beliefs"] == 4
-    planner = Planner.from_model(model)
+    planner = build_planner(model).planner
     b = np.random.default_rng(0).dirichlet(np.ones(3), size=4)
     mean = np.mean([sum(planner.count_nodes(x, 2)) for x in b])
     assert rows[2]["bnb_nodes_mean"] == pytest.approx(mean)
@@ -97,7 +98,7 @@ def test_search_policies_registered() -> None:
     model = load_model(S3)
     assert {"bnb", "exhaustive", "lower", "upper"} <= set(policy_names())
     b = np.array([0.2, 0.5, 0.3])
-    planner = Planner.from_model(model)
+    planner = build_planner(model).planner
     assert make_policy("bnb", model, depth=2).act(b) == planner.search(b, 2).action
     assert make_policy("exhaustive", model, depth=2).act(b) == planner.search(b, 2, use_bounds=False).action
     lo, up = planner.root_bounds(b)

@@ -3,7 +3,10 @@
 Prints one line per step (true state, action as priority 1..A, observation, Shannon entropy
 of the updated belief in nats, belief reward rho(b, a) and state reward r(s, a)) and a summary
 (mean reward, discounted return). States and observations are shown by name when the model
-names them, else by 0-based index. ``--json`` prints the same as data.
+names them, else by 0-based index. ``--json`` prints the same as data. For the planners
+(``bnb``, ``exhaustive``, ``lower``, ``upper``) a header line (JSON: ``planner``) gives the
+assumption gate's decision: pruning with valid bounds, exhaustive search and why, or pruning
+without guarantee (``--option prune_without_guarantee=1``).
 """
 
 from __future__ import annotations
@@ -85,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
                      initial_state=_initial_state(args.initial_state, model), initial_belief=belief)
     data = trace.to_dict(model.state_names, model.observation_names)
     data["policy"] = args.policy
+    setup = getattr(policy, "setup", None)  # the assumption gate's decision, for the planners
+    if setup is not None:
+        data["planner"] = {**setup.to_dict(), "certified_decisions": getattr(policy, "certified", None)}
     if args.json:
         emit_json(data)
         return 0
@@ -96,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
              label(model.observation_names, row["observation"]), row["entropy"], row["reward"],
              row["state_reward"]] for row in data["steps"]]
     print(f"# {model.describe()}  policy={args.policy} seed={args.seed} steps={args.steps}")
+    if setup is not None:
+        print(f"# planner: {setup.describe()}")
     print(format_table(["step", "state", "priority", "obs", "entropy", "reward", "r(s,a)"], rows))
     s = data["summary"]
     print(f"mean reward {s['mean_reward']:.4f}  discounted return {s['discounted_return']:.4f}  "

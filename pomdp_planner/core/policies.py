@@ -19,7 +19,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .bounds import BOUND_VARIANTS, solve_bounds
+from .bounds import BOUND_VARIANTS
+from .gate import PlannerSetup, build_planner
 from .model import POMDP, ModelError
 from .myopic import MyopicBounds
 from .search import Planner, SearchResult
@@ -58,35 +59,45 @@ class MyopicPolicy:
 class SearchPolicy:
     """A closed-loop policy that plans every step (``--policy bnb`` / ``exhaustive``).
 
-    ``depth``: fixed-depth search (default 3), or ``time_budget`` seconds of anytime search up
-    to ``max_depth`` (default 10).
+    ``setup`` is the assumption gate's decision (:func:`~.gate.build_planner`): its planner
+    prunes only when the gate said so. ``depth``: fixed-depth search (default 3), or
+    ``time_budget`` seconds of anytime search up to ``max_depth`` (default 10).
     """
 
-    def __init__(self, planner: Planner, depth: int = 3, time_budget: float | None = None, max_depth: int = 10,
-                 use_bounds: bool = True):
-        self.planner = planner
+    def __init__(self, setup: PlannerSetup, depth: int = 3, time_budget: float | None = None, max_depth: int = 10):
+        if setup.planner is None:
+            raise ModelError(f"policy: no planner ({setup.reason})")
+        self.setup = setup
+        self.planner = setup.planner
         self.depth = Planner._check_depth(depth, "depth")
         self.max_depth = Planner._check_depth(max_depth, "max_depth")
         self.time_budget = None if time_budget is None else float(time_budget)
-        self.use_bounds = use_bounds and planner.has_bounds
+        self.use_bounds = setup.pruning
         self.last: SearchResult | None = None
+        self.decisions = self.certified = 0
 
     def act(self, belief: np.ndarray) -> int:
         if self.time_budget is None:
             self.last = self.planner.search(belief, self.depth, use_bounds=self.use_bounds)
         else:
             self.last = self.planner.plan(belief, self.max_depth, self.time_budget, use_bounds=self.use_bounds)
+        self.decisions += 1
+        self.certified += bool(self.last.certified)
         return self.last.action
 
 
 class BoundPolicy:
-    """The myopic lower or upper bound policy of Sec. IV (``--policy lower`` / ``upper``)."""
+    """The myopic lower or upper bound policy of Sec. IV (``--policy lower`` / ``upper``).
 
-    def __init__(self, bounds: MyopicBounds, which: str):
+    ``setup`` (optional) is the gate's decision the bounds came from.
+    """
+
+    def __init__(self, bounds: MyopicBounds, which: str, setup: PlannerSetup | None = None):
         if which not in ("lower", "upper"):
             raise ValueError(f"which: expected 'lower' or 'upper', got {which!r}")
         self.bounds = bounds
         self.which = which
+        self.setup = setup
 
     def act(self, belief: np.ndarray) -> int:
         b = np.asarray(belief, dtype=float)[None, :]
@@ -101,23 +112,42 @@ def _variant(opts: Mapping[str, Any]) -> str:
     return variant
 
 
+def _flag(opts: Mapping[str, Any], name: str) -> bool:
+    """A yes/no option: 1/0, true/false, yes/no (``--option prune_without_guarantee=1``)."""
+    value = opts.get(name, False)
+    text = str(value).strip().lower()
+    if text in ("1", "true", "yes", "on"):
+        return True
+    if text in ("0", "false", "no", "off", ""):
+        return False
+    raise ModelError(f"option {name}: expected 1/0 (true/false), got {value!r}")
+
+
+OVERRIDE = "prune_without_guarantee"
+
+
+def _setup(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> PlannerSetup:
+    return build_planner(model, use_bounds=use_bounds, variant=_variant(opts) if use_bounds else BOUND_VARIANTS[0],
+                         prune_without_guarantee=_flag(opts, OVERRIDE), override_name=f"the option {OVERRIDE}=1")
+
+
 def _search_policy(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> SearchPolicy:
-    variant = _variant(opts) if use_bounds else None
-    planner = Planner.from_model(model, variant=variant)
-    if use_bounds and not planner.has_bounds:
-        raise ModelError(f"policy bnb: the bound LP ({variant}) is infeasible for this model: "
-                         f"{planner.bounds_solution.message}; use --policy exhaustive")
+    """``bnb`` (``use_bounds``) or ``exhaustive``: the gate decides whether ``bnb`` may prune;
+    on a model failing Assumption 1 it searches exhaustively and says why (``policy.setup``)."""
     tb = opts.get("time_budget")
-    return SearchPolicy(planner, depth=int(opts.get("depth", 3)), time_budget=None if tb is None else float(tb),
-                        max_depth=int(opts.get("max_depth", 10)), use_bounds=use_bounds)
+    return SearchPolicy(_setup(model, opts, use_bounds), depth=int(opts.get("depth", 3)),
+                        time_budget=None if tb is None else float(tb), max_depth=int(opts.get("max_depth", 10)))
 
 
 def _bound_policy(model: POMDP, opts: Mapping[str, Any], which: str) -> BoundPolicy:
-    variant = _variant(opts)
-    sol = solve_bounds(model, variant=variant)
-    if not sol.feasible or sol.myopic is None:
-        raise ModelError(f"policy {which}: the bound LP ({variant}) is infeasible for this model: {sol.message}")
-    return BoundPolicy(sol.myopic, which)
+    """``lower`` / ``upper``: they ARE the bounds, so without valid bounds they refuse with the
+    gate's reason, unless ``prune_without_guarantee=1`` says to use them anyway."""
+    setup = _setup(model, opts, True)
+    if setup.myopic is None:
+        hint = (f"; --option {OVERRIDE}=1 uses them anyway, without guarantee"
+                if setup.bounds is None or (setup.bounds.feasible and not setup.guaranteed) else "")
+        raise ModelError(f"policy {which}: no valid bounds: {setup.reason}{hint}")
+    return BoundPolicy(setup.myopic, which, setup)
 
 
 @dataclass(frozen=True)
@@ -130,20 +160,24 @@ class PolicyEntry:
 
 
 _SEARCH_OPTIONS = ("seed", "depth", "time_budget", "max_depth")
+_BOUND_OPTIONS = ("variant", OVERRIDE)
 
 #: Every policy ``simulate`` knows: name -> :class:`PolicyEntry`.
 POLICIES: dict[str, PolicyEntry] = {
     "random": PolicyEntry(lambda m, o: RandomPolicy(m, o.get("seed")), "uniformly random actions (seeded by --seed)"),
     "myopic": PolicyEntry(lambda m, o: MyopicPolicy(m), "greedy argmax_a rho(b, a) (Eq. 3)"),
     "bnb": PolicyEntry(lambda m, o: _search_policy(m, o, True),
-                       "branch-and-bound search, Algorithm 1 (options: depth=3 | time_budget=S, max_depth, variant)",
-                       (*_SEARCH_OPTIONS, "variant")),
+                       "branch-and-bound search, Algorithm 1; exhaustive (and says why) where the bounds are not "
+                       f"valid (options: depth=3 | time_budget=S, max_depth, variant, {OVERRIDE}=1)",
+                       (*_SEARCH_OPTIONS, *_BOUND_OPTIONS)),
     "exhaustive": PolicyEntry(lambda m, o: _search_policy(m, o, False),
                               "exhaustive tree search (options: depth=3 | time_budget=S, max_depth)", _SEARCH_OPTIONS),
     "lower": PolicyEntry(lambda m, o: _bound_policy(m, o, "lower"),
-                         "myopic lower-bound policy of Theorem 2 (option: variant)", ("seed", "variant")),
+                         f"myopic lower-bound policy of Theorem 2; refused where the bounds are not valid (options: "
+                         f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
     "upper": PolicyEntry(lambda m, o: _bound_policy(m, o, "upper"),
-                         "myopic upper-bound policy of Theorem 2 (option: variant)", ("seed", "variant")),
+                         f"myopic upper-bound policy of Theorem 2; refused where the bounds are not valid (options: "
+                         f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
 }
 
 

@@ -44,9 +44,16 @@ machine multi-threaded BLAS waiting for a busy core made the leaf level several 
 Anytime (:meth:`Planner.plan`): iterative deepening ``1..max_depth``; the deadline is checked
 before every chunk (about 4 MB of work, a few ms), an interrupted depth is discarded and the
 deepest completed one returned; depth 1 ignores the deadline; a depth predicted not to finish
-is not started (:func:`next_depth_cannot_finish`). If the root bounds agree the
-action is certified (Proposition 1) and ``plan`` returns after depth 1 of that one action (the
-other Q values are ``nan``); :meth:`Planner.search` always searches the depth it is given.
+is not started (:func:`next_depth_cannot_finish`). If the root bounds agree and the planner's
+bounds are *guaranteed* (Assumption 1 holds and the LP is feasible: the gate of
+:mod:`~pomdp_planner.core.gate` decides, and only it builds guaranteed planners) the action is
+certified (Proposition 1) and ``plan`` returns after depth 1 of that one action (the other Q
+values are ``nan``); :meth:`Planner.search` always searches the depth it is given. Bounds
+without the guarantee (a model failing Assumption 1 pruned on the user's explicit request, or
+arbitrary bounds given to the constructor) still prune, but never certify: agreeing root bounds
+prove nothing then, so the anytime search does not stop early and deepens as the budget allows.
+Crossed root bounds (lower > upper; impossible for valid bounds) are reported as such
+(:attr:`SearchResult.crossed`).
 The bounds bracket the infinite-horizon optimal action, not a finite lookahead's argmax, so
 B&B and exhaustive search may choose differently; B&B's value never exceeds exhaustive's, and
 they agree whenever no node of the exhaustive-optimal subtree has its argmax pruned
@@ -120,7 +127,9 @@ class SearchResult:
     ``q_values[a]`` is the depth-``depth`` estimate ``Q(b0, a)`` of Algorithm 1, ``nan`` for
     actions pruned at the root. ``nodes_expanded[i]`` / ``nodes_pruned[i]`` refer to the
     tree of depth ``i + 1`` (see the module docstring). ``certified`` means the root bounds
-    agree, so the action is the optimal one under the theory's assumptions (Proposition 1).
+    agree and are guaranteed (``guaranteed``: Assumption 1 holds, the LP is feasible), so the
+    action is the optimal one (Proposition 1); ``crossed``: the root bounds cross (lower > upper),
+    which valid bounds never do.
     """
 
     action: int
@@ -138,6 +147,12 @@ class SearchResult:
     used_bounds: bool = True
     depth_times: tuple[float, ...] = field(default=())
     predicted_stop: bool = False
+    guaranteed: bool = False
+
+    @property
+    def crossed(self) -> bool:
+        """The root bounds cross (``lower > upper``): no guarantee, every action was searched."""
+        return self.root_bounds is not None and self.root_bounds[0] > self.root_bounds[1]
 
     @property
     def complete_nodes(self) -> tuple[int, ...]:
@@ -162,7 +177,9 @@ class SearchResult:
             "nodes_complete": [int(x) for x in self.complete_nodes],
             "percent_pruned": [round(x, 4) for x in self.percent_pruned],
             "certified": bool(self.certified),
+            "guaranteed": bool(self.guaranteed),
             "root_bounds": None if self.root_bounds is None else [int(x) + 1 for x in self.root_bounds],
+            "root_bounds_crossed": bool(self.crossed),
             "used_bounds": bool(self.used_bounds),
             "time_used": float(self.time_used),
             "deadline_hit": bool(self.deadline_hit),
@@ -189,21 +206,25 @@ class Planner:
 
     ``bounds`` is a :class:`MyopicBounds` (or anything with its ``actions(B, rho)``
     interface); ``None`` means :class:`TrivialBounds`, i.e. only exhaustive search.
-    ``chunk_bytes`` bounds the memory of one chunk (smaller chunks: finer deadline checks).
-    ``clock`` is the wall clock used for deadlines and timings (injectable for tests).
+    ``guaranteed``: the bounds are proven valid for ``model``, so agreeing root bounds certify
+    the action (and stop the anytime search); entry points get planners from
+    :func:`pomdp_planner.core.gate.build_planner`, which sets it only when Assumption 1 holds
+    and the LP is feasible. ``chunk_bytes`` bounds the memory of one chunk (smaller chunks:
+    finer deadline checks). ``clock`` is the wall clock used for deadlines and timings
+    (injectable for tests).
     """
 
     def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 clock: Callable[[], float] = time.perf_counter):
+                 clock: Callable[[], float] = time.perf_counter, guaranteed: bool = False):
         self.model = model
         self.clock = clock
+        self.guaranteed = bool(guaranteed) and bounds is not None
         self.trivial = TrivialBounds(model)
         self.bounds = self.trivial if bounds is None else bounds
         if getattr(self.bounds, "model", model) is not model:
             bm = self.bounds.model
             if (bm.S, bm.A, bm.Z) != (model.S, model.A, model.Z):
                 raise ValueError("bounds: built for a model of different size")
-        self.bounds_solution: Any = None
         self._bound_cache: tuple[Any, np.ndarray] | None = None
         ar = np.arange(model.A)
         lo, up = ar[None, :, None], ar[None, None, :]
@@ -238,31 +259,6 @@ class Planner:
         self._leaf_chunk = max(64, int(chunk_bytes // per_parent))
         self._expand_chunk = max(16, int(chunk_bytes // (8 * A * Z * (S + 4))))
 
-    # ------------------------------------------------------------ construction
-    @classmethod
-    def from_model(cls, model: POMDP, variant: str | None = "tight", strict: bool = False, **kwargs: Any) -> Planner:
-        """Planner with bounds from ``core.bounds.solve_bounds(model, variant)``.
-
-        ``variant=None`` gives an exhaustive-only planner. If the bounds LP is infeasible,
-        ``strict=True`` raises ``ValueError``; otherwise the planner falls back to
-        :class:`TrivialBounds` (exhaustive search, always correct) and keeps the solution in
-        ``planner.bounds_solution`` so the caller can report its ``message``.
-        """
-        if variant is None:
-            return cls(model, None, **kwargs)
-        from .bounds import solve_bounds  # imported lazily: optional until the bounds module lands
-
-        sol = solve_bounds(model, variant=variant)
-        myopic = getattr(sol, "myopic", None)
-        if not getattr(sol, "feasible", False) or myopic is None:
-            if strict:
-                raise ValueError(f"bounds: variant {variant!r} infeasible: {getattr(sol, 'message', '')}")
-            planner = cls(model, None, **kwargs)
-        else:
-            planner = cls(model, myopic, **kwargs)
-        planner.bounds_solution = sol
-        return planner
-
     @property
     def has_bounds(self) -> bool:
         """Whether the planner has informative bounds (not :class:`TrivialBounds`)."""
@@ -296,9 +292,10 @@ class Planner:
 
         The deadline (``time_budget`` seconds from the call) is checked between chunks inside
         a depth; an interrupted depth is discarded and the result of the deepest completed
-        depth is returned (``deadline_hit=True``). Depth 1 always completes. If the bounds
-        agree at the root the action is certified: the planner returns at once after the
+        depth is returned (``deadline_hit=True``). Depth 1 always completes. If guaranteed
+        bounds agree at the root the action is certified: the planner returns at once after the
         (tiny) depth-1 search of that single action, so the other Q values are ``nan``.
+        Bounds without the guarantee never stop it early (module docstring).
 
         ``predict_stop``: after two completed depths, depth ``d + 1`` is not started when it
         cannot finish: its predicted time (time of depth ``d`` times the growth ``t_d / t_{d-1}``)
@@ -374,8 +371,8 @@ class Planner:
         return BT, rhoT, self._allowed(lo, up, 1), rb
 
     def _is_certified(self, rb: tuple[int, int] | None) -> bool:
-        """Root bounds agree (Proposition 1), or there is only one action."""
-        return self.model.A == 1 if rb is None else rb[0] == rb[1]
+        """Guaranteed root bounds agree (Proposition 1), or there is only one action."""
+        return self.model.A == 1 or (rb is not None and self.guaranteed and rb[0] == rb[1])
 
     def _rho(self, BT: np.ndarray, linear: np.ndarray | None = None) -> np.ndarray:
         """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``.
@@ -458,7 +455,7 @@ class Planner:
             nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
             time_used=float(t), deadline_hit=bool(hit), value=float(q[action]),
             level_sizes=tuple(int(x) for x in sizes), used_bounds=rb is not None,
-            depth_times=times, predicted_stop=bool(predicted),
+            depth_times=times, predicted_stop=bool(predicted), guaranteed=self.guaranteed and rb is not None,
         )
 
     def _run(self, root: tuple, depth: int, bounds: Bounds, deadline: float | None

@@ -303,9 +303,9 @@ def _planner_for(label: str, model: POMDP):
     cache is keyed by the model's content (its pickle), not by the object."""
     key = (label, pickle.dumps(model))
     if key not in _PLANNERS:
-        from ..core.search import Planner
+        from ..core.gate import build_planner
 
-        _PLANNERS[key] = Planner.from_model(model, "tight")
+        _PLANNERS[key] = build_planner(model, variant="tight").planner
     return _PLANNERS[key]
 
 
