@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.bench.experiments import peers
+from pomdp_planner.bench.experiments.peers import PeerChunk, PeerPlan, compare_peers
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.simulate import simulate
-from pomdp_planner.experiments import peers
-from pomdp_planner.experiments.peers import PeerChunk, PeerPlan, compare_peers
 
 S3 = load_model(Path(__file__).resolve().parents[1] / "config" / "models" / "tracking_s3_info.yaml")
 

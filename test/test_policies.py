@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.policies import POLICIES, make_policy, policy_names
@@ -69,3 +70,15 @@ def test_unknown_policy_and_option_are_errors_naming_them() -> None:
         make_policy("bnb", model, dpth=2)
     with pytest.raises(ModelError, match="variant"):
         make_policy("lower", model, variant="loose")
+
+
+def test_planner_policies_act_like_their_planner() -> None:
+    model = load_model(S3)
+    assert {"bnb", "exhaustive", "lower", "upper"} <= set(policy_names())
+    b = np.array([0.2, 0.5, 0.3])
+    planner = build_planner(model).planner
+    assert make_policy("bnb", model, depth=2).act(b) == planner.search(b, 2).action
+    assert make_policy("exhaustive", model, depth=2).act(b) == planner.search(b, 2, use_bounds=False).action
+    lo, up = planner.root_bounds(b)
+    assert make_policy("lower", model).act(b) == lo and make_policy("upper", model).act(b) == up
+    assert 0 <= make_policy("bnb", model, time_budget=0.01).act(b) < 3

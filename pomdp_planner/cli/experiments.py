@@ -14,7 +14,7 @@ import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..experiments.runner import SECTIONS
+    from ..bench.experiments.runner import SECTIONS
 
     parser.add_argument("--output", default="docs", metavar="DIR",
                         help="directory for RESULTS.md and img/*.png (default: docs)")
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiments.runner import SECTIONS, run_all
+    from ..bench.experiments.runner import SECTIONS, run_all
 
     try:
         import matplotlib  # noqa: F401

@@ -15,7 +15,7 @@ paper's formula in Table III and the literal count beside it (same granularity `
 exactly ``100/A`` lower).
 
 Looseness: the optimal action at the same beliefs comes from the point-based reference
-(:mod:`pomdp_planner.experiments.pbvi`) run on those very beliefs, for ``S <= exact_max_S``;
+(:mod:`pomdp_planner.bench.experiments.pbvi`) run on those very beliefs, for ``S <= exact_max_S``;
 larger cells report only ``upper - lower``.
 """
 
@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..core.domains.comparison import comparison_model
+from ...core.domains.comparison import comparison_model
 from .pbvi import pbvi
 from .progress import Progress
 from .sampling import reachable_beliefs
@@ -80,7 +80,7 @@ def reference_actions(model, B: np.ndarray, tol: float = 1e-6, tie: float = 1e-6
 def pruning_cell(S: int, A: int, n: int, seed: int, variant: str = "tight", exact_max_S: int = 0,
                  ref_max_actions: int = 64) -> PruningCell:
     """One cell of Table III (and of the looseness figure when ``S <= exact_max_S``)."""
-    from ..core.bounds import solve_bounds
+    from ...core.bounds import solve_bounds
 
     model = comparison_model(S, A)
     sol = solve_bounds(model, variant=variant)

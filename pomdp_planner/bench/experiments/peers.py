@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import t as student_t
 
-from ..core.model import POMDP
-from ..core.simulate import simulate
+from ...core.model import POMDP
+from ...core.simulate import simulate
 
 
 def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
@@ -303,7 +303,7 @@ def _planner_for(label: str, model: POMDP):
     cache is keyed by the model's content (its pickle), not by the object."""
     key = (label, pickle.dumps(model))
     if key not in _PLANNERS:
-        from ..core.gate import build_planner
+        from ...core.gate import build_planner
 
         _PLANNERS[key] = build_planner(model, variant="tight").planner
     return _PLANNERS[key]

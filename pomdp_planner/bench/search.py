@@ -30,21 +30,18 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..core.bounds import solve_bounds
 from ..core.io.model_yaml import load_model
+from ..core.io.paths import resolve_path
 from ..core.model import POMDP
 from ..core.search import Planner, complete_tree_nodes
+from .paper import PAPER_TABLE_II
 
-#: The paper's Table II: average % of belief states pruned (S = Z = 8, A = 3, 100 beliefs);
-#: shown next to models of that size only.
-PAPER_TABLE_II = {2: 26.3, 3: 36.3, 4: 44.9, 5: 52.3, 6: 58.8}
 DEFAULT_MODELS = ("tracking_s8_info.yaml", "tracking_s3_info.yaml")
-PACKAGE = "pomdp_planner"
 
 
 @dataclass(frozen=True)
@@ -62,25 +59,6 @@ class BenchConfig:
     @classmethod
     def quick(cls) -> BenchConfig:
         return cls(beliefs=20, deep_beliefs=3, timed=3, depths=(2, 3, 4, 5, 6), timed_max_depth=4)
-
-
-def model_search_paths() -> list[Path]:
-    """Where shipped model files are looked for: the source tree, then installed share dirs."""
-    paths = [Path(__file__).resolve().parents[2] / "config" / "models"]
-    prefixes = [sys.prefix, *os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)]
-    paths += [Path(p) / "share" / PACKAGE / "config" / "models" for p in prefixes if p]
-    return paths
-
-
-def find_model_file(name: str) -> Path:
-    """A model path as given if it exists, else the shipped model file called ``name``."""
-    p = Path(name)
-    if p.exists():
-        return p
-    for d in model_search_paths():
-        if (d / name).exists():
-            return d / name
-    raise FileNotFoundError(f"model {name!r} not found (looked in: {', '.join(map(str, model_search_paths()))})")
 
 
 def _timed(fn: Callable[[], Any], clock: Callable[[], float] = time.perf_counter) -> tuple[float, Any]:
@@ -188,7 +166,7 @@ def run_search_bench(models: Sequence[str] = DEFAULT_MODELS, config: BenchConfig
     """The whole benchmark: one :func:`bench_model` entry per model file."""
     config = config or BenchConfig()
     t0 = time.perf_counter()
-    results = [bench_model(load_model(find_model_file(m)), config, log) for m in models]
+    results = [bench_model(load_model(resolve_path(m, "--model")), config, log) for m in models]
     return {"benchmark": "search", "config": asdict(config), "models": results,
             "total_time": time.perf_counter() - t0, "python": sys.version.split()[0],
             "numpy": np.__version__, "cpu_count": os.cpu_count()}
@@ -236,7 +214,7 @@ def _ms(t: float) -> str:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The benchmark's options (shared by ``bench/search_bench.py`` and ``pomdp-planner bench search``)."""
+    """The benchmark's options (``pomdp-planner bench search`` and ``python -m pomdp_planner.bench.search``)."""
     p.add_argument("--json", metavar="FILE", default=None, help="also write the results as JSON to FILE")
     p.add_argument("--quick", action="store_true",
                    help="a smoke run in seconds (20 beliefs, 3 timed, deepest depth on 3 beliefs, timing to depth 4)")
@@ -279,6 +257,15 @@ def run_from_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="search_bench", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.search",
+                                     description=__doc__.split("\n\n")[0])
     add_arguments(parser)
-    return run_from_args(parser.parse_args(argv))
+    try:
+        return run_from_args(parser.parse_args(argv))
+    except (ValueError, OSError) as exc:  # ModelError included: a bad option or model file; an unwritable --json
+        print(f"search bench: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

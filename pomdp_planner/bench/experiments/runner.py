@@ -16,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.domains.comparison import Y_SPREAD, comparison_model
-from ..core.io.model_yaml import load_model
-from ..core.model import POMDP
+from ...core.domains.comparison import Y_SPREAD, comparison_model
+from ...core.io.model_yaml import load_model
+from ...core.io.paths import shipped_model_path
+from ...core.model import POMDP
 from .pbvi import pbvi, single_action_optimal
 from .progress import Progress
 from .sampling import random_beliefs
@@ -70,17 +71,15 @@ QUICK = ExperimentConfig(
 
 # ------------------------------------------------------------------------------ models
 def shipped_model(name: str) -> POMDP:
-    """A shipped model (``config/models/<name>.yaml``, source tree or installed share dir)."""
-    from ..bench.search_bench import find_model_file
-
-    return load_model(find_model_file(f"{name}.yaml"))
+    """A shipped model (``config/models/<name>.yaml``, installed share dir or source tree)."""
+    return load_model(shipped_model_path(name))
 
 
 # ------------------------------------------------------------------------------ sections
 def run_fig1(cfg: ExperimentConfig, img: Path) -> dict:
     """Fig. 1: bound policies and the grid-reference optimum on the S = 3 simplex."""
-    from ..core.bounds import solve_bounds
-    from ..core.reference import reference_policy
+    from ...core.bounds import solve_bounds
+    from ...core.reference import reference_policy
     from .figures import plot_fig1
 
     model = shipped_model("tracking_s3_info")
@@ -103,8 +102,8 @@ def run_fig1(cfg: ExperimentConfig, img: Path) -> dict:
 
 def run_fig3(cfg: ExperimentConfig, img: Path) -> dict:
     """The paper's reward figure on our S = 2 model (config/models/tracking_s2_info.yaml)."""
-    from ..core.bounds import solve_bounds
-    from ..core.reference import reference_policy
+    from ...core.bounds import solve_bounds
+    from ...core.reference import reference_policy
     from .figures import plot_fig3
 
     model = shipped_model("tracking_s2_info")
@@ -128,7 +127,7 @@ def run_fig3(cfg: ExperimentConfig, img: Path) -> dict:
 
 def run_table2(cfg: ExperimentConfig, progress: bool) -> dict:
     """Table II and search timings: the search helper's benchmark (``pomdp-planner bench search``)."""
-    from ..bench.search_bench import BenchConfig, run_search_bench
+    from ..search import BenchConfig, run_search_bench
 
     if cfg.quick:
         bc = BenchConfig(beliefs=cfg.table2_beliefs, deep_beliefs=cfg.table2_depth6_beliefs, timed=2,
@@ -146,7 +145,7 @@ def run_table2(cfg: ExperimentConfig, progress: bool) -> dict:
 
 def run_model_check(cfg: ExperimentConfig, progress: bool) -> dict:
     """Natural vs our Sec. VI-B sequences: which actions the optimal policy uses (exact)."""
-    from ..core.reference import alpha_vector_value_iteration, certified_actions
+    from ...core.reference import alpha_vector_value_iteration, certified_actions
 
     rows = []
     rng = np.random.default_rng([cfg.seed, 3])
