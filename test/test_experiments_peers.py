@@ -101,4 +101,4 @@ def test_planner_cache_follows_the_model_not_the_label() -> None:
     p3 = peers._planner_for("m", S3)
     assert peers._planner_for("m", pickle.loads(pickle.dumps(S3))) is p3  # a worker's copy: reused
     p8 = peers._planner_for("m", s8)  # same label, another model: its own planner
-    assert p8 is not p3 and p8.model.S == 8
+    assert p8 is not p3 and p8.planner.model.S == 8

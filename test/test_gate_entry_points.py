@@ -105,3 +105,43 @@ def test_simulate_bound_policies_refuse_a_failing_model(capsys: pytest.CaptureFi
 def test_simulate_exhaustive_says_bounds_are_off(capsys: pytest.CaptureFixture[str]) -> None:
     code, d, _ = _simulate(capsys, "exhaustive", "depth=2")
     assert code == 0 and d["planner"]["mode"] == "exhaustive" and d["planner"]["certified_decisions"] == 0
+
+
+# ------------------------------------------------------------------------ benchmark and experiments
+def test_search_bench_skips_a_failing_model_with_the_reason(capsys: pytest.CaptureFixture[str]) -> None:
+    from pomdp_planner.bench.search import BenchConfig, bench_model, format_report
+    from pomdp_planner.core.io.model_yaml import load_model
+
+    model = load_model(FAILING)
+    cfg = BenchConfig(beliefs=3, deep_beliefs=1, timed=1, depths=(2, 3), timed_max_depth=2)
+    res = bench_model(model, cfg)
+    assert "pruning" not in res and res["gate"]["mode"] == "exhaustive"
+    report = format_report({"config": {"beliefs": 3, "seed": 0, "timed": 1}, "models": [res], "total_time": 0.0,
+                            "python": "3", "numpy": "2", "cpu_count": 1})
+    assert "skipped: Assumption 1 fails" in report and "certified" not in report
+    forced = bench_model(model, BenchConfig(**{**cfg.__dict__, "prune_without_guarantee": True}))
+    assert forced["gate"]["guaranteed"] is False and forced["pruning"]
+    report = format_report({"config": {"beliefs": 3, "seed": 0, "timed": 1}, "models": [forced], "total_time": 0.0,
+                            "python": "3", "numpy": "2", "cpu_count": 1})
+    assert "WITHOUT GUARANTEE" in report and "(action certified)" not in report
+    code, out, _ = run(capsys, "bench", "search", "--model", FAILING, "--beliefs", "2", "--timed", "1", "--quick")
+    assert code == 0 and "skipped: Assumption 1 fails" in out
+
+
+def test_experiments_use_the_gate() -> None:
+    from pomdp_planner.bench.experiments import peers
+    from pomdp_planner.bench.experiments.pruning import pruning_cell
+    from pomdp_planner.bench.experiments.runner import valid_bounds
+    from pomdp_planner.core.io.model_yaml import load_model
+
+    model = load_model(FAILING)
+    cell = pruning_cell(3, 2, 10, 0, model=model)
+    assert not cell.feasible and cell.pct is None and "Assumption 1 fails" in cell.message
+    with pytest.raises(ValueError, match="Assumption 1 fails"):
+        valid_bounds(model)
+    setup = peers._planner_for("failing", model)
+    assert setup.mode == "exhaustive" and not setup.planner.has_bounds
+    chunk = peers.PeerChunk("failing", "lower-bound", None, 0, 1)
+    with pytest.raises(ValueError, match="no valid bounds: Assumption 1 fails"):
+        peers._policy(chunk, model, peers.PeerPlan(budgets=(0.01,), episodes_cheap=1, episodes_by_budget={0.01: 1},
+                                                   steps=1, max_depth=2, seed=0), 0)

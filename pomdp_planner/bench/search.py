@@ -16,6 +16,12 @@ initial beliefs (uniform on the simplex):
   under 50 ms), the speed-up (ratio of the medians), how often both choose the same action,
   and throughput in belief nodes per second (tree nodes / median time).
 
+The planner comes from the assumption gate (:func:`pomdp_planner.core.gate.build_planner`): a
+model whose bounds are not valid (Assumption 1 fails, LP infeasible, Shannon guarantee covering
+no domain) is skipped with the gate's reason, unless ``--prune-without-guarantee`` asks to
+measure pruning anyway; the report then says that no guarantee holds and that agreeing root
+bounds certify nothing.
+
 Everything runs in this process on one core's worth of numpy (the planner avoids BLAS
 threads). Timings on a shared machine are noisy: compare ratios measured in one run.
 """
@@ -34,11 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from ..core.bounds import solve_bounds
+from ..core.bounds import BOUND_VARIANTS
+from ..core.gate import build_planner
 from ..core.io.model_yaml import load_model
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
-from ..core.search import Planner, complete_tree_nodes
+from ..core.search import complete_tree_nodes
 from .paper import PAPER_TABLE_II
 
 DEFAULT_MODELS = ("tracking_s8_info.yaml", "tracking_s3_info.yaml")
@@ -55,6 +62,7 @@ class BenchConfig:
     timed_max_depth: int = 5
     seed: int = 0
     variant: str = "tight"
+    prune_without_guarantee: bool = False  # measure pruning on a model whose bounds are not valid (said so)
 
     @classmethod
     def quick(cls) -> BenchConfig:
@@ -78,17 +86,23 @@ def bench_model(model: POMDP, config: BenchConfig, log: Callable[[str], None] = 
     """Pruning and timing figures for one model (a JSON-ready dict)."""
     A, Z, S = model.A, model.Z, model.S
     t0 = time.perf_counter()
-    sol = solve_bounds(model, variant=config.variant)
-    solve_time = time.perf_counter() - t0
+    setup = build_planner(model, variant=config.variant, prune_without_guarantee=config.prune_without_guarantee,
+                          override_name="--prune-without-guarantee")
+    gate_time = time.perf_counter() - t0
+    sol = setup.bounds
     out: dict[str, Any] = {
         "model": model.name, "S": S, "A": A, "Z": Z, "uncertainty": model.uncertainty.name,
-        "variant": config.variant, "bounds_feasible": bool(sol.feasible), "bounds_message": sol.message,
-        "bounds_solve_time": solve_time, "beliefs": config.beliefs, "seed": config.seed,
+        "variant": config.variant, "bounds_feasible": bool(sol is not None and sol.feasible),
+        "bounds_message": setup.reason if sol is None else sol.message,
+        "bounds_solve_time": None if sol is None else sol.solve_time, "gate_time": gate_time,
+        "gate": setup.to_dict(), "beliefs": config.beliefs, "seed": config.seed,
     }
-    if not sol.feasible:
-        log(f"{model.name}: bounds infeasible ({sol.message}); skipped")
+    if not setup.pruning:
+        log(f"{model.name}: {setup.describe()}; skipped")
         return out
-    planner = Planner(model, sol.myopic)
+    if not setup.guaranteed:
+        log(f"{model.name}: {setup.describe()}")
+    planner = setup.planner
     beliefs = np.random.default_rng(config.seed).dirichlet(np.ones(S), size=config.beliefs)
     dmax = max(config.depths)
     expanded: dict[int, list[int]] = {d: [] for d in config.depths}
@@ -181,13 +195,19 @@ def format_report(result: dict[str, Any]) -> str:
     lines = []
     cfg = result["config"]
     for m in result["models"]:
+        gate = m.get("gate", {})
+        solved = "not solved" if m["bounds_solve_time"] is None else f"solved in {m['bounds_solve_time']:.2f} s"
         lines.append(f"== {m['model']} (S={m['S']}, A={m['A']}, Z={m['Z']}, {m['uncertainty']}), "
-                     f"bounds: {m['variant']}, solved in {m['bounds_solve_time']:.2f} s, "
-                     f"{cfg['beliefs']} beliefs (seed {cfg['seed']})")
+                     f"bounds: {m['variant']}, {solved}, {cfg['beliefs']} beliefs (seed {cfg['seed']})")
         if "pruning" not in m:
-            lines.append(f"   bounds infeasible: {m['bounds_message']}")
+            lines.append(f"   skipped: {gate.get('reason', m['bounds_message'])}")
             continue
-        lines.append(f"   root bounds agree (action certified) on {100 * m['root_bounds_agree']:.0f}% of the beliefs")
+        agree = f"{100 * m['root_bounds_agree']:.0f}% of the beliefs"
+        if gate.get("guaranteed", True):
+            lines.append(f"   root bounds agree (action certified) on {agree}")
+        else:
+            lines.append(f"   WITHOUT GUARANTEE: {gate['reason']}")
+            lines.append(f"   root bounds agree (certifying nothing) on {agree}")
         lines.append("   depth  beliefs  complete nodes  B&B nodes (mean)  % pruned mean [min, max]  paper Table II")
         for p in m["pruning"]:
             paper = f"{p['paper_table_ii']:.1f}%" if p["paper_table_ii"] is not None else "-"
@@ -222,14 +242,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--beliefs", type=int, default=None, help="random initial beliefs for the pruning table (100)")
     p.add_argument("--timed", type=int, default=None, help="beliefs timed per depth (10)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random beliefs (0)")
-    p.add_argument("--variant", default="tight", choices=("tight", "feasible"), help="bound variant (tight)")
+    p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
+                   help=f"bound variant ({BOUND_VARIANTS[0]})")
+    p.add_argument("--prune-without-guarantee", action="store_true",
+                   help="measure pruning also on a model whose bounds the gate finds not valid (NO GUARANTEE; "
+                        "the report says so)")
     p.add_argument("--model", action="append", default=None, metavar="MODEL",
                    help="model file (repeatable; default: the shipped S = 8 and S = 3 tracking models)")
 
 
 def config_from_args(args: argparse.Namespace) -> BenchConfig:
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
-    changes: dict[str, Any] = {"seed": args.seed, "variant": args.variant}
+    changes: dict[str, Any] = {"seed": args.seed, "variant": args.variant,
+                               "prune_without_guarantee": args.prune_without_guarantee}
     if args.beliefs is not None:
         if args.beliefs < 1:
             raise ValueError(f"--beliefs: must be >= 1, got {args.beliefs}")

@@ -50,7 +50,9 @@ def section_header(data: dict) -> list[str]:
                   f"{k} ({data['modes'][k]}, {data['timings'][k]:.0f} s)" for k in data["timings"]) + ".", "",
               "Actions are the paper's tracking priorities 1..A (1 = greatest priority). "
               "Bounds are `core.bounds.solve_bounds` (`tight` is the package default; `feasible` is the plain "
-              "L1-minimal solution of the Theorem 2 LPs); see docs/THEORY.md for what they guarantee.", ""]
+              "L1-minimal solution of the Theorem 2 LPs), obtained through the assumption gate "
+              "(`core.gate.build_planner`: used only where Assumption 1 holds and the LP is feasible; no experiment "
+              "overrides it); see docs/THEORY.md for what they guarantee.", ""]
     return lines
 
 
@@ -97,8 +99,9 @@ def section_table2(d: dict) -> list[str]:
              + str(cfg["deep_beliefs"]) + " of them only. The paper does not give its S = 8 reward or x, y: ours "
              "are in `config/models/tracking_s8_info.yaml` (its header explains them).", ""]
     for r in d["models"]:
-        if not r.get("bounds_feasible"):
-            lines += [f"**{r['model']}**: bounds infeasible ({r.get('bounds_message', '')}).", ""]
+        if "pruning" not in r:  # the assumption gate found no valid bounds
+            reason = r.get("gate", {}).get("reason", f"bounds infeasible ({r.get('bounds_message', '')})")
+            lines += [f"**{r['model']}**: not measured: {reason}.", ""]
             continue
         pr = r["pruning"]
         headers = ["", *[f"d={p['depth']}" for p in pr]]
@@ -170,7 +173,8 @@ def section_table3(d: dict, cfg: dict) -> list[str]:
              "upper = lower to score 100. The literal share of actions the search skips, "
              "`100 (1 - (upper - lower + 1)/A)`, can never exceed 100 (A-1)/A (75 for A = 4); it is exactly 100/A "
              "below the first formula, so we give its average in the second table. "
-             "'n/a': LP infeasible. LP time is the wall time of `solve_bounds` for the cell.", ""]
+             "'n/a': no valid bounds (LP infeasible, or the assumption gate's reason; listed below the table). "
+             "LP time is the wall time of `solve_bounds` for the cell.", ""]
     for variant, v in d.items():
         cells = {(c.S, c.A): c for c in v["cells"]}
         S_vals = sorted({c.S for c in v["cells"]})
@@ -318,7 +322,7 @@ def section_when(data: dict) -> list[str]:
         "(Table II). Where the root bounds agree it stops at depth 1 with a proven-optimal action, which is "
         "why its mean depth in the peer table is close to 1 and its decision time is milliseconds.",
         "- **Exhaustive search** is the fallback when the bounds LP is infeasible or Assumption 1 fails "
-        "(`pomdp-planner check`); the planner then falls back to it by itself.",
+        "(`pomdp-planner check`); every entry point falls back to it by itself (the assumption gate) and says why.",
         "- **Greedy (argmax rho)** costs microseconds; on these fast-mixing tracking problems the depth of the "
         "search changes the return little (compare the rows above), so it is a sound choice when there is no "
         "time to search. The **lower-bound policy alone** is a bound, not a controller.",
