@@ -70,6 +70,12 @@ def test_unknown_policy_and_option_are_errors_naming_them() -> None:
         make_policy("bnb", model, dpth=2)
     with pytest.raises(ModelError, match="variant"):
         make_policy("lower", model, variant="loose")
+    with pytest.raises(ModelError, match=r"option depth: must be an integer in 1\.\.50"):
+        make_policy("exhaustive", model, depth=0)
+    with pytest.raises(ModelError, match=r"option time_budget: must be a number of seconds in 0\.001\.\.60"):
+        make_policy("bnb", model, time_budget=-1)
+    with pytest.raises(ModelError, match="option prune_without_guarantee: expected 1/0"):
+        make_policy("bnb", model, prune_without_guarantee="maybe")
 
 
 def test_planner_policies_act_like_their_planner() -> None:

@@ -9,9 +9,16 @@ import numpy as np
 import pytest
 
 from pomdp_planner.cli import main
+from pomdp_planner.core.bounds import BOUND_VARIANTS
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.search import complete_tree_nodes
+from pomdp_planner.core.search import (
+    MAX_DEPTH_RANGE,
+    TIME_BUDGET_RANGE,
+    check_depth,
+    check_time_budget,
+    complete_tree_nodes,
+)
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 S3 = str(MODELS / "tracking_s3_info.yaml")
@@ -52,8 +59,8 @@ def test_plan_text(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.parametrize(("belief", "message"), [
     ("0.2,0.5", "expected 3 probabilities"),
-    ("0.2,0.5,0.4", "sum to"),
-    ("-0.2,0.7,0.5", "non-negative"),
+    ("0.2,0.5,0.4", "sums to 1.1, not 1"),
+    ("-0.2,0.7,0.5", "entry 0 is negative"),
     ("a,b,c", "comma-separated"),
 ])
 def test_plan_bad_belief_exits_2(capsys: pytest.CaptureFixture[str], belief: str, message: str) -> None:
@@ -61,6 +68,40 @@ def test_plan_bad_belief_exits_2(capsys: pytest.CaptureFixture[str], belief: str
     assert message in capsys.readouterr().err
 
 
-def test_plan_bad_depth_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["plan", S3, "--depth", "0"]) == 2
-    assert "--depth" in capsys.readouterr().err
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--depth", "0"], "--depth: must be an integer in 1..50, got 0"),
+    (["--depth", "51"], "--depth: must be an integer in 1..50"),
+    (["--time-budget", "0.5", "--max-depth", "0"], "--max-depth: must be an integer in 1..50"),
+    (["--time-budget", "0"], "--time-budget: must be a number of seconds in 0.001..60"),
+    (["--time-budget", "nan"], "--time-budget: must be a number of seconds in 0.001..60"),
+    (["--time-budget", "61"], "--time-budget: must be a number of seconds in 0.001..60"),
+])
+def test_plan_search_parameters_use_the_cores_ranges(capsys: pytest.CaptureFixture[str], argv: list[str],
+                                                     message: str) -> None:
+    """The ranges are the core's (``core.search.MAX_DEPTH_RANGE``, ``TIME_BUDGET_RANGE``), the same the
+    planner node's parameters use."""
+    assert (MAX_DEPTH_RANGE, TIME_BUDGET_RANGE) == ((1, 50), (0.001, 60.0))
+    assert main(["plan", S3, *argv]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_variant_choices_come_from_the_core() -> None:
+    from pomdp_planner.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for command in ("plan", "bounds"):
+        variant = next(a for a in sub.choices[command]._actions if a.dest == "variant")
+        assert tuple(variant.choices) == BOUND_VARIANTS
+
+
+def test_core_validators_are_the_last_guard() -> None:
+    assert check_depth(3) == 3 and check_depth(np.int64(7), "d", MAX_DEPTH_RANGE) == 7
+    assert check_time_budget(0) == 0.0 and check_time_budget("0.25") == 0.25
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="depth"):
+            check_depth(bad)
+    for bad in (-1.0, float("inf"), "x", None, True):
+        with pytest.raises(ValueError, match="time_budget"):
+            check_time_budget(bad)
+    with pytest.raises(ValueError, match=r"in 1\.\.50"):
+        check_depth(51, allowed=MAX_DEPTH_RANGE)

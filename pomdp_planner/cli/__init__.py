@@ -12,6 +12,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from ..core.belief import BeliefError
 from ..core.model import ModelError
 
 #: Subcommand modules, in the order ``--help`` lists them.
@@ -43,7 +44,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except ModelError as exc:
+    except (ModelError, BeliefError) as exc:  # bad input: the message names the field
         print(f"pomdp-planner: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:

@@ -23,7 +23,7 @@ import sys
 
 from ..core.bounds import BOUND_VARIANTS
 from ..core.gate import build_planner
-from ..core.model import ModelError
+from ..core.search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_time_budget
 from ._common import add_belief_argument, add_json_argument, add_model_argument, emit_json, load_model_arg, parse_belief
 
 DEFAULT_DEPTH = 3
@@ -36,12 +36,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_model_argument(p)
     add_belief_argument(p)
     g = p.add_mutually_exclusive_group()
+    depths, budgets = "..".join(map(str, MAX_DEPTH_RANGE)), "..".join(f"{x:g}" for x in TIME_BUDGET_RANGE)
     g.add_argument("--depth", type=int, default=None, metavar="D",
-                   help=f"search exactly this depth (default {DEFAULT_DEPTH} unless --time-budget is given)")
+                   help=f"search exactly this depth, {depths} (default {DEFAULT_DEPTH} unless --time-budget is given)")
     g.add_argument("--time-budget", type=float, default=None, metavar="S",
-                   help="anytime search: iterative deepening for at most S seconds")
+                   help=f"anytime search: iterative deepening for at most S seconds, {budgets}")
     p.add_argument("--max-depth", type=int, default=DEFAULT_MAX_DEPTH, metavar="D",
-                   help=f"deepest depth of the anytime search (default {DEFAULT_MAX_DEPTH})")
+                   help=f"deepest depth of the anytime search, {depths} (default {DEFAULT_MAX_DEPTH})")
     p.add_argument("--exhaustive", action="store_true", help="search all actions (no myopic bounds)")
     p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
                    help=f"bound variant of the LP (default {BOUND_VARIANTS[0]})")
@@ -55,12 +56,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
     belief = parse_belief(args.belief, model)
-    if args.depth is not None and args.depth < 1:
-        raise ModelError(f"--depth: must be >= 1, got {args.depth}")
-    if args.max_depth < 1:
-        raise ModelError(f"--max-depth: must be >= 1, got {args.max_depth}")
-    if args.time_budget is not None and not args.time_budget >= 0.0:
-        raise ModelError(f"--time-budget: must be a non-negative number of seconds, got {args.time_budget}")
+    depth = DEFAULT_DEPTH if args.depth is None else check_depth(args.depth, "--depth", MAX_DEPTH_RANGE)
+    max_depth = check_depth(args.max_depth, "--max-depth", MAX_DEPTH_RANGE)
+    budget = None if args.time_budget is None else check_time_budget(args.time_budget, "--time-budget",
+                                                                       TIME_BUDGET_RANGE)
     setup = build_planner(model, use_bounds=not args.exhaustive, variant=args.variant,
                           prune_without_guarantee=args.prune_without_guarantee,
                           override_name="--prune-without-guarantee")
@@ -72,12 +71,12 @@ def run(args: argparse.Namespace) -> int:
     if args.json and not args.exhaustive and not setup.guaranteed:  # the text output has a "search:" line
         print(f"pomdp-planner plan: {setup.describe()}", file=sys.stderr)
     use_bounds = setup.pruning
-    if args.time_budget is not None:
-        res = planner.plan(belief, max_depth=args.max_depth, time_budget=args.time_budget, use_bounds=use_bounds)
+    if budget is not None:
+        res = planner.plan(belief, max_depth=max_depth, time_budget=budget, use_bounds=use_bounds)
     else:
-        res = planner.search(belief, args.depth or DEFAULT_DEPTH, use_bounds=use_bounds)
+        res = planner.search(belief, depth, use_bounds=use_bounds)
     if args.json:
-        emit_json({"model": model.name, "belief": belief, "mode": "anytime" if args.time_budget is not None
+        emit_json({"model": model.name, "belief": belief, "mode": "anytime" if budget is not None
                    else "fixed-depth", "bounds": bounds_info, "gate": setup.to_dict(), **res.to_dict()})
         return 0
     d = res.to_dict()

@@ -23,7 +23,7 @@ from .bounds import BOUND_VARIANTS
 from .gate import PlannerSetup, build_planner
 from .model import POMDP, ModelError
 from .myopic import MyopicBounds
-from .search import Planner, SearchResult
+from .search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, SearchResult, check_depth, check_time_budget
 
 
 class PolicyObject(Protocol):
@@ -69,9 +69,10 @@ class SearchPolicy:
             raise ModelError(f"policy: no planner ({setup.reason})")
         self.setup = setup
         self.planner = setup.planner
-        self.depth = Planner._check_depth(depth, "depth")
-        self.max_depth = Planner._check_depth(max_depth, "max_depth")
-        self.time_budget = None if time_budget is None else float(time_budget)
+        self.depth = check_depth(depth, "option depth", MAX_DEPTH_RANGE)
+        self.max_depth = check_depth(max_depth, "option max_depth", MAX_DEPTH_RANGE)
+        self.time_budget = None if time_budget is None else check_time_budget(time_budget, "option time_budget",
+                                                                              TIME_BUDGET_RANGE)
         self.use_bounds = setup.pruning
         self.last: SearchResult | None = None
         self.decisions = self.certified = 0
@@ -134,9 +135,8 @@ def _setup(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> PlannerSe
 def _search_policy(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> SearchPolicy:
     """``bnb`` (``use_bounds``) or ``exhaustive``: the gate decides whether ``bnb`` may prune;
     on a model failing Assumption 1 it searches exhaustively and says why (``policy.setup``)."""
-    tb = opts.get("time_budget")
-    return SearchPolicy(_setup(model, opts, use_bounds), depth=int(opts.get("depth", 3)),
-                        time_budget=None if tb is None else float(tb), max_depth=int(opts.get("max_depth", 10)))
+    return SearchPolicy(_setup(model, opts, use_bounds), depth=opts.get("depth", 3),
+                        time_budget=opts.get("time_budget"), max_depth=opts.get("max_depth", 10))
 
 
 def _bound_policy(model: POMDP, opts: Mapping[str, Any], which: str) -> BoundPolicy:

@@ -71,7 +71,7 @@ from typing import Any
 import numpy as np
 
 from .belief import ETA_MIN, check_belief
-from .model import POMDP, priority_of
+from .model import POMDP, ModelError, priority_of
 from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
 
 #: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
@@ -87,8 +87,42 @@ LEAF_GATHER_FRACTION = 0.7
 PREDICT_MARGIN = 1.5
 #: Default memory budget (bytes) for one chunk of the leaf level.
 DEFAULT_CHUNK_BYTES = 4 * 2**20
+#: The search depths a user may ask for (Table II convention; ``--depth``/``--max-depth`` of the
+#: CLI, the ``simulate`` options, the planner node's ``max_depth``), inclusive.
+MAX_DEPTH_RANGE = (1, 50)
+#: The time budgets a user may ask for, seconds (``--time-budget``, the ``simulate`` option,
+#: the planner node's ``time_budget``), inclusive.
+TIME_BUDGET_RANGE = (0.001, 60.0)
 
 Bounds = MyopicBounds | TrivialBounds
+
+
+def check_depth(depth: Any, field: str = "depth", allowed: tuple[int, int | None] = (1, None)) -> int:
+    """``depth`` as an int after checking it is an integer in ``allowed`` (inclusive; ``None``: no
+    upper limit). The planner's own guard is ``>= 1``; user-facing edges pass :data:`MAX_DEPTH_RANGE`.
+    Raises :class:`~.model.ModelError` naming ``field``."""
+    lo, hi = allowed
+    ok = not isinstance(depth, bool) and isinstance(depth, (int, np.integer))
+    if not ok or depth < lo or (hi is not None and depth > hi):
+        want = f"an integer >= {lo}" if hi is None else f"an integer in {lo}..{hi}"
+        raise ModelError(f"{field}: must be {want}, got {depth!r}")
+    return int(depth)
+
+
+def check_time_budget(seconds: Any, field: str = "time_budget",
+                      allowed: tuple[float, float | None] = (0.0, None)) -> float:
+    """``seconds`` as a float after checking it is a finite number in ``allowed`` (inclusive). The
+    planner's own guard is ``>= 0`` (0: depth 1 only); user-facing edges pass :data:`TIME_BUDGET_RANGE`.
+    Raises :class:`~.model.ModelError` naming ``field``."""
+    lo, hi = allowed
+    try:
+        t = float(seconds)
+    except (TypeError, ValueError):
+        t = math.nan
+    if isinstance(seconds, bool) or not math.isfinite(t) or t < lo or (hi is not None and t > hi):
+        want = f">= {lo:g}" if hi is None else f"in {lo:g}..{hi:g}"
+        raise ModelError(f"{field}: must be a number of seconds {want}, got {seconds!r}")
+    return t
 
 
 def complete_level_sizes(A: int, Z: int, depth: int) -> tuple[int, ...]:
@@ -277,7 +311,7 @@ class Planner:
         Always searches the full requested depth (also when the root bounds agree; then
         only one root action is expanded). ``use_bounds=False`` is the exhaustive search.
         """
-        depth = self._check_depth(depth, "depth")
+        depth = check_depth(depth)
         b = check_belief(self.model, belief)
         t0 = self.clock()
         bounds = self.bounds if use_bounds else self.trivial
@@ -304,11 +338,9 @@ class Planner:
         ``predicted_stop`` set); the growth measured at shallow depths underestimates the real
         one (fixed per-call costs), so the rule errs towards trying.
         """
-        max_depth = self._check_depth(max_depth, "max_depth")
+        max_depth = check_depth(max_depth, "max_depth")
         if time_budget is not None:
-            time_budget = float(time_budget)
-            if not time_budget >= 0.0:
-                raise ValueError(f"time_budget: must be a non-negative number of seconds, got {time_budget}")
+            time_budget = check_time_budget(time_budget)
         b = check_belief(self.model, belief)
         t0 = self.clock()
         deadline = None if time_budget is None else t0 + time_budget
@@ -346,7 +378,7 @@ class Planner:
         Much cheaper than :meth:`search` at the same depth (the leaf level only needs
         ``eta``); ``nodes_expanded`` of depth ``i`` is ``sum(level_sizes[:i + 1])``.
         """
-        depth = self._check_depth(depth, "depth")
+        depth = check_depth(depth)
         b = check_belief(self.model, belief)
         bounds = self.bounds if use_bounds else self.trivial
         sizes = [1] + [0] * depth
@@ -355,12 +387,6 @@ class Planner:
         return tuple(sizes)
 
     # --------------------------------------------------------------- internals
-    @staticmethod
-    def _check_depth(depth: int, name: str) -> int:
-        if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
-            raise ValueError(f"{name}: must be an integer >= 1, got {depth!r}")
-        return int(depth)
-
     def _root(self, b: np.ndarray, bounds: Bounds
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int] | None]:
         """``(BT, rho, allowed, root bounds)`` at ``b``: its column, ``rho(b, .)``, the allowed
