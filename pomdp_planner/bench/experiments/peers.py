@@ -215,7 +215,7 @@ def _pomdp_py_agent(pp, model: POMDP, rng: random.Random):
 
 
 def pouct_available() -> bool:
-    try:
+    try:  # the optional extra 'bench'
         import pomdp_py  # noqa: F401
     except ImportError:
         return False
