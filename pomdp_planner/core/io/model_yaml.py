@@ -29,6 +29,7 @@ import yaml
 from ..belief import start_belief
 from ..domains.tracking import comparison_reward, tracking_observations, tracking_transitions
 from ..model import POMDP, ModelError
+from .cassandra import load_pomdp_file
 
 KNOWN_FIELDS = {
     "name", "discount", "states", "actions", "observations", "transition", "observation",
@@ -161,8 +162,6 @@ def load_model(path: str | Path) -> POMDP:
     """Load a YAML model file (or a Cassandra ``.POMDP`` file, by extension)."""
     path = Path(path)
     if path.suffix.lower() == ".pomdp":
-        from .cassandra import load_pomdp_file
-
         return load_pomdp_file(path)
     try:
         text = path.read_text()
