@@ -127,32 +127,58 @@ def plot_looseness(path: Path, cells: Sequence, A_values: Sequence[int]) -> Path
     return path
 
 
-def plot_peers(path: Path, results: Sequence, budgets: Sequence[float], models: Sequence[str]) -> Path:
-    """Mean discounted return (95 % CI) against the time budget, one panel per model."""
+PEER_STYLE = {"bnb": ("o", "C0"), "exhaustive": ("s", "C1"), "mcts": ("D", "C2"), "pouct": ("^", "C3"),
+              "optimal": ("", "k"), "greedy": ("", "C4"), "lower-bound": ("", "C5"), "upper-bound": ("", "C6"),
+              "random": ("", "C7")}
+#: Budgeted planners are drawn side by side (x offsets), not on top of each other.
+PEER_OFFSETS = {"bnb": 0.92, "exhaustive": 0.97, "mcts": 1.03, "pouct": 1.08}
+
+
+def plot_peers(path: Path, results: Sequence, models: Sequence[str]) -> Path:
+    """Return (top row) and regret against the optimal reference (bottom row) against the time
+    budget per decision, one column per model, log x axis; 95 % CI error bars. Planners without a
+    budget are horizontal lines (dotted) with their CI as a band. Random is left out of the regret
+    row (its regret dwarfs the others)."""
     plt = _plt()
-    fig, axes = plt.subplots(1, len(models), figsize=(5.5 * len(models), 4), squeeze=False)
-    for ax, mname in zip(axes[0], models, strict=True):
+    cols = max(len(models), 1)
+    fig, axes = plt.subplots(2, cols, figsize=(4.6 * cols, 7.2), squeeze=False)
+    for j, mname in enumerate(models):
         rows = [r for r in results if r.model == mname]
-        markers = {"bnb": "o", "exhaustive": "s", "pouct": "^"}
-        offsets = {"bnb": 0.94, "exhaustive": 1.0, "pouct": 1.06}  # side by side, not on top of each other
-        for i, planner in enumerate(dict.fromkeys(r.planner for r in rows)):
-            pr = [r for r in rows if r.planner == planner]
-            col = f"C{i}"
-            if pr[0].budget is None:
-                ax.axhline(pr[0].mean, color=col, ls=":", label=f"{planner} (no search; 95 % CI +-"
-                           f"{(pr[0].ci[1] - pr[0].ci[0]) / 2:.2f})")
-            else:
-                pr = sorted(pr, key=lambda r: r.budget)
-                xs = [r.budget * offsets.get(planner, 1.0) for r in pr]
-                err = [[r.mean - r.ci[0] for r in pr], [r.ci[1] - r.mean for r in pr]]
-                ax.errorbar(xs, [r.mean for r in pr], yerr=err, marker=markers.get(planner, "o"), capsize=3,
-                            color=col, label=planner)
-        ax.set_xscale("log")
-        ax.set_xlabel("time budget per decision (s)")
-        ax.set_ylabel("mean discounted return (true $\\rho$)")
-        ax.set_title(mname, fontsize=9)
-        ax.legend(fontsize=7)
+        budgets = sorted({r.budget for r in rows if r.budget is not None})
+        for i, (metric, label) in enumerate((("return", "mean discounted return (true $\\rho$)"),
+                                              ("regret", "regret vs. optimal reference"))):
+            ax = axes[i][j]
+            has_regret = any(r.regret is not None for r in rows)
+            if metric == "regret" and not has_regret:
+                ax.text(0.5, 0.5, "no optimal reference\nfor this model", ha="center", va="center",
+                        transform=ax.transAxes, fontsize=9)
+                ax.set_axis_off()
+                continue
+            for planner in dict.fromkeys(r.planner for r in rows):
+                if metric == "regret" and planner in ("random", "optimal"):
+                    continue
+                pr = sorted([r for r in rows if r.planner == planner], key=lambda r: r.budget or 0)
+                marker, col = PEER_STYLE.get(planner, ("o", "C9"))
+                mean = [r.mean if metric == "return" else r.regret for r in pr]
+                ci = [r.ci if metric == "return" else r.regret_ci for r in pr]
+                if pr[0].budget is None:
+                    if budgets:
+                        ax.axhline(mean[0], color=col, ls=":", lw=1.2, label=planner)
+                        ax.axhspan(ci[0][0], ci[0][1], color=col, alpha=0.12, lw=0)
+                    continue
+                xs = [r.budget * PEER_OFFSETS.get(planner, 1.0) for r in pr]
+                pairs = list(zip(mean, ci, strict=True))
+                err = [[m - c[0] for m, c in pairs], [c[1] - m for m, c in pairs]]
+                ax.errorbar(xs, mean, yerr=err, marker=marker, capsize=3, color=col, label=planner)
+            if budgets:
+                ax.set_xscale("log")
+                ax.set_xticks(budgets, [f"{b:g}" for b in budgets])
+                ax.set_xticks([], minor=True)
+            ax.set_xlabel("time budget per decision (s, CPU)")
+            ax.set_ylabel(label)
+            ax.set_title(mname, fontsize=9)
+            ax.legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

@@ -1,34 +1,35 @@
-"""Closed-loop comparison of planners at equal time budgets (issue 6, "against peers").
+"""Closed-loop comparison of planners at equal time budgets (issues 6 and 12, "against peers").
 
 Every planner acts on the exact Bayes-filter belief of :func:`pomdp_planner.core.simulate.simulate`
 and every episode is scored with the TRUE belief reward: the discounted return
-``sum_t gamma^t rho(b_t, a_t)`` (Eq. 3), ``gamma`` the model's. Episodes are seeded
-(episode ``k`` uses seed ``base + k`` for the world, the same for every planner: common
-random numbers for the initial state and, as long as the actions agree, the trajectory).
+``sum_t gamma^t rho(b_t, a_t)`` (Eq. 3) over ``steps`` decisions, ``gamma`` the model's.
 
-Planners
---------
-* ``bnb``: Algorithm 1 with the myopic bounds (``Planner.plan``, anytime iterative deepening
-  under the budget; returns at once when the root bounds agree, a certified decision). The
-  planner comes from the assumption gate (``core.gate.build_planner``): on a model whose bounds
-  are not valid it would be exhaustive search; the shipped models pass.
-* ``exhaustive``: the same planner with the action filter off (``use_bounds=False``).
-* ``greedy``: ``argmax_a rho(b, a)`` (depth-1 search; no budget).
-* ``lower-bound``: the myopic lower-bound policy alone (no search).
-* ``random``: uniform random actions.
-* ``pouct``: pomdp-py's POUCT (optional ``bench`` extra). It plans with sampled states and
-  STATE rewards only, so it is given ``r(s, a)``: it cannot see the uncertainty term
-  ``-w_a f(b)`` of ``rho``. It gets the exact belief as a histogram at every step, a fresh
-  tree per decision, random rollouts, ``max_depth`` 20 and the model's discount. Its "depth" is
-  the deepest level its sampled tree reached (:func:`tree_depth`), with the simulations per decision.
+**Common random numbers.** Episode ``k`` of a model uses world seed ``seed + k`` for every
+planner: the same initial state, and (``simulate`` draws transitions and observations from one
+stream, inverse-CDF) the same trajectory for as long as the actions agree. Every cell of a model
+runs episodes ``0 .. n - 1``, so any two cells are paired episode by episode.
+
+**Regret** of a cell: the mean over its episodes of ``G_ref(k) - G(k)``, the return of the
+model's optimal reference (the ``optimal`` peer, :class:`~.peer_policies.ReferenceSpec`) minus
+the cell's, with the 95 % Student-t CI of that paired difference. The reference runs as many
+episodes as the largest cell of its model.
+
+The peers, the clock and the probes of B&B against exhaustive search are in
+:mod:`.peer_policies`; POUCT's tuning in :mod:`.pouct`; the sanity check every peer passes
+before its numbers are reported in :mod:`.sanity`.
+
+**Work and cache.** A cell ``(model, planner, budget)`` is split into chunks of ``chunk``
+episodes, the unit of parallel work (``jobs`` processes) and of the resumable cache: every
+finished chunk is saved with its :meth:`PeerPlan.signature`, and a later run reuses a chunk only
+when the signature matches.
 """
 
 from __future__ import annotations
 
 import math
 import multiprocessing
+import os
 import pickle
-import random
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -38,9 +39,13 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import t as student_t
 
-from ...core.gate import PlannerSetup, build_planner
 from ...core.model import POMDP
 from ...core.simulate import simulate
+from .peer_policies import BUDGETED, UNBUDGETED, ProbeConfig, ReferenceSpec, SearchPeer, make_peer
+from .pouct import TUNED, POUCTSettings, pouct_available, tree_depth
+
+__all__ = ["PeerChunk", "PeerPlan", "PeerResult", "aggregate", "compare_peers", "mean_ci", "pouct_available",
+           "run_chunk", "tree_depth"]
 
 
 def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
@@ -53,177 +58,16 @@ def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
     return m, (m - half, m + half)
 
 
-class _Timed:
-    """Wraps a policy: records per-decision wall time and (when available) search depth."""
-
-    def __init__(self, name: str):
-        self.name = name
-        self.times: list[float] = []
-        self.depths: list[int] = []
-        self.certified = 0
-
-    def act(self, belief: np.ndarray) -> int:
-        t0 = time.perf_counter()
-        a = self._act(belief)
-        self.times.append(time.perf_counter() - t0)
-        return int(a)
-
-    def _act(self, belief: np.ndarray) -> int:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-
-class SearchPolicy(_Timed):
-    def __init__(self, name: str, planner, budget: float, max_depth: int, use_bounds: bool):
-        super().__init__(name)
-        self.planner, self.budget, self.max_depth, self.use_bounds = planner, budget, max_depth, use_bounds
-
-    def _act(self, belief: np.ndarray) -> int:
-        res = self.planner.plan(belief, self.max_depth, time_budget=self.budget, use_bounds=self.use_bounds)
-        self.depths.append(res.depth)
-        self.certified += int(res.certified)
-        return res.action
-
-
-class FunctionPolicy(_Timed):
-    def __init__(self, name: str, fn):
-        super().__init__(name)
-        self.fn = fn
-
-    def _act(self, belief: np.ndarray) -> int:
-        return self.fn(belief)
-
-
-class POUCTPolicy(_Timed):
-    """pomdp-py POUCT on the model's STATE reward (it cannot plan with ``rho``)."""
-
-    def __init__(self, model: POMDP, budget: float, max_depth: int = 20, seed: int = 0):
-        super().__init__("pouct")
-        import pomdp_py  # optional extra 'bench'
-
-        self.pomdp_py = pomdp_py
-        self.model, self.budget, self.max_depth = model, budget, max_depth
-        self.rng = random.Random(seed)
-        self.agent = _pomdp_py_agent(pomdp_py, model, self.rng)
-        self.sims: list[int] = []
-
-    def _act(self, belief: np.ndarray) -> int:
-        pp = self.pomdp_py
-        hist = pp.Histogram({self._states[i]: float(p) for i, p in enumerate(belief) if p > 0})
-        self.agent.set_belief(hist, prior=True)
-        self.agent.tree = None  # fresh tree each decision
-        planner = pp.POUCT(max_depth=self.max_depth, planning_time=self.budget, discount_factor=self.model.gamma,
-                           rollout_policy=self.agent.policy_model, show_progress=False)
-        random.seed(self.rng.random())  # pomdp-py samples with the global `random`
-        action = planner.plan(self.agent)
-        self._planner = planner
-        return int(action.index)
-
-    def act(self, belief: np.ndarray) -> int:
-        a = super().act(belief)  # timed: the planning only
-        self.depths.append(tree_depth(self.agent.tree))
-        self.sims.append(int(self._planner.last_num_sims))
-        return a
-
-    @property
-    def _states(self):
-        return self.agent._pp_states
-
-
-def tree_depth(root) -> int:
-    """Depth of a pomdp-py search tree in action-observation levels (root 0): the deepest
-    belief node the sampled tree reached (not a complete tree of that depth)."""
-    best, stack = 0, [(root, 0)]
-    while stack:
-        v, d = stack.pop()
-        best = max(best, d)
-        stack.extend((child, d + 1) for q in v.children.values() for child in q.children.values())
-    return best
-
-
-def _pomdp_py_agent(pp, model: POMDP, rng: random.Random):
-    """Build a pomdp-py Agent for ``model`` (state reward only)."""
-    S, A, Z = model.S, model.A, model.Z
-    P, O, r = np.asarray(model.P), np.asarray(model.O), np.asarray(model.r)
-    cP, cO = np.cumsum(P, axis=-1), np.cumsum(O, axis=-1)
-
-    class _Indexed:
-        """Equality and hashing by index, shared by the state, action and observation classes."""
-
-        def __init__(self, i):
-            self.index = i
-
-        def __hash__(self):
-            return self.index
-
-        def __eq__(self, other):
-            return type(other) is type(self) and other.index == self.index
-
-    class St(_Indexed, pp.State):
-        pass
-
-    class Ac(_Indexed, pp.Action):
-        pass
-
-    class Ob(_Indexed, pp.Observation):
-        pass
-
-    states = [St(i) for i in range(S)]
-    actions = [Ac(a) for a in range(A)]
-    observations = [Ob(z) for z in range(Z)]
-
-    def draw(c):
-        return min(int(np.searchsorted(c, random.random() * c[-1], side="right")), c.size - 1)
-
-    class T(pp.TransitionModel):
-        def probability(self, ns, s, a):
-            return float(P[a.index, s.index, ns.index])
-
-        def sample(self, s, a):
-            return states[draw(cP[a.index, s.index])]
-
-        def get_all_states(self):
-            return states
-
-    class Om(pp.ObservationModel):
-        def probability(self, o, ns, a):
-            return float(O[a.index, ns.index, o.index])
-
-        def sample(self, ns, a):
-            return observations[draw(cO[a.index, ns.index])]
-
-        def get_all_observations(self):
-            return observations
-
-    class R(pp.RewardModel):
-        def sample(self, s, a, ns):
-            return float(r[s.index, a.index])
-
-    class Pol(pp.RolloutPolicy):
-        def sample(self, s):
-            return actions[random.randrange(A)]
-
-        def rollout(self, s, history=None):
-            return actions[random.randrange(A)]
-
-        def get_all_actions(self, state=None, history=None):
-            return actions
-
-    init = pp.Histogram({s: 1.0 / S for s in states})
-    agent = pp.Agent(init, Pol(), T(), Om(), R())
-    agent._pp_states = states
-    return agent
-
-
-def pouct_available() -> bool:
-    try:  # the optional extra 'bench'
-        import pomdp_py  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 @dataclass
 class PeerResult:
+    """One row of the comparison: a (model, planner, budget) cell.
+
+    Decision times are CPU seconds of the deciding process (the budget clock) with the wall
+    time beside them; ``mean_depth`` is the mean depth per decision (search: deepest completed
+    depth; MCTS, POUCT: deepest tree level reached), ``max_depth`` the largest. ``regret`` is
+    filled in by :func:`compare_peers` where the model has a reference.
+    """
+
     model: str
     planner: str
     budget: float | None
@@ -232,16 +76,28 @@ class PeerResult:
     mean: float
     ci: tuple[float, float]
     mean_state_return: float
+    time_median: float
+    time_p99: float
+    wall_median: float
+    wall_p99: float
     mean_depth: float | None
-    mean_time: float
-    max_time: float
+    max_depth: int | None
     certified_fraction: float | None
-    mean_sims: float | None = None  # POUCT: simulations per decision
+    mean_sims: float | None = None
+    regret: float | None = None
+    regret_ci: tuple[float, float] | None = None
+    probes: list[dict] = field(default_factory=list)
     returns: list[float] = field(default_factory=list)
+    state_returns: list[float] = field(default_factory=list)
+
+    @property
+    def mean_time(self) -> float:  # kept for older readers of the cache
+        return self.time_median
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        d.pop("returns")
+        for k in ("returns", "state_returns", "probes"):
+            d.pop(k)
         return d
 
 
@@ -264,85 +120,90 @@ class PeerChunk:
 
 @dataclass
 class PeerPlan:
-    """What to run: budgets and episodes per budget (stated in the report)."""
+    """What to run (every figure of it is printed in the report).
 
-    budgets: tuple[float, ...] = (0.05, 0.2, 1.0)
+    ``planners``: the peers (budgeted ones at every budget of ``budgets``). Episodes: budgeted
+    cells ``episodes_by_budget[budget]`` unless ``model_episodes[model][budget]`` says otherwise;
+    unbudgeted cells ``episodes_cheap``; the reference the largest of its model's cells.
+    ``steps``: decisions per episode (``model_steps[model]`` overrides). ``references``: the
+    models' optimal references (absent: no ``optimal`` row and no regret).
+    """
+
+    budgets: tuple[float, ...] = (0.01, 0.05, 0.2, 1.0)
+    planners: tuple[str, ...] = BUDGETED + UNBUDGETED
     episodes_cheap: int = 100
-    episodes_by_budget: dict = field(default_factory=lambda: {0.05: 100, 0.2: 100, 1.0: 100})
+    episodes_by_budget: dict = field(default_factory=lambda: {0.01: 100, 0.05: 100, 0.2: 100, 1.0: 100})
+    model_episodes: dict = field(default_factory=dict)
     steps: int = 50
+    model_steps: dict = field(default_factory=dict)
     max_depth: int = 12
     seed: int = 1000
-    with_pouct: bool = True
+    references: dict = field(default_factory=dict)
+    pouct: POUCTSettings = TUNED
+    probes: ProbeConfig = field(default_factory=ProbeConfig)
     chunk: int = 10  # episodes per unit of work / cache file
     jobs: int = 1  # worker processes
 
+    def steps_for(self, model: str) -> int:
+        return int(self.model_steps.get(model, self.steps))
+
+    def reference_for(self, model: str) -> ReferenceSpec | None:
+        spec = self.references.get(model)
+        return None if spec is None else spec if isinstance(spec, ReferenceSpec) else ReferenceSpec(*spec)
+
+    def episodes_for(self, model: str, planner: str, budget: float | None) -> int:
+        if planner == "optimal":
+            return max(self.episodes_cheap, *(self.episodes_for(model, "bnb", b) for b in self.budgets))
+        if budget is None:
+            return self.episodes_cheap
+        return int(self.model_episodes.get(model, {}).get(budget, self.episodes_by_budget[budget]))
+
     def cells(self, models: Sequence[str]) -> list[tuple[str, str, float | None, int]]:
         """``(model, planner, budget, episodes)``, cheapest first (so a cut-short run has whole cells)."""
-        out = [(m, p, None, self.episodes_cheap) for m in models for p in CHEAP_PLANNERS]
-        budgeted = ("bnb", "exhaustive") + (("pouct",) if self.with_pouct else ())
+        out = []
+        for m in models:
+            for p in self.planners:
+                if p in UNBUDGETED and (p != "optimal" or self.reference_for(m) is not None):
+                    out.append((m, p, None, self.episodes_for(m, p, None)))
         for b in sorted(self.budgets):
-            out += [(m, p, b, self.episodes_by_budget[b]) for m in models for p in budgeted]
-        return out
+            out += [(m, p, b, self.episodes_for(m, p, b)) for m in models for p in self.planners if p in BUDGETED]
+        return [c for c in out if c[3] > 0]
 
     def chunks(self, models: Sequence[str]) -> list[PeerChunk]:
         return [PeerChunk(m, p, b, k, min(k + self.chunk, n)) for m, p, b, n in self.cells(models)
                 for k in range(0, n, self.chunk)]
 
-    def signature(self) -> dict:
-        """What a cached chunk must match to be reused."""
-        return {"steps": self.steps, "max_depth": self.max_depth, "seed": self.seed}
+    def signature(self, chunk: PeerChunk | None = None) -> dict:
+        """What a cached chunk must match to be reused (what its episodes depend on)."""
+        sig = {"steps": self.steps, "max_depth": self.max_depth, "seed": self.seed, "clock": "process_time"}
+        if chunk is not None:
+            sig["steps"] = self.steps_for(chunk.model)
+            if chunk.planner == "pouct":
+                sig["pouct"] = self.pouct.to_dict()
+            if chunk.planner == "bnb":
+                sig["probes"] = asdict(self.probes)
+            if chunk.planner == "optimal":
+                sig["reference"] = asdict(self.reference_for(chunk.model))
+        return sig
 
-    def total_units(self, n_models: int) -> int:
-        return sum(n for *_, n in self.cells([str(i) for i in range(n_models)]))
-
-
-CHEAP_PLANNERS = ("greedy", "lower-bound", "random")
-
-_PLANNERS: dict = {}  # per process: (label, pickled model) -> PlannerSetup; the LP is solved once per model
-
-
-def _planner_for(label: str, model: POMDP) -> PlannerSetup:
-    """The assumption gate's planner for ``model`` (``bnb`` prunes only with valid bounds, else it
-    is exhaustive search and the gate's reason is in the setup). Each chunk brings its own
-    unpickled copy of the model, so the cache is keyed by the model's content (its pickle)."""
-    key = (label, pickle.dumps(model))
-    if key not in _PLANNERS:
-        _PLANNERS[key] = build_planner(model, variant="tight")
-    return _PLANNERS[key]
-
-
-def _policy(chunk: PeerChunk, model: POMDP, plan: PeerPlan, k: int) -> _Timed:
-    """A fresh policy for episode ``k`` of ``chunk`` (its randomness seeded by ``k`` alone)."""
-    name, budget = chunk.planner, chunk.budget
-    if name == "greedy":
-        return FunctionPolicy(name, lambda b: int(np.argmax(model.rho(b))))
-    if name == "lower-bound":
-        setup = _planner_for(chunk.model, model)
-        if setup.myopic is None or not setup.guaranteed:
-            raise ValueError(f"peer lower-bound on {chunk.model}: no valid bounds: {setup.reason}")
-        lower = setup.myopic.lower
-        return FunctionPolicy(name, lambda b: int(lower(b[None, :])[0]))
-    if name == "random":
-        rng = np.random.default_rng([plan.seed, k])
-        return FunctionPolicy(name, lambda b: int(rng.integers(model.A)))
-    if name in ("bnb", "exhaustive"):
-        setup = _planner_for(chunk.model, model)
-        return SearchPolicy(name, setup.planner, budget, plan.max_depth, name == "bnb" and setup.pruning)
-    if name == "pouct":
-        return POUCTPolicy(model, budget, seed=plan.seed + 7919 * k)
-    raise ValueError(f"planner: unknown peer {name!r}")
+    def total_units(self, models: Sequence[str]) -> int:
+        return sum(n for *_, n in self.cells(list(models)))
 
 
 def run_chunk(chunk: PeerChunk, model: POMDP, plan: PeerPlan) -> list[dict]:
     """Run the episodes of ``chunk``; one record per episode (episode ``k`` uses world seed ``seed + k``)."""
     records = []
+    steps = plan.steps_for(chunk.model)
     for k in range(chunk.start, chunk.stop):
-        pol = _policy(chunk, model, plan, k)
-        tr = simulate(model, pol, plan.steps, seed=plan.seed + k)
+        probes = plan.probes if k < plan.probes.episodes else None
+        pol = make_peer(chunk.planner, model, chunk.budget, max_depth=plan.max_depth, seed=plan.seed + 7919 * k,
+                        reference=plan.reference_for(chunk.model), pouct=plan.pouct, probes=probes)
+        tr = simulate(model, pol, steps, seed=plan.seed + k)
         records.append({"episode": k, "return": float(tr.discounted_return),
-                        "state_return": float(tr.discounted_state_return), "times": list(pol.times),
-                        "depths": list(getattr(pol, "depths", [])), "certified": int(getattr(pol, "certified", 0)),
-                        "sims": list(getattr(pol, "sims", []))})
+                        "state_return": float(tr.discounted_state_return), "cpu": list(pol.cpu),
+                        "wall": list(pol.wall), "depths": list(pol.depths), "certified": int(pol.certified),
+                        "sims": list(pol.sims), "certifies": bool(pol.certifies),
+                        "probes": list(pol.probe_records) if isinstance(pol, SearchPeer) else []})
     return records
 
 
@@ -351,33 +212,80 @@ def aggregate(model_label: str, planner_label: str, budget: float | None, steps:
     """One table row from the episode records of a cell."""
     records = sorted(records, key=lambda r: r["episode"])
     returns = np.array([r["return"] for r in records])
-    times = [t for r in records for t in r["times"]]
+    cpu = np.array([t for r in records for t in r.get("cpu", r.get("times", []))])
+    wall = np.array([t for r in records for t in r.get("wall", r.get("times", []))])
     depths = [d for r in records for d in r["depths"]]
-    certified = sum(r["certified"] for r in records)
     sims = [x for r in records for x in r.get("sims", [])]
+    certified = sum(r["certified"] for r in records)
     m, ci = mean_ci(returns)
-    return PeerResult(model=model_label, planner=planner_label, budget=budget, episodes=len(records), steps=steps,
-                      mean=m, ci=ci, mean_state_return=float(np.mean([r["state_return"] for r in records])),
-                      mean_depth=float(np.mean(depths)) if depths else None,
-                      mean_time=float(np.mean(times)), max_time=float(np.max(times)),
-                      certified_fraction=certified / max(len(times), 1) if planner_label == "bnb" else None,
-                      mean_sims=float(np.mean(sims)) if sims else None, returns=[float(x) for x in returns])
+    certifies = any(r.get("certifies", planner_label == "bnb") for r in records)
+    return PeerResult(
+        model=model_label, planner=planner_label, budget=budget, episodes=len(records), steps=steps, mean=m, ci=ci,
+        mean_state_return=float(np.mean([r["state_return"] for r in records])),
+        time_median=float(np.median(cpu)), time_p99=float(np.percentile(cpu, 99)),
+        wall_median=float(np.median(wall)), wall_p99=float(np.percentile(wall, 99)),
+        mean_depth=float(np.mean(depths)) if depths else None, max_depth=int(max(depths)) if depths else None,
+        certified_fraction=certified / max(cpu.size, 1) if certifies else None,
+        mean_sims=float(np.mean(sims)) if sims else None, probes=[p for r in records for p in r.get("probes", [])],
+        returns=[float(x) for x in returns], state_returns=[float(r["state_return"]) for r in records])
 
 
-def _load_chunk(path: Path, plan: PeerPlan) -> list[dict] | None:
+def add_regret(results: Sequence[PeerResult]) -> None:
+    """Fill in every row's paired regret against its model's ``optimal`` row (module docstring)."""
+    refs = {r.model: r for r in results if r.planner == "optimal"}
+    for r in results:
+        ref = refs.get(r.model)
+        if ref is None:
+            continue
+        n = min(len(r.returns), len(ref.returns))
+        r.regret, r.regret_ci = mean_ci(np.asarray(ref.returns[:n]) - np.asarray(r.returns[:n]))
+
+
+def summarise_probes(probes: Sequence[dict]) -> dict:
+    """B&B against exhaustive search on the probed beliefs (``ProbeConfig``).
+
+    ``uncertified``: decisions B&B had to search; per probe the exhaustive search at B&B's
+    depth (time ratio exhaustive / B&B, median, and the share of equal actions).
+    ``certified``: decisions B&B proved optimal at the root; the anytime exhaustive search at the
+    same budget: its median time and how often it found the proven action.
+    """
+    unc = [p for p in probes if not p["certified"]]
+    run = [p for p in unc if p["fixed_time"] is not None]
+    cert = [p for p in probes if p["certified"]]
+    out = {"probes": len(probes), "uncertified": len(unc), "fixed_run": len(run), "certified": len(cert)}
+    if run:
+        out.update(depth=float(np.mean([p["depth"] for p in run])),
+                   bnb_time=float(np.median([p["bnb_time"] for p in run])),
+                   fixed_time=float(np.median([p["fixed_time"] for p in run])),
+                   ratio=float(np.median([p["fixed_time"] / max(p["bnb_time"], 1e-9) for p in run])),
+                   fixed_agree=float(np.mean([p["fixed_action"] == p["bnb_action"] for p in run])))
+    if cert:
+        out.update(cert_bnb_time=float(np.median([p["bnb_time"] for p in cert])),
+                   cert_anytime_time=float(np.median([p["anytime_time"] for p in cert])),
+                   cert_anytime_depth=float(np.mean([p["anytime_depth"] for p in cert])),
+                   cert_anytime_agree=float(np.mean([p["anytime_action"] == p["bnb_action"] for p in cert])))
+    return out
+
+
+def _load_chunk(path: Path, plan: PeerPlan, chunk: PeerChunk) -> list[dict] | None:
     if not path.is_file():
         return None
     with open(path, "rb") as fh:
         entry = pickle.load(fh)  # our own file, written by _save_chunk
-    return entry["records"] if entry.get("signature") == plan.signature() else None
+    return entry["records"] if entry.get("signature") == plan.signature(chunk) else None
 
 
-def _save_chunk(path: Path, plan: PeerPlan, records: list[dict]) -> None:
+def _save_chunk(path: Path, plan: PeerPlan, chunk: PeerChunk, records: list[dict]) -> None:
     tmp = path.with_suffix(".tmp")
     with open(tmp, "wb") as fh:
-        pickle.dump({"signature": plan.signature(), "records": records,
+        pickle.dump({"signature": plan.signature(chunk), "records": records,
                      "finished": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}, fh)
     tmp.replace(path)  # atomic: a run killed mid-write leaves no half file
+
+
+#: Worker processes compute single-threaded: two jobs on two cores must not oversubscribe them
+#: (and a BLAS helper thread would be charged to the budget clock anyway).
+_SINGLE_THREAD_ENV = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
 
 
 def compare_peers(models: dict[str, POMDP], plan: PeerPlan, progress=None,
@@ -392,7 +300,7 @@ def compare_peers(models: dict[str, POMDP], plan: PeerPlan, progress=None,
     if cache_dir is not None:
         cache_dir.mkdir(parents=True, exist_ok=True)
         for c in chunks:
-            rec = _load_chunk(cache_dir / c.filename, plan)
+            rec = _load_chunk(cache_dir / c.filename, plan, c)
             if rec is not None:
                 done[c] = rec
                 if progress is not None:
@@ -402,21 +310,31 @@ def compare_peers(models: dict[str, POMDP], plan: PeerPlan, progress=None,
     def finish(c: PeerChunk, rec: list[dict]) -> None:
         done[c] = rec
         if cache_dir is not None:
-            _save_chunk(cache_dir / c.filename, plan, rec)
+            _save_chunk(cache_dir / c.filename, plan, c, rec)
         if progress is not None:
             progress.advance(c.stop - c.start, note=f"{c.model} {c.planner} {'' if c.budget is None else c.budget}")
 
     if plan.jobs <= 1:
         for c in todo:
             finish(c, run_chunk(c, models[c.model], plan))
-    else:
+    elif todo:
         ctx = multiprocessing.get_context("spawn")  # no forked BLAS/ROS state in the workers
-        with ProcessPoolExecutor(max_workers=plan.jobs, mp_context=ctx) as pool:
-            futures = {pool.submit(run_chunk, c, models[c.model], plan): c for c in todo}
-            for f in as_completed(futures):
-                finish(futures[f], f.result())
+        saved = {k: os.environ.get(k) for k in _SINGLE_THREAD_ENV}
+        os.environ.update(_SINGLE_THREAD_ENV)  # inherited by the spawned workers
+        try:
+            with ProcessPoolExecutor(max_workers=plan.jobs, mp_context=ctx) as pool:
+                futures = {pool.submit(run_chunk, c, models[c.model], plan): c for c in todo}
+                for f in as_completed(futures):
+                    finish(futures[f], f.result())
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
     results = []
     for m, p, b, _ in plan.cells(list(models)):
         rec = [r for c in chunks if (c.model, c.planner, c.budget) == (m, p, b) for r in done[c]]
-        results.append(aggregate(m, p, b, plan.steps, rec))
+        results.append(aggregate(m, p, b, plan.steps_for(m), rec))
+    add_regret(results)
     return results

@@ -21,16 +21,19 @@ from ...core.domains.comparison import Y_SPREAD, comparison_model
 from ...core.gate import build_planner
 from ...core.io.model_yaml import load_model
 from ...core.io.paths import shipped_model_path
-from ...core.model import POMDP
+from ...core.model import POMDP, ModelError
 from ...core.reference import alpha_vector_value_iteration, certified_actions, reference_policy
 from ..search import BenchConfig, run_search_bench
 from .figures import plot_fig1, plot_fig3, plot_looseness, plot_peers
 from .pbvi import pbvi, single_action_optimal
-from .peers import PeerPlan, compare_peers, pouct_available
+from .peer_policies import BUDGETED, UNBUDGETED, ProbeConfig, ReferenceSpec, gate_setup, grid_reference, mcts_available
+from .peers import PeerPlan, compare_peers
+from .pouct import exploration_constant, pouct_available, return_spread
 from .progress import Progress
 from .pruning import pruning_sweep
 from .report import write_report
 from .sampling import random_beliefs
+from .sanity import run_sanity
 
 
 @dataclass(frozen=True)
@@ -56,24 +59,44 @@ class ExperimentConfig:
     peers_steps: int
     peers_max_depth: int
     peers_chunk: int = 10  # episodes per unit of work (parallel jobs, resumable cache)
+    # (model, kind, param): the optimal reference of a model (peer_policies.ReferenceSpec)
+    peers_references: tuple[tuple[str, str, int], ...] = ()
+    peers_model_episodes: tuple[tuple[str, float, int], ...] = ()  # (model, budget, episodes) overrides
+    peers_model_steps: tuple[tuple[str, int], ...] = ()  # (model, steps) overrides
+    peers_probe_episodes: int = 20  # B&B vs exhaustive probes: first episodes of every B&B cell ...
+    peers_probe_steps: tuple[int, ...] = (5, 25)  # ... at these decisions
+    peers_sanity_models: tuple[str, ...] = ("tracking_s3_info",)
+    peers_sanity_reachable: int = 12  # reachable check beliefs besides the vertices and the centre
     seed: int = 0
 
+
+#: The models of the peer comparison: the paper's (old) ones and the ones where lookahead pays.
+#: INTEGRATION POINT (branch i12m): ``perimeter_s3`` / ``perimeter_s8`` are shipped by that
+#: branch; until it is merged they are missing and the comparison says so and skips them.
+PEER_MODELS = ("tracking_s3_info", "tracking_s8_info", "perimeter_s3", "perimeter_s8")
+#: Their optimal references (S = 3: grid policy iteration; S = 8: deep exhaustive search).
+PEER_REFERENCES = (("tracking_s3_info", "grid", 40), ("tracking_s8_info", "search", 4),
+                   ("perimeter_s3", "grid", 40), ("perimeter_s8", "search", 4))
 
 FULL = ExperimentConfig(
     quick=False, fig1_grid=40, fig1_plot_grid=60, table2_beliefs=100, table2_depths=(2, 3, 4, 5, 6),
     table2_depth6_beliefs=20, model_check_states=(4, 5), model_check_actions=4, model_check_horizon=1500,
     table3_states=(4, 8, 16, 32, 64, 128, 256), table3_actions=(4, 8, 16, 32, 64), table3_beliefs=500,
     table3_variants=(("feasible", 256), ("tight", 64)), looseness_max_states=16,
-    peers_models=("tracking_s3_info", "tracking_s8_info"), peers_budgets=(0.05, 0.2, 1.0),
-    peers_cheap_episodes=100, peers_episodes=(100, 100, 100), peers_steps=50, peers_max_depth=12,
+    peers_models=PEER_MODELS, peers_budgets=(0.01, 0.05, 0.2, 1.0),
+    peers_cheap_episodes=100, peers_episodes=(100, 100, 100, 100), peers_steps=50, peers_max_depth=12,
+    peers_references=PEER_REFERENCES,
 )
 
 QUICK = ExperimentConfig(
     quick=True, fig1_grid=10, fig1_plot_grid=20, table2_beliefs=5, table2_depths=(2, 3, 4),
     table2_depth6_beliefs=2, model_check_states=(4,), model_check_actions=4, model_check_horizon=200,
     table3_states=(4, 8), table3_actions=(4, 8), table3_beliefs=50, table3_variants=(("feasible", 8), ("tight", 8)),
-    looseness_max_states=4, peers_models=("tracking_s3_info", "tracking_s8_info"), peers_budgets=(0.01, 0.05),
+    looseness_max_states=4, peers_models=PEER_MODELS, peers_budgets=(0.01, 0.05),
     peers_cheap_episodes=3, peers_episodes=(2, 2), peers_steps=8, peers_max_depth=6, peers_chunk=2,
+    peers_references=(("tracking_s3_info", "grid", 10), ("tracking_s8_info", "search", 2), ("perimeter_s3", "grid", 10),
+                      ("perimeter_s8", "search", 2)),
+    peers_probe_episodes=1, peers_probe_steps=(3,), peers_sanity_reachable=4,
 )
 
 
@@ -192,23 +215,78 @@ def run_table3(cfg: ExperimentConfig, progress: bool) -> dict:
                       "max_S": max_S} for variant, max_S in cfg.table3_variants}
 
 
-def run_peers(cfg: ExperimentConfig, progress: bool, cache: Path, jobs: int = 1, resume: bool = False) -> dict:
-    """The peer comparison; finished chunks of episodes go to ``cache/peers-chunks`` and are
-    reused only with ``resume`` (otherwise that folder is emptied first)."""
-    with_pouct = pouct_available()
-    plan = PeerPlan(budgets=cfg.peers_budgets, episodes_cheap=cfg.peers_cheap_episodes,
+def peer_plan(cfg: ExperimentConfig, jobs: int = 1, with_pouct: bool = True, with_mcts: bool = True) -> PeerPlan:
+    """The :class:`PeerPlan` of a configuration (POUCT / MCTS left out when not available)."""
+    planners = tuple(p for p in BUDGETED + UNBUDGETED
+                     if (p != "pouct" or with_pouct) and (p != "mcts" or with_mcts))
+    model_episodes: dict = {}
+    for m, b, n in cfg.peers_model_episodes:
+        model_episodes.setdefault(m, {})[b] = n
+    return PeerPlan(budgets=cfg.peers_budgets, planners=planners, episodes_cheap=cfg.peers_cheap_episodes,
                     episodes_by_budget=dict(zip(cfg.peers_budgets, cfg.peers_episodes, strict=True)),
-                    steps=cfg.peers_steps, max_depth=cfg.peers_max_depth, seed=1000 + cfg.seed, with_pouct=with_pouct,
+                    model_episodes=model_episodes, steps=cfg.peers_steps, model_steps=dict(cfg.peers_model_steps),
+                    max_depth=cfg.peers_max_depth, seed=1000 + cfg.seed,
+                    references={m: ReferenceSpec(kind, n) for m, kind, n in cfg.peers_references},
+                    probes=ProbeConfig(episodes=cfg.peers_probe_episodes, steps=cfg.peers_probe_steps),
                     chunk=cfg.peers_chunk, jobs=jobs)
+
+
+def available_models(names: tuple[str, ...]) -> tuple[dict[str, POMDP], list[str]]:
+    """The shipped models among ``names`` and the names that are not shipped (yet)."""
+    found, missing = {}, []
+    for name in names:
+        try:
+            found[name] = shipped_model(name)
+        except ModelError:
+            missing.append(name)
+    return found, missing
+
+
+def model_facts(model: POMDP, steps: int, reference: ReferenceSpec | None) -> dict:
+    """What the report states per model: size, discount, rho range, the truncation of the
+    ``steps``-step return and, with a grid reference, the range of ``V*`` over the simplex."""
+    B = np.vstack([np.eye(model.S), random_beliefs(model.S, 2000, np.random.default_rng(0))])
+    rho = model.rho(B)
+    facts = {"S": model.S, "A": model.A, "Z": model.Z, "gamma": model.gamma, "steps": steps,
+             "rho_min": float(rho.min()), "rho_max": float(rho.max()), "tail": float(model.gamma ** steps),
+             "value_range_bound": float((rho.max() - rho.min()) / (1 - model.gamma)), "v_range": None,
+             "reference": None if reference is None else reference.describe()}
+    if reference is not None and reference.kind == "grid":
+        V = grid_reference(model, reference.param).fine.V
+        facts["v_range"] = float(V.max() - V.min())
+    return facts
+
+
+def run_peers(cfg: ExperimentConfig, progress: bool, cache: Path, jobs: int = 1, resume: bool = False) -> dict:
+    """The sanity check and the peer comparison; finished chunks of episodes go to
+    ``cache/peers-chunks`` and are reused only with ``resume`` (otherwise that folder is emptied first)."""
+    with_pouct, with_mcts = pouct_available(), mcts_available()
+    plan = peer_plan(cfg, jobs, with_pouct, with_mcts)
     chunk_dir = cache / "peers-chunks"
     if not resume and chunk_dir.is_dir():
         for f in chunk_dir.glob("*.pickle"):
             f.unlink()
-    models = {name: shipped_model(name) for name in cfg.peers_models}
+    models, missing = available_models(cfg.peers_models)
     t0 = time.perf_counter()
-    with Progress("peers", plan.total_units(len(models)), enabled=progress) as bar:
+    sanity_models = {m: models[m] for m in cfg.peers_sanity_models if m in models}
+    if progress:
+        print(f"  peers: sanity check on {', '.join(sanity_models)} ...", file=sys.stderr, flush=True)
+    sanity = run_sanity(sanity_models, plan.planners, plan.budgets, max_depth=plan.max_depth,
+                        reachable=cfg.peers_sanity_reachable, seed=cfg.seed,
+                        references={m: plan.reference_for(m) for m in sanity_models}, pouct=plan.pouct,
+                        pouct_defaults=with_pouct)
+    sanity_time = time.perf_counter() - t0
+    with Progress("peers", plan.total_units(list(models)), enabled=progress) as bar:
         results = compare_peers(models, plan, progress=bar, cache_dir=chunk_dir)
-    return {"results": results, "plan": asdict(plan), "pouct": with_pouct, "time": time.perf_counter() - t0}
+    facts = {m: model_facts(models[m], plan.steps_for(m), plan.reference_for(m)) for m in models}
+    for m, f in facts.items():
+        f["pouct_c"] = exploration_constant(models[m], plan.pouct)
+        f["pouct_spread"] = return_spread(models[m], plan.pouct.rollout)
+        gate = gate_setup(models[m])
+        f["gate"] = gate.describe()
+    return {"results": results, "plan": asdict(plan), "pouct": with_pouct, "mcts": with_mcts, "missing": missing,
+            "sanity": sanity, "sanity_time": sanity_time, "facts": facts, "models": list(models),
+            "time": time.perf_counter() - t0}
 
 
 SECTIONS = ("fig1", "fig3", "table2", "model_check", "table3", "peers")
@@ -271,9 +349,8 @@ def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = T
         data["looseness_image"] = plot_looseness(img / "fig4_looseness.png", t3["cells"],
                                                  data["configs"]["table3"]["table3_actions"]).name
     if "peers" in data:
-        pc = data["configs"]["peers"]
-        data["peers_image"] = plot_peers(img / "peers_return_vs_budget.png", data["peers"]["results"],
-                                         pc["peers_budgets"], pc["peers_models"]).name
+        data["peers_image"] = plot_peers(img / "peers_return_regret.png", data["peers"]["results"],
+                                         data["peers"]["models"]).name
     write_report(output / "RESULTS.md", data)
     return data
 
