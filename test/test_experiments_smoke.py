@@ -1,6 +1,6 @@
 """Smoke test of `pomdp-planner bench all --quick` (issue 6): the whole pipeline at toy sizes.
 
-Runs every experiment once into a temporary directory (well under 90 s on 2 cores) and checks
+Runs every experiment once into a temporary directory (about a minute on 2 cores) and checks
 what a reader of docs/RESULTS.md relies on: all files are produced, every table is complete,
 numbers are in their valid ranges (percentages in [0, 100], min <= avg <= max, confidence
 intervals contain their means, lower <= upper), the theory holds where we can check it
@@ -24,6 +24,8 @@ if os.environ.get("POMDP_PLANNER_REQUIRE_INSTALLED") == "1":
 else:
     pytest.importorskip("matplotlib")
 
+from pomdp_planner.bench.experiments.peer_policies import mcts_available
+from pomdp_planner.bench.experiments.pouct import pouct_available
 from pomdp_planner.bench.experiments.runner import QUICK, run_all
 from pomdp_planner.cli import main
 
@@ -44,7 +46,7 @@ def test_files_are_produced(quick_run):
     assert "quick" in text.lower()  # a quick report says so
     images = sorted(p.name for p in (out / "img").glob("*.png"))
     assert images == ["fig1_policy_bounds_s3.png", "fig3_rewards_s2.png", "fig4_looseness.png",
-                      "peers_return_vs_budget.png"]
+                      "peers_return_regret.png"]
     for name in images:
         assert f"img/{name}" in text
 
@@ -123,25 +125,75 @@ def test_model_check_rows(quick_run):
 
 def test_peer_results_valid(quick_run):
     _, data = quick_run
-    results = data["peers"]["results"]
-    planners = {r.planner for r in results}
-    assert {"bnb", "exhaustive", "greedy", "lower-bound", "random"} <= planners
+    peers = data["peers"]
+    results = peers["results"]
+    expected = {"bnb", "exhaustive", "greedy", "lower-bound", "upper-bound", "random", "optimal"}
+    if pouct_available():
+        expected.add("pouct")
+    if mcts_available():
+        expected.add("mcts")
+    for m in peers["models"]:  # every planner on every model, every budgeted one at every budget
+        rows = [r for r in results if r.model == m]
+        assert {r.planner for r in rows} == expected
+        for p in ("bnb", "exhaustive", "pouct", "mcts"):
+            if p in expected:
+                assert sorted(r.budget for r in rows if r.planner == p) == sorted(QUICK.peers_budgets)
+    assert set(peers["models"]) | set(peers["missing"]) == set(QUICK.peers_models)
+    assert {"tracking_s3_info", "tracking_s8_info"} <= set(peers["models"])
     for r in results:
+        assert all(np.isfinite(x) for x in (r.mean, *r.ci))
         assert r.ci[0] <= r.mean <= r.ci[1]
         assert len(r.returns) == r.episodes >= 2
         assert r.mean == pytest.approx(np.mean(r.returns))
-        assert r.mean_time >= 0.0 and r.max_time >= r.mean_time
+        assert 0.0 <= r.time_median <= r.time_p99 and 0.0 <= r.wall_median <= r.wall_p99
         if r.planner in ("bnb", "exhaustive"):
             assert 1.0 <= r.mean_depth <= QUICK.peers_max_depth
-        if r.planner == "pouct":  # depth of its sampled tree, capped by its max_depth 20
-            assert 1.0 <= r.mean_depth <= 20 and r.mean_sims >= 1
+        if r.planner in ("pouct", "mcts"):  # depth of a sampled tree, with the simulations per decision
+            assert r.mean_depth >= 1.0 and r.mean_sims >= 1
         if r.certified_fraction is not None:
             assert 0.0 <= r.certified_fraction <= 1.0
-    # same seeds, same world: B&B and exhaustive search at equal depth pick the same action when
-    # the bounds are valid, so on S = 3 (every decision certified) they must return the same.
+        # regret columns: present (and finite) exactly on the models with an optimal reference
+        has_ref = any(x.planner == "optimal" for x in results if x.model == r.model)
+        assert (r.regret is not None) == has_ref
+        if has_ref:
+            assert all(np.isfinite(x) for x in (r.regret, *r.regret_ci))
+            assert r.regret_ci[0] <= r.regret <= r.regret_ci[1]
+    assert all(r.regret == 0.0 for r in results if r.planner == "optimal")
+    # on S = 3 every B&B decision is certified by the bounds (root bounds agree on the reached beliefs)
     s3 = {(r.planner, r.budget): r for r in results if r.model == "tracking_s3_info"}
     for b in QUICK.peers_budgets:
         assert s3[("bnb", b)].certified_fraction == 1.0
+    assert any(r.probes for r in results if r.planner == "bnb")  # B&B vs exhaustive probes were taken
+
+
+def test_sanity_checks_pass_and_are_reported(quick_run):
+    out, data = quick_run
+    sanity = data["peers"]["sanity"]
+    assert "tracking_s3_info" in sanity["models"]
+    checked = {(r.planner, r.budget) for r in sanity["results"] if r.label == r.planner}
+    planners = {r.planner for r in data["peers"]["results"]}
+    for p in planners:  # every planner of the comparison was checked, the budgeted ones at every budget
+        budgets = QUICK.peers_budgets if p in ("bnb", "exhaustive", "pouct", "mcts") else (None,)
+        assert all((p, b) in checked for b in budgets), p
+    for r in sanity["results"]:
+        assert r.checked >= 3 + 1  # vertices and centre at least
+        if r.required:
+            assert r.passed, (r.label, r.budget, r.correct, r.checked)
+    text = (out / "RESULTS.md").read_text()
+    assert "### Table S: sanity check" in text and "**FAIL**" not in text
+    assert ("POUCT was skipped" in text) != pouct_available()
+
+
+def test_when_to_use_what_cites_a_table_in_every_bullet(quick_run):
+    out, _ = quick_run
+    text = (out / "RESULTS.md").read_text()
+    section = text[text.index("## When to use what"):]
+    bullets = [line for line in section.splitlines() if line.lstrip().startswith("- ")]
+    assert bullets
+    for line in bullets:
+        assert re.search(r"Table (P\d+|S|X|III)", line), line
+        assert re.search(r"\d", line), line
+    assert "optimises a different objective" not in text  # the old, unsupported claim about POUCT is gone
 
 
 def test_cli_bench_all_quick_report_only(quick_run, capsys):
