@@ -84,6 +84,8 @@ class PeerResult:
     max_depth: int | None
     certified_fraction: float | None
     mean_sims: float | None = None
+    cpu_seconds: float = 0.0  # the cell's whole cost: episodes, simulator and probes (CPU / wall)
+    wall_seconds: float = 0.0
     regret: float | None = None
     regret_ci: tuple[float, float] | None = None
     probes: list[dict] = field(default_factory=list)
@@ -195,6 +197,7 @@ def run_chunk(chunk: PeerChunk, model: POMDP, plan: PeerPlan) -> list[dict]:
     records = []
     steps = plan.steps_for(chunk.model)
     for k in range(chunk.start, chunk.stop):
+        c0, w0 = time.process_time(), time.perf_counter()
         probes = plan.probes if k < plan.probes.episodes else None
         pol = make_peer(chunk.planner, model, chunk.budget, max_depth=plan.max_depth, seed=plan.seed + 7919 * k,
                         reference=plan.reference_for(chunk.model), pouct=plan.pouct, probes=probes)
@@ -203,7 +206,8 @@ def run_chunk(chunk: PeerChunk, model: POMDP, plan: PeerPlan) -> list[dict]:
                         "state_return": float(tr.discounted_state_return), "cpu": list(pol.cpu),
                         "wall": list(pol.wall), "depths": list(pol.depths), "certified": int(pol.certified),
                         "sims": list(pol.sims), "certifies": bool(pol.certifies),
-                        "probes": list(pol.probe_records) if isinstance(pol, SearchPeer) else []})
+                        "probes": list(pol.probe_records) if isinstance(pol, SearchPeer) else [],
+                        "episode_cpu": time.process_time() - c0, "episode_wall": time.perf_counter() - w0})
     return records
 
 
@@ -226,7 +230,10 @@ def aggregate(model_label: str, planner_label: str, budget: float | None, steps:
         wall_median=float(np.median(wall)), wall_p99=float(np.percentile(wall, 99)),
         mean_depth=float(np.mean(depths)) if depths else None, max_depth=int(max(depths)) if depths else None,
         certified_fraction=certified / max(cpu.size, 1) if certifies else None,
-        mean_sims=float(np.mean(sims)) if sims else None, probes=[p for r in records for p in r.get("probes", [])],
+        mean_sims=float(np.mean(sims)) if sims else None,
+        cpu_seconds=float(sum(r.get("episode_cpu", 0.0) for r in records)),
+        wall_seconds=float(sum(r.get("episode_wall", 0.0) for r in records)),
+        probes=[p for r in records for p in r.get("probes", [])],
         returns=[float(x) for x in returns], state_returns=[float(r["state_return"]) for r in records])
 
 

@@ -65,7 +65,7 @@ class ExperimentConfig:
     peers_model_steps: tuple[tuple[str, int], ...] = ()  # (model, steps) overrides
     peers_probe_episodes: int = 20  # B&B vs exhaustive probes: first episodes of every B&B cell ...
     peers_probe_steps: tuple[int, ...] = (5, 25)  # ... at these decisions
-    peers_sanity_models: tuple[str, ...] = ("tracking_s3_info",)
+    peers_sanity_models: tuple[str, ...] = ("tracking_s3_info", "perimeter_s3")
     peers_sanity_reachable: int = 12  # reachable check beliefs besides the vertices and the centre
     seed: int = 0
 
