@@ -61,16 +61,17 @@ from ..core import bounds as bounds_module
 from ..core.bounds import solve_bounds
 from ..core.domains.perimeter import PRESETS, perimeter_model, preset_model
 from ..core.io.model_yaml import load_model, model_to_dict
-from ..core.model import POMDP
+from ..core.io.paths import shipped_model_path
+from ..core.model import POMDP, ModelError
 from ..core.myopic import MyopicBounds
 from ..core.reference import ReferencePolicy, reference_policy
-from ..core.search import Planner
+from ..core.search import BoundPolicy, Planner
 from ..core.simulate import MyopicPolicy, simulate
 from ..core.structure import check_assumptions
 from ..experiments.peers import mean_ci
 
-ROOT = Path(__file__).resolve().parents[2]
-MODELS_DIR = ROOT / "config" / "models"
+#: Where ``--write-models`` writes: the source tree's ``config/models``.
+MODELS_DIR = Path(__file__).resolve().parents[2] / "config" / "models"
 #: Episodes are long enough that the discounted tail ``gamma^steps`` is at most this.
 TAIL = 1e-3
 
@@ -138,9 +139,6 @@ class GridReferencePolicy:
         self.decisions = 0
         self.certified = 0
 
-    def q_values(self, B: np.ndarray) -> np.ndarray:
-        return self.solution.q_values(B)
-
     def act(self, belief: np.ndarray) -> int:
         q = self.solution.q_values(np.asarray(belief, dtype=float)[None, :])[0]
         top2 = np.sort(q)[-2:]
@@ -168,21 +166,14 @@ class SearchReferencePolicy:
         return int(res.action)
 
 
-class BoundPolicyAdapter:
-    """The myopic lower or upper bound policy of Theorem 2 (``MyopicBounds.lower/upper``)."""
-
-    def __init__(self, bounds: MyopicBounds, which: str):
-        self.fn = getattr(bounds, which)
-
-    def act(self, belief: np.ndarray) -> int:
-        return int(self.fn(np.asarray(belief, dtype=float)[None, :])[0])
-
-
 # ---------------------------------------------------------------- model sources
 def load_shipped(name: str) -> POMDP:
-    """A shipped model by name (``config/models/<name>.yaml``), else the preset itself."""
-    path = MODELS_DIR / f"{name}.yaml"
-    return load_model(path) if path.exists() else preset_model(name)
+    """A shipped model by name (``config/models/<name>.yaml``, installed or in the source tree),
+    else the preset itself (before ``--write-models`` has written the file)."""
+    try:
+        return load_model(shipped_model_path(name))
+    except ModelError:
+        return preset_model(name)
 
 
 # -------------------------------------------------------- episodes (per process)
@@ -234,7 +225,7 @@ def build_policy(spec: PolicySpec, model_key: str, grid_n: int, constant: str = 
         b = _bounds(model_key, constant)
         if b is None:
             raise ValueError(f"{model_key}: bound LP infeasible, no {spec.kind} policy")
-        return BoundPolicyAdapter(b, spec.kind)
+        return BoundPolicy(b, spec.kind)
     raise ValueError(f"unknown policy kind {spec.kind!r}")
 
 
@@ -551,10 +542,10 @@ def _sensing_only(S: int) -> POMDP:
 
 
 def _tracking(S: int) -> POMDP:
-    return load_model(MODELS_DIR / f"tracking_s{S}_info.yaml")
+    return load_model(shipped_model_path(f"tracking_s{S}_info"))
 
 
-#: name -> (description, builder(S) -> POMDP). The last one is the shipped family.
+#: name -> builder(S) -> POMDP (described in :data:`FAMILY_NOTES`). The last one is the shipped family.
 FAMILIES: dict[str, Callable[[int], POMDP]] = {
     "tracking": _tracking,
     "drift_walk": _drift_walk,

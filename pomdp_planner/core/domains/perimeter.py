@@ -29,20 +29,24 @@ the tests): the Gaussian kernel is TP2 and integrating a TP2 kernel over ordered
 keeps it TP2 (A1); ``c_a`` increasing makes every predicted observation distribution move up
 with ``a`` (A3). (A2) is the binding constraint. With one sensor for all priorities, (A2) is
 exactly "``b P[a+1]`` is MLR-above ``b P[a]`` for every belief ``b``" (the observation
-likelihood cancels in the likelihood ratios). Here ``b P[a+1]`` is ``b P[a]`` shifted up by
-``(1 - lambda)(c_{a+1} - c_a)`` (away from the clipped ends), and a shift family is MLR
-ordered iff its density is log-concave. ``b P[a]`` is a Gaussian mixture with component means
+likelihood, positive here, cancels in the likelihood ratios). Here ``b P[a+1]`` is the band
+discretisation of the density behind ``b P[a]`` shifted up by ``(1 - lambda)(c_{a+1} - c_a)``,
+and a shift family is MLR ordered iff its density is log-concave. ``b P[a]`` is a Gaussian mixture with component means
 spread over ``lambda (x_{S-1} - x_0)``; ``(log g)'' = (Var(mean | x) - sigma^2) / sigma^4``, so
 every such mixture is log-concave iff that spread is at most ``2 sigma``:
 
     lambda <= 2 sigma / (x_{S-1} - x_0)          (:func:`inertia_limit`)
 
-in the continuous idealisation (clipping and discretisation move the exact edge a little;
-``test/test_perimeter_domain.py`` checks it against the exact checker). A persistent target
-(``lambda`` near 1) with little manoeuvre noise, the case in which information stays useful
-for long, is therefore *outside* the assumption class whenever the priority shifts the
-target's motion; the lookahead that pays inside it is the consequence of the action on
-where the target goes next and what the next decision will know. A priority-dependent
+This is sufficient for the banded model too (integrating the ordered pair of densities over
+ordered bands, the clipped end bands included, keeps the likelihood-ratio order), for any
+``Z``, set points and shared sensor; it is necessary only in the continuous idealisation and
+for small set-point spacing (discretisation moves the exact edge up at small ``S``; measured in
+docs/MODEL_SEARCH.md; ``test/test_perimeter_domain.py`` checks sufficiency by brute force and
+against the exact checker). A persistent target (``lambda`` near 1) with little manoeuvre
+noise, the case in which information stays useful for long, is therefore *outside* the
+assumption class whenever the priority shifts the target's motion; the lookahead that pays
+inside it is the consequence of the action on where the target goes next and what the next
+decision will know. A priority-dependent
 sensor adds the factor ``O[a,j,z] O[a+1,j+1,z] / (O[a,j+1,z] O[a+1,j,z])`` to (A2), which is
 below 1 for high readings when the lower priority's sensor is blurrier: only small sharpness
 differences fit (measured in docs/MODEL_SEARCH.md).
