@@ -64,11 +64,12 @@ from ..core.io.model_yaml import load_model, model_to_dict
 from ..core.io.paths import shipped_model_path
 from ..core.model import POMDP, ModelError
 from ..core.myopic import MyopicBounds
+from ..core.policies import BoundPolicy, MyopicPolicy
 from ..core.reference import ReferencePolicy, reference_policy
-from ..core.search import BoundPolicy, Planner
-from ..core.simulate import MyopicPolicy, simulate
+from ..core.search import Planner
+from ..core.simulate import simulate
 from ..core.structure import check_assumptions
-from ..experiments.peers import mean_ci
+from .experiments.peers import mean_ci
 
 #: Where ``--write-models`` writes: the source tree's ``config/models``.
 MODELS_DIR = Path(__file__).resolve().parents[2] / "config" / "models"
