@@ -47,11 +47,12 @@ def _counts_reach(rec, key, n, prefix="belief_filter"):
 
 @pytest.fixture
 def perfect_sensor_model(tmp_path):
-    """S = Z = 2, static state, perfect sensor: observation 1 is impossible under the prior [1, 0]."""
+    """S = 2, static state, perfect sensor: observation 1 is impossible under the prior [1, 0];
+    observation 2 is impossible in every state (it contradicts the model)."""
     doc = {
-        "name": "perfect_sensor", "discount": 0.9, "states": 2, "actions": 2, "observations": 2,
+        "name": "perfect_sensor", "discount": 0.9, "states": 2, "actions": 2, "observations": 3,
         "transition": [[[1, 0], [0, 1]], [[1, 0], [0, 1]]],
-        "observation": [[[1, 0], [0, 1]], [[0.5, 0.5], [0.5, 0.5]]],
+        "observation": [[[1, 0, 0], [0, 1, 0]], [[0.5, 0.5, 0], [0.5, 0.5, 0]]],
         "reward": [[0, 0], [0, 0]],
     }
     path = tmp_path / "perfect.yaml"
@@ -67,7 +68,7 @@ def test_filter_bad_observations_counted_and_node_keeps_running(harness, perfect
     h.start()
     assert h.wait_until(lambda: len(rec.beliefs) >= 1)  # the latched prior (epoch 0)
     # out of range observation, out of range action, wrong length, wrong label: dropped
-    pub.publish(encode_observation(1, 1, 2))
+    pub.publish(encode_observation(1, 1, 3))
     pub.publish(encode_observation(1, 3, 0))
     pub.publish(Int64MultiArray(data=[1, 1]))
     bad_label = encode_observation(1, 1, 0)
@@ -76,12 +77,13 @@ def test_filter_bad_observations_counted_and_node_keeps_running(harness, perfect
     assert h.wait_until(_counts_reach(rec, "out_of_range_observations", 2), timeout=5)
     assert h.wait_until(_counts_reach(rec, "malformed_messages", 2), timeout=5)
     assert [b.epoch for b in rec.decoded_beliefs(2)] == [0]  # nothing published from bad input
-    # impossible observation: recovery = the predicted belief, published for that epoch
+    # impossible observation: the filter restarts from the uniform prior pushed through the
+    # transition, then applies the reading: [0.5, 0.5] * [0, 1] -> [0, 1] (core/filter.py)
     pub.publish(encode_observation(1, 1, 1))
     assert h.wait_until(lambda: len(rec.beliefs) >= 2)
     b1 = rec.decoded_beliefs(2)[-1]
     assert b1.epoch == 1
-    np.testing.assert_allclose(b1.belief, [1.0, 0.0])
+    np.testing.assert_allclose(b1.belief, [0.0, 1.0])
     assert h.wait_until(_counts_reach(rec, "impossible_observations", 1), timeout=5)
     assert any(d["_level"] == DiagnosticStatus.WARN for d in rec.diag_values("belief_filter"))
     # still running: a possible observation of the next epoch is applied normally
@@ -89,7 +91,14 @@ def test_filter_bad_observations_counted_and_node_keeps_running(harness, perfect
     assert h.wait_until(lambda: len(rec.beliefs) >= 3)
     b2 = rec.decoded_beliefs(2)[-1]
     assert b2.epoch == 2
-    np.testing.assert_allclose(b2.belief, [1.0, 0.0])
+    np.testing.assert_allclose(b2.belief, [0.0, 1.0])
+    # a reading no state can produce contradicts the model: dropped, the prediction published
+    pub.publish(encode_observation(3, 1, 2))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 4)
+    b3 = rec.decoded_beliefs(2)[-1]
+    assert b3.epoch == 3
+    np.testing.assert_allclose(b3.belief, [0.0, 1.0])
+    assert h.wait_until(_counts_reach(rec, "contradicting_observations", 1), timeout=5)
 
 
 def test_filter_reordered_delayed_duplicated_delivery_pairs_by_carried_action(harness):

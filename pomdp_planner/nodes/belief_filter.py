@@ -12,49 +12,41 @@ Topics (relative names, remappable):
 
 Pairing by design: an observation is applied with the action *it carries* (the action the
 simulator or sensor was under), never with "the last action seen", and epochs are applied in
-order (``epoch_buffer.EpochBuffer``: out-of-order readings wait, duplicates are dropped, gaps
-are reported). One epoch = prediction once with the carried action (Eq. 1), then one update
-(Eq. 2) per sensor reading of that epoch with that sensor's observation model. The belief of
-epoch ``t`` is published after epoch ``t`` is applied; the prior is epoch 0.
+order (``core.epoch_buffer.EpochBuffer``: out-of-order readings wait, duplicates are dropped,
+gaps are reported). Each released epoch goes to the core's epoch filter
+(``core.filter.EpochFilter``, the one ``simulate`` uses): prediction once with the carried
+action (Eq. 1), then one update (Eq. 2) per sensor reading of that epoch with that sensor's
+observation model, its recovery rule and its gap rule. The belief of epoch ``t`` is published
+after epoch ``t`` is applied; the prior is epoch 0. This node only decodes, calls the core,
+encodes, and counts.
 
 Recovery and bad input (each logged and counted in diagnostics; the node keeps running):
 
-* impossible reading (``eta = 0``, core raises ``ImpossibleObservation``): the reading is
-  discarded, the belief stays the prediction of that epoch (updated with the epoch's other,
-  possible readings; for the first reading that is the predicted belief carried by the
-  exception);
+* impossible reading (``eta = 0`` under the belief): the filter restarts from the uniform prior
+  pushed through the epoch's transition and applies the reading (``impossible_observations``);
+  a reading impossible even then contradicts the model and is dropped
+  (``contradicting_observations``); the rule and its reasons: ``core/filter.py``;
 * out-of-range observation or action, wrong length or label: message dropped;
 * a lost epoch (gap): predicted with the commanded action of that epoch if the ``action`` topic
-  told us, otherwise not predicted at all; an epoch missing some sensors is applied with the
-  readings it has after ``epoch_timeout``;
-* a non-finite or off-simplex belief is never published (defensive; cannot arise from valid
-  readings), the previous one is kept.
+  told us, otherwise held; an epoch missing some sensors is applied with the readings it has
+  after ``epoch_timeout``;
+* a belief that fails the core's simplex check is never published (defensive; cannot arise
+  from valid readings), the previous one is kept.
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
-
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 
-from ..core.belief import ImpossibleObservation, predict, update
-from ..core.model import POMDP, action_of_priority
+from ..core.belief import BeliefError
+from ..core.epoch_buffer import EpochBuffer, EpochReadings
+from ..core.filter import EpochFilter
+from ..core.model import action_of_priority, priority_of
 from . import common
-from .epoch_buffer import EpochBuffer, EpochReadings
 from .messages import MessageError, OutOfRangeError, decode_action, decode_observation, encode_belief
-
-#: How many commanded actions (by epoch) are remembered for gap handling and cross-checks.
-ACTION_MEMORY = 256
-
-
-def sensor_model(model: POMDP, O: np.ndarray) -> POMDP:
-    """A model with identity transitions and sensor ``O``: the core's Eq. 2 without prediction."""
-    eye = np.broadcast_to(np.eye(model.S), (model.A, model.S, model.S))
-    return POMDP(P=eye, O=O, r=np.zeros((model.S, model.A)), gamma=0.0, name=f"{model.name}/sensor")
 
 
 class BeliefFilter(Node):
@@ -85,16 +77,16 @@ class BeliefFilter(Node):
             raise common.NodeConfigError(f"observation_topics: need distinct topics, got {self.topics}")
         self.sensor_O = common.load_observation_models(
             self.model, common.optional_array(self, "observation_model_files"), len(self.topics))
-        self.sensor_models = [sensor_model(self.model, O) for O in self.sensor_O]
+        self.filter = EpochFilter(self.model, self.sensor_O)
         self.belief = common.initial_distribution(self.model, common.optional_array(self, "initial_distribution"))
         self.epoch = 0
         self.buffer = EpochBuffer(len(self.topics), next_epoch=1,
                                   timeout=self.get_parameter("epoch_timeout").value,
                                   max_pending=self.get_parameter("max_pending_epochs").value)
-        self.commanded: OrderedDict[int, int] = OrderedDict()
         self.counts = {k: 0 for k in (
-            "readings", "impossible_observations", "out_of_range_observations", "malformed_messages",
-            "duplicates", "conflicts", "gaps", "incomplete_epochs", "action_mismatches", "bad_beliefs")}
+            "readings", "impossible_observations", "contradicting_observations", "out_of_range_observations",
+            "malformed_messages", "duplicates", "conflicts", "gaps", "incomplete_epochs", "action_mismatches",
+            "bad_beliefs")}
         self.last_warning = ""
         self._reported_problems = 0
 
@@ -135,13 +127,11 @@ class BeliefFilter(Node):
         except MessageError as exc:
             self._warn("malformed_messages", f"ignored action: {exc}")
             return
-        self.commanded[act.epoch] = act.priority
-        while len(self.commanded) > ACTION_MEMORY:
-            self.commanded.popitem(last=False)
+        self.buffer.command(act.epoch, action_of_priority(act.priority, self.model.A))
 
     @common.callback
     def _on_observation(self, sensor: int, msg: Int64MultiArray) -> None:
-        Z = self.sensor_O[sensor].shape[2]
+        Z = self.filter.num_observations(sensor)
         try:
             obs = decode_observation(msg, self.model.A, Z)
         except MessageError as exc:
@@ -149,7 +139,8 @@ class BeliefFilter(Node):
             self._warn(counter, f"{self.topics[sensor]}: ignored {exc}")
             return
         self.counts["readings"] += 1
-        result = self.buffer.add(sensor, obs.epoch, obs.priority, obs.observation)
+        result = self.buffer.add(sensor, obs.epoch, action_of_priority(obs.priority, self.model.A),
+                                 obs.observation)
         if result == "duplicate":
             self.counts["duplicates"] += 1
         elif result == "conflict":
@@ -164,42 +155,37 @@ class BeliefFilter(Node):
             self._apply_epoch(entry)
 
     def _apply_epoch(self, entry: EpochReadings) -> None:
-        m = self.model
-        priority = entry.priority
-        if priority is None:
-            priority = self.commanded.get(entry.epoch)
+        action = entry.action_to_apply
+        if entry.gap:
             self._warn("gaps", f"epoch {entry.epoch} lost (no reading); " + (
-                f"predicting with the commanded priority {priority}" if priority else
-                "action unknown, belief not predicted"))
+                "action unknown, belief held" if action is None else
+                f"predicting with the commanded priority {priority_of(action)}"))
         else:
-            commanded = self.commanded.get(entry.epoch)
-            if commanded is not None and commanded != priority:
+            if entry.mismatch:
                 # informational: expected in the simulator's timer mode, which numbers epochs itself
                 self.counts["action_mismatches"] += 1
-                self.get_logger().debug(f"epoch {entry.epoch}: observations taken under priority {priority}, "
-                                        f"commanded {commanded}; using {priority}")
+                self.get_logger().debug(f"epoch {entry.epoch}: observations taken under priority "
+                                        f"{priority_of(entry.action)}, commanded {priority_of(entry.commanded)}; "
+                                        f"using {priority_of(entry.action)}")
             if not entry.complete:
                 missing = [self.topics[k] for k in range(len(self.topics)) if k not in entry.readings]
                 self._warn("incomplete_epochs", f"epoch {entry.epoch}: no reading from {missing}; "
                                                 "applying the others")
-        b = self.belief
-        if priority is not None:
-            a = action_of_priority(priority, m.A)
-            b = predict(m, b, a)
-            for k in sorted(entry.readings):
-                z = entry.readings[k]
-                try:
-                    b = update(self.sensor_models[k], b, a, z)
-                except ImpossibleObservation as exc:
-                    b = exc.predicted
-                    self._warn("impossible_observations",
-                               f"epoch {entry.epoch}: {self.topics[k]} observation {z} impossible under the "
-                               f"belief (eta = {exc.eta:.3g}); reading discarded, keeping the prediction")
-        if not (np.all(np.isfinite(b)) and abs(b.sum() - 1.0) < 1e-6 and np.all(b >= 0.0)):
-            self._warn("bad_beliefs", f"epoch {entry.epoch}: belief left the simplex ({b}); not published")
+        try:
+            step = self.filter.step(self.belief, action, entry.readings)
+        except BeliefError as exc:
+            self._warn("bad_beliefs", f"epoch {entry.epoch}: {exc}; not published")
             self.epoch = entry.epoch
             return
-        self.belief = b / b.sum()
+        for k in step.restarted:
+            self._warn("impossible_observations",
+                       f"epoch {entry.epoch}: {self.topics[k]} observation {entry.readings[k]} impossible under "
+                       "the belief; filter restarted from the uniform prior with this epoch's readings")
+        for k in step.dropped:
+            self._warn("contradicting_observations",
+                       f"epoch {entry.epoch}: {self.topics[k]} observation {entry.readings[k]} impossible from "
+                       f"every state under priority {priority_of(action)}: contradicts the model; reading dropped")
+        self.belief = step.belief
         self.epoch = entry.epoch
         self._publish()
 
