@@ -1,7 +1,7 @@
 """Launch-free test support for the ROS 2 node tests (see /work/shared/ROS_NOTES.md).
 
 One ``rclpy`` Context per test, discovery OFF (nodes of one context still talk, nothing leaks
-between tests), one ``common.NodeExecutor`` (the nodes' MultiThreadedExecutor) spinning in a daemon
+between tests), one ``NodeExecutor`` (the nodes' MultiThreadedExecutor) spinning in a daemon
 thread, waits on a condition variable that the recording callbacks notify (no fixed sleeps).
 """
 
@@ -23,7 +23,7 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float64MultiArray, Int64MultiArray  # noqa: E402
 
-from pomdp_planner.nodes import common  # noqa: E402
+from pomdp_planner.nodes.executor import NodeExecutor, shutdown_executor  # noqa: E402
 from pomdp_planner.nodes.messages import decode_belief  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -86,7 +86,7 @@ class RosHarness:
         self.context = Context()
         rclpy.init(context=self.context)
         self.cond = threading.Condition()
-        self.executor = common.NodeExecutor(num_threads=4, context=self.context)
+        self.executor = NodeExecutor(num_threads=4, context=self.context)
         self.nodes: list[Node] = []
         self._thread: threading.Thread | None = None
 
@@ -130,7 +130,7 @@ class RosHarness:
         return True
 
     def close(self) -> None:
-        common.shutdown_executor(self.executor)
+        shutdown_executor(self.executor)
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         for n in self.nodes:

@@ -18,10 +18,10 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.search import Planner
-from pomdp_planner.nodes import common
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.messages import encode_belief, encode_observation
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.qos import LATCHED_QOS, STREAM_QOS
 
 harness = pytest.fixture(make_harness)
 
@@ -33,7 +33,7 @@ def _filter(h, model_file=S3, **params):
 
 def _publisher(h, topic="observation"):
     node = h.add(rclpy.node.Node(f"test_pub_{len(h.nodes)}", context=h.context))
-    return node.create_publisher(Int64MultiArray, topic, common.STREAM_QOS)
+    return node.create_publisher(Int64MultiArray, topic, STREAM_QOS)
 
 
 def _latest_diag(rec, prefix="belief_filter"):
@@ -201,7 +201,7 @@ def test_planner_bad_beliefs_counted_no_action_then_keeps_running(harness):
     _planner(h, time_budget=0.02, max_depth=2)
     rec = h.recorder()
     node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
-    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     h.start()
     bad = [
         encode_belief(0, [0.5, 0.5]),                # wrong length
@@ -243,7 +243,7 @@ def test_planner_assumptions_fail_exhaustive_fallback_or_refusal(harness, non_tp
     assert not planner.report.holds
     rec = h.recorder()
     node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
-    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     h.start()
     pub.publish(encode_belief(0, [0.5, 0.5]))
     assert h.wait_until(lambda: rec.diag_values("planner"), timeout=5)

@@ -135,14 +135,14 @@ def test_simulator_waits_for_min_subscribers_then_loses_no_epoch(harness):
     from rclpy.node import Node
     from std_msgs.msg import Int64MultiArray
 
-    from pomdp_planner.nodes import common
+    from pomdp_planner.nodes.qos import STREAM_QOS
 
     sim, _flt, _planner, rec = start_loop(h, sim_params={"min_subscribers": 3})  # filter + recorder = 2
     assert h.wait_until(lambda: sim._held_action is not None, timeout=10), "no action reached the simulator"
     with h.cond:
         assert rec.observations["observation"] == [] and sim.epoch == 0  # held, not stepped
     late = h.add(Node("late_subscriber", context=h.context))
-    late.create_subscription(Int64MultiArray, "observation", lambda msg: None, common.STREAM_QOS)
+    late.create_subscription(Int64MultiArray, "observation", lambda msg: None, STREAM_QOS)
     assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=15), f"only {len(rec.beliefs)} beliefs"
     with h.cond:
         epochs = [t for t, _, _ in rec.observations["observation"]]

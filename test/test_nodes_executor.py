@@ -1,4 +1,4 @@
-"""``common.NodeExecutor``: every ready callback is handed to the thread pool once.
+"""``executor.NodeExecutor``: every ready callback is handed to the thread pool once.
 
 Regression test for the stalls of the free-running node loop (README, "Latency"): Jazzy's
 ``MultiThreadedExecutor`` yields a task again while it still waits in the pool's queue and
@@ -26,7 +26,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
-from pomdp_planner.nodes.common import NodeExecutor, shutdown_executor  # noqa: E402
+from pomdp_planner.nodes.executor import NodeExecutor, shutdown_executor  # noqa: E402
 
 harness = pytest.fixture(make_harness)
 BUSY = 0.05  # s a callback holds its worker (time.sleep: without the GIL)

@@ -17,11 +17,11 @@ from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64MultiArray
 from test_nodes_closed_loop import start_loop
 
-from pomdp_planner.nodes import common
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.common import NodeConfigError
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.qos import LATCHED_QOS
+from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.target_simulator import TargetSimulator
 
 harness = pytest.fixture(make_harness)
@@ -150,7 +150,7 @@ def test_parameter_service_answers_during_a_search(harness):
     planner = h.add(PlannerNode(context=h.context, parameter_overrides=[
         Parameter("model_file", value=S8), Parameter("time_budget", value=1.0), Parameter("max_depth", value=8)]))
     node = h.add(rclpy_node(h))
-    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     client = AsyncParameterClient(node, "planner")
     h.start()
     assert client.wait_for_services(timeout_sec=10.0)

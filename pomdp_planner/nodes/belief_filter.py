@@ -4,9 +4,9 @@ Topics (relative names, remappable):
 
 * subscribes each topic of ``observation_topics`` (``Int64MultiArray [epoch, action_priority,
   observation]``) and ``action`` (``[epoch, action_priority]``, only to cross-check), all with
-  ``common.STREAM_QOS`` (every sample);
+  ``STREAM_QOS`` (every sample);
 * publishes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``;
-  ``common.STREAM_QOS``: transient-local, so a late planner still gets the newest belief and a
+  ``STREAM_QOS``: transient-local, so a late planner still gets the newest belief and a
   recorder every one), ``belief_entropy`` (``Float64``, Shannon entropy in nats of the same
   belief; latched, depth 1) and ``/diagnostics`` about once a second.
 
@@ -44,9 +44,14 @@ from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 from ..core.belief import BeliefError
 from ..core.epoch_buffer import EpochBuffer, EpochReadings
 from ..core.filter import EpochFilter
+from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.model import action_of_priority, priority_of
-from . import common
+from ..core.uncertainty import SHANNON
+from .diagnostics import status
 from .messages import MessageError, OutOfRangeError, decode_action, decode_observation, encode_belief
+from .params import declare_model_file, declare_optional_array, descriptor, optional_array
+from .qos import LATCHED_QOS, STREAM_QOS
+from .runtime import NodeConfigError, callback, config_errors, main_for
 
 
 class BeliefFilter(Node):
@@ -54,14 +59,13 @@ class BeliefFilter(Node):
 
     def __init__(self, node_name: str = "belief_filter", **kwargs):
         super().__init__(node_name, **kwargs)
-        d = common.descriptor
-        self.declare_parameter("model_file", common.DEFAULT_MODEL, d(
-            "Model YAML file (absolute, or relative to the package share dir / source tree)", read_only=True))
+        d = descriptor
+        model_file = declare_model_file(self)
         self.declare_parameter("observation_topics", ["observation"], d(
             "Observation topics, one per sensor, each [epoch, action_priority, observation]", read_only=True))
-        common.declare_optional_array(self, "observation_model_files", "string",
+        declare_optional_array(self, "observation_model_files", "string",
                                       "Per-sensor model file whose O is used ('' = the model's own)")
-        common.declare_optional_array(self, "initial_distribution", "double",
+        declare_optional_array(self, "initial_distribution", "double",
                                       "Prior belief (S probabilities); unset = model start or uniform")
         self.declare_parameter("epoch_timeout", 0.5, d(
             "Seconds to wait for missing sensor readings (or a lost epoch) before going on",
@@ -71,14 +75,15 @@ class BeliefFilter(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        self.model = common.load_node_model(self.get_parameter("model_file").value)
         self.topics = list(self.get_parameter("observation_topics").value)
         if not self.topics or len(set(self.topics)) != len(self.topics):
-            raise common.NodeConfigError(f"observation_topics: need distinct topics, got {self.topics}")
-        self.sensor_O = common.load_observation_models(
-            self.model, common.optional_array(self, "observation_model_files"), len(self.topics))
-        self.filter = EpochFilter(self.model, self.sensor_O)
-        self.belief = common.initial_distribution(self.model, common.optional_array(self, "initial_distribution"))
+            raise NodeConfigError(f"observation_topics: need distinct topics, got {self.topics}")
+        with config_errors():
+            self.model = load_model_file(model_file)
+            sensors = load_observation_models(self.model, optional_array(self, "observation_model_files"),
+                                              len(self.topics))
+            self.filter = EpochFilter(self.model, sensors)
+            self.belief = initial_distribution(self.model, optional_array(self, "initial_distribution"))
         self.epoch = 0
         self.buffer = EpochBuffer(len(self.topics), next_epoch=1,
                                   timeout=self.get_parameter("epoch_timeout").value,
@@ -90,13 +95,13 @@ class BeliefFilter(Node):
         self.last_warning = ""
         self._reported_problems = 0
 
-        self.belief_pub = self.create_publisher(Float64MultiArray, "belief", common.STREAM_QOS)
-        self.entropy_pub = self.create_publisher(Float64, "belief_entropy", common.LATCHED_QOS)
+        self.belief_pub = self.create_publisher(Float64MultiArray, "belief", STREAM_QOS)
+        self.entropy_pub = self.create_publisher(Float64, "belief_entropy", LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for k, topic in enumerate(self.topics):
             self.create_subscription(Int64MultiArray, topic, lambda msg, k=k: self._on_observation(k, msg),
-                                     common.STREAM_QOS)
-        self.create_subscription(Int64MultiArray, "action", self._on_action, common.STREAM_QOS)
+                                     STREAM_QOS)
+        self.create_subscription(Int64MultiArray, "action", self._on_action, STREAM_QOS)
         self.create_timer(0.02, self._release)
         self.create_timer(1.0, self._publish_diagnostics)
         self._publish()
@@ -120,7 +125,7 @@ class BeliefFilter(Node):
         self.last_warning = text
         self.get_logger().warning(text)
 
-    @common.callback
+    @callback
     def _on_action(self, msg: Int64MultiArray) -> None:
         try:
             act = decode_action(msg, self.model.A)
@@ -129,7 +134,7 @@ class BeliefFilter(Node):
             return
         self.buffer.command(act.epoch, action_of_priority(act.priority, self.model.A))
 
-    @common.callback
+    @callback
     def _on_observation(self, sensor: int, msg: Int64MultiArray) -> None:
         Z = self.filter.num_observations(sensor)
         try:
@@ -149,7 +154,7 @@ class BeliefFilter(Node):
         self._release()
 
     # ----------------------------------------------------------- filtering
-    @common.callback
+    @callback
     def _release(self) -> None:
         for entry in self.buffer.pop_ready():
             self._apply_epoch(entry)
@@ -191,9 +196,9 @@ class BeliefFilter(Node):
 
     def _publish(self) -> None:
         self.belief_pub.publish(encode_belief(self.epoch, self.belief))
-        self.entropy_pub.publish(Float64(data=common.shannon_entropy(self.belief)))
+        self.entropy_pub.publish(Float64(data=float(SHANNON.value(self.belief))))
 
-    @common.callback
+    @callback
     def _publish_diagnostics(self) -> None:
         problems = sum(v for k, v in self.counts.items() if k not in ("readings", "duplicates", "action_mismatches"))
         recent, self._reported_problems = problems - self._reported_problems, problems
@@ -203,15 +208,15 @@ class BeliefFilter(Node):
                                         if recent else "")
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [common.status(
+        msg.status = [status(
             f"{self.get_name()}: belief", self.model.name, level, text,
-            {"epoch": self.epoch, "entropy": common.shannon_entropy(self.belief),
+            {"epoch": self.epoch, "entropy": float(SHANNON.value(self.belief)),
              "pending_epochs": self.buffer.pending_epochs, **self.counts})]
         self.diag_pub.publish(msg)
 
 
 def main(args=None) -> None:
-    common.main_for([BeliefFilter])
+    main_for([BeliefFilter])
 
 
 if __name__ == "__main__":

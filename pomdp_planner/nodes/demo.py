@@ -35,6 +35,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..core.io.paths import resolve_path
+from ..core.uncertainty import SHANNON
+
 NODES = ("target_simulator", "belief_filter", "planner")
 
 
@@ -56,8 +59,6 @@ def ros_env(domain_id: int) -> dict[str, str]:
 def start_nodes(model: str, domain_id: int, log_dir: Path, extra: dict[str, list[str]] | None = None,
                 names=NODES) -> dict[str, tuple[subprocess.Popen, Path]]:
     """Start node processes with ``config/<name>_<model>.yaml``; output goes to ``log_dir/<name>.log``."""
-    from .common import resolve_path
-
     procs = {}
     env = ros_env(domain_id)
     for name in names:
@@ -163,8 +164,6 @@ class Monitor:
 
 
 def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, out=sys.stdout) -> int:
-    from .common import resolve_path, shannon_entropy
-
     domain_id = random.randint(1, 101) if domain_id is None else domain_id
     os.environ.update(ros_env(domain_id))
     model_path = resolve_path(f"config/models/tracking_{model_key}_info.yaml")
@@ -208,7 +207,7 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
                 a = monitor.observations[t + 1][0] - 1
                 info = monitor.info.get(t + 1)
                 mode = int(b.argmax())
-                h = shannon_entropy(b)
+                h = float(SHANNON.value(b))
                 rewards.append(float(model.r[s, a] - model.w[a] * model.uncertainty.value(b)))
                 entropies.append(h)
                 if info is None:  # plan_info not received (the monitor discovered the planner late)

@@ -3,8 +3,8 @@
 Topics (relative names, remappable):
 
 * subscribes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``), latest
-  value only (``common.LATCHED_QOS``: a backlog of older beliefs is never planned for);
-* publishes ``action`` (``Int64MultiArray [epoch, action_priority]``, ``common.STREAM_QOS``) with
+  value only (``qos.LATCHED_QOS``: a backlog of older beliefs is never planned for);
+* publishes ``action`` (``Int64MultiArray [epoch, action_priority]``, ``qos.STREAM_QOS``) with
   ``epoch = t + 1``: the action computed from the belief of epoch ``t`` moves the system to epoch
   ``t + 1``; so every action names the belief it was computed from;
 * ``plan_info`` (``Float64MultiArray``, one record per decision: see ``messages``);
@@ -40,10 +40,14 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_VARIANTS
+from ..core.io.sensors import load_model_file
 from ..core.search import Planner
 from ..core.structure import check_assumptions
-from . import common
+from .diagnostics import status
 from .messages import MessageError, decode_belief, encode_action, encode_plan_info
+from .params import declare_model_file, descriptor
+from .qos import LATCHED_QOS, STREAM_QOS
+from .runtime import NodeConfigError, callback, config_errors, main_for
 
 TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "deadline_slack")
 
@@ -53,9 +57,8 @@ class PlannerNode(Node):
 
     def __init__(self, node_name: str = "planner", **kwargs):
         super().__init__(node_name, **kwargs)
-        d = common.descriptor
-        self.declare_parameter("model_file", common.DEFAULT_MODEL, d(
-            "Model YAML file (absolute, or relative to the package share dir / source tree)", read_only=True))
+        d = descriptor
+        model_file = declare_model_file(self)
         self.declare_parameter("time_budget", 0.1, d(
             "Planning time per decision in seconds (anytime iterative deepening stops at it)",
             float_range=(0.001, 60.0)))
@@ -76,11 +79,12 @@ class PlannerNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        self.model = common.load_node_model(self.get_parameter("model_file").value)
+        with config_errors():
+            self.model = load_model_file(model_file)
         self.params = {name: self.get_parameter(name).value for name in TUNABLE}
         bad = self._check_values({k: v for k, v in self.params.items()})
         if bad:
-            raise common.NodeConfigError(bad)
+            raise NodeConfigError(bad)
         self._lock = threading.Lock()
         self.report = check_assumptions(self.model)
         self.refusing = False
@@ -108,11 +112,11 @@ class PlannerNode(Node):
         self.last_warning = ""
         self._reported = {"deadline_misses": 0, "bad_beliefs": 0}  # counts at the previous diagnostics
 
-        self.action_pub = self.create_publisher(Int64MultiArray, "action", common.STREAM_QOS)
-        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", common.STREAM_QOS)
+        self.action_pub = self.create_publisher(Int64MultiArray, "action", STREAM_QOS)
+        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.plan_group = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Float64MultiArray, "belief", self._on_belief, common.LATCHED_QOS,
+        self.create_subscription(Float64MultiArray, "belief", self._on_belief, LATCHED_QOS,
                                  callback_group=self.plan_group)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
@@ -160,7 +164,7 @@ class PlannerNode(Node):
         self._planner = planner
         self._planner_variant = variant
 
-    @common.callback
+    @callback
     def _on_belief(self, msg: Float64MultiArray) -> None:
         t0 = time.perf_counter()
         try:
@@ -240,17 +244,17 @@ class PlannerNode(Node):
             return DiagnosticStatus.OK, "waiting for a belief", values
         return DiagnosticStatus.OK, f"depth {r.depth}, {'certified' if r.certified else 'not certified'}", values
 
-    @common.callback
+    @callback
     def _publish_diagnostics(self) -> None:
         level, text, values = self.diagnostics_values()
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [common.status(f"{self.get_name()}: planning", self.model.name, level, text, values)]
+        msg.status = [status(f"{self.get_name()}: planning", self.model.name, level, text, values)]
         self.diag_pub.publish(msg)
 
 
 def main(args=None) -> None:
-    common.main_for([PlannerNode])
+    main_for([PlannerNode])
 
 
 if __name__ == "__main__":
