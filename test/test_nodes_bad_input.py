@@ -183,7 +183,7 @@ def test_belief_encoding_roundtrip_and_rejections():
     np.testing.assert_allclose(got.belief, b)
     with pytest.raises(MessageError, match="expected 3 probabilities"):
         decode_belief(encode_belief(7, [0.5, 0.5]), 3)
-    with pytest.raises(MessageError, match="not finite"):
+    with pytest.raises(MessageError, match="non-finite"):
         decode_belief(encode_belief(7, [np.nan, 0.5, 0.5]), 3)
     with pytest.raises(MessageError, match="sums to"):
         decode_belief(encode_belief(7, [0.5, 0.5, 0.5]), 3)

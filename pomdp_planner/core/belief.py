@@ -45,11 +45,17 @@ class BeliefError(ValueError):
     """A belief, action or observation given to the filter is invalid (message says which)."""
 
 
-def check_belief(model: POMDP, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
-    """Return ``b`` as a float array after checking it lies on the simplex of ``model``."""
+def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
+    """Return ``b`` as a float array after checking it lies on the simplex of ``model``.
+
+    The one belief check of the project: every entry point (CLI, nodes, core) calls it and
+    translates :class:`BeliefError`. ``model`` may be just the number of states ``S`` (for a
+    message decoder, which knows nothing else of the model).
+    """
+    S = int(model) if isinstance(model, (int, np.integer)) else model.S
     b = np.asarray(b, dtype=float)
-    if b.shape != (model.S,):
-        raise BeliefError(f"{field}: expected {model.S} entries, got shape {b.shape}")
+    if b.shape != (S,):
+        raise BeliefError(f"{field}: expected {S} entries, got shape {b.shape}")
     if not np.all(np.isfinite(b)):
         raise BeliefError(f"{field}: contains non-finite values")
     if np.any(b < -atol):

@@ -10,6 +10,16 @@ from rclpy.parameter import Parameter
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
 DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
 
+# Ranges of the planner's search parameters, stated once: in their descriptors, which rclpy
+# enforces at declare time (a bad parameter file) and at set time (a rejected ``ros2 param set``
+# with the reason), so no node callback checks them again; the core's ``Planner.plan`` is the
+# last guard (``time_budget >= 0``, ``max_depth >= 1``). The core exports no limits of its own:
+# these are what a node accepts per decision, not limits of the search.
+#: ``time_budget`` (s): at least a millisecond, at most a minute per decision.
+TIME_BUDGET_RANGE = (0.001, 60.0)
+#: ``max_depth``: the tree grows as ``(A Z)^depth``, so the budget stops any real model far earlier.
+MAX_DEPTH_RANGE = (1, 50)
+
 
 def descriptor(description: str, *, read_only: bool = False, float_range: tuple[float, float] | None = None,
                int_range: tuple[int, int] | None = None, type_: int | None = None,

@@ -29,7 +29,6 @@ warns once and searches exhaustively (``use_bounds`` ignored); with
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 
@@ -45,7 +44,7 @@ from ..core.search import Planner
 from ..core.structure import check_assumptions
 from .diagnostics import status
 from .messages import MessageError, decode_belief, encode_action, encode_plan_info
-from .params import declare_model_file, descriptor
+from .params import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, declare_model_file, descriptor
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
 
@@ -61,10 +60,11 @@ class PlannerNode(Node):
         model_file = declare_model_file(self)
         self.declare_parameter("time_budget", 0.1, d(
             "Planning time per decision in seconds (anytime iterative deepening stops at it)",
-            float_range=(0.001, 60.0)))
-        self.declare_parameter("max_depth", 3, d("Maximum search depth (Table II convention)", int_range=(1, 50)))
+            float_range=TIME_BUDGET_RANGE))
+        self.declare_parameter("max_depth", 3, d("Maximum search depth (Table II convention)",
+                                                 int_range=MAX_DEPTH_RANGE))
         self.declare_parameter("use_bounds", True, d("Prune with the myopic policy bounds (Sec. V)"))
-        self.declare_parameter("bound_variant", "tight", d(
+        self.declare_parameter("bound_variant", BOUND_VARIANTS[0], d(
             "Bound vectors g, h to solve for", constraints=f"one of {', '.join(BOUND_VARIANTS)}"))
         self.declare_parameter("refuse_if_assumptions_fail", False, d(
             "If the model fails the structural assumptions: publish nothing (ERROR) instead of exhaustive search",
@@ -129,8 +129,6 @@ class PlannerNode(Node):
     def _check_values(values: dict) -> str:
         if "bound_variant" in values and values["bound_variant"] not in BOUND_VARIANTS:
             return f"bound_variant: {values['bound_variant']!r} is not one of {list(BOUND_VARIANTS)}"
-        if "time_budget" in values and not (math.isfinite(values["time_budget"]) and values["time_budget"] > 0):
-            return f"time_budget: must be a positive number of seconds, got {values['time_budget']}"
         return ""
 
     def _validate_parameters(self, params) -> SetParametersResult:
