@@ -19,7 +19,15 @@ from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.search import Planner
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.messages import encode_belief, encode_observation
+from pomdp_planner.nodes.messages import (
+    PLAN_INFO_FIELDS,
+    MessageError,
+    decode_belief,
+    decode_plan_info,
+    encode_belief,
+    encode_observation,
+    encode_plan_info,
+)
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.qos import LATCHED_QOS, STREAM_QOS
 
@@ -174,8 +182,6 @@ def test_filter_two_sensors_one_prediction_then_one_update_per_sensor(harness, t
 
 
 def test_belief_encoding_roundtrip_and_rejections():
-    from pomdp_planner.nodes.messages import MessageError, decode_belief
-
     b = np.array([0.2, 0.3, 0.5])
     msg = encode_belief(7, b)
     got = decode_belief(msg, 3)
@@ -262,8 +268,6 @@ def test_planner_assumptions_fail_exhaustive_fallback_or_refusal(harness, non_tp
 
 def test_plan_info_carries_the_deadline_miss_flag():
     """plan_info round-trips every field, the planner's miss verdict included (the demo counts it)."""
-    from pomdp_planner.nodes.messages import PLAN_INFO_FIELDS, MessageError, decode_plan_info, encode_plan_info
-
     fields = {k: float(i) for i, k in enumerate(PLAN_INFO_FIELDS)}
     fields["deadline_miss"] = 1.0
     msg = encode_plan_info(**fields)

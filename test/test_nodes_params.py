@@ -12,6 +12,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from nodes_support import REPO, S3, S8, make_harness
+from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64MultiArray
@@ -95,8 +96,6 @@ def test_invalid_parameter_values_rejected_with_reason(harness, name, value, rea
 
 
 def rclpy_node(h):
-    from rclpy.node import Node
-
     return Node("test_param_client", context=h.context)
 
 

@@ -30,3 +30,8 @@ STREAM_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=
 #: planner gets the newest belief of the filter's history) and gauges (``belief_entropy``).
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: For observers that record every sample of the loop (the demo's monitor, the latency probe, the
+#: tests' recorder): transient-local like the writers, so they match, with a history deep enough
+#: that nothing is lost while they catch up.
+RECORDER_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
