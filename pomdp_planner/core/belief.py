@@ -9,8 +9,9 @@ Translation of the paper's formulas into our convention (``P[a, i, j] = P(j | i,
   ->  ``tau = b^a * O[a][:, z] / eta[z]``.
 
 An observation with ``eta(z | b, a) <= ETA_MIN`` is impossible under the belief: the single
-update raises :class:`ImpossibleObservation`, which carries ``eta`` and the predicted belief
-so that a caller (e.g. the belief filter node) can choose a recovery.
+update raises :class:`ImpossibleObservation`, which carries ``eta`` and the predicted belief.
+The per-epoch filter of the nodes and of ``simulate`` (``core/filter.py``) has the project's one
+recovery rule for it.
 """
 
 from __future__ import annotations
