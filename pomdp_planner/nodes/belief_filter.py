@@ -37,7 +37,6 @@ Recovery and bad input (each logged and counted in diagnostics; the node keeps r
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 
@@ -64,15 +63,15 @@ class BeliefFilter(Node):
         self.declare_parameter("observation_topics", ["observation"], d(
             "Observation topics, one per sensor, each [epoch, action_priority, observation]", read_only=True))
         declare_optional_array(self, "observation_model_files", "string",
-                                      "Per-sensor model file whose O is used ('' = the model's own)")
+                               "Per-sensor model file whose O is used ('' = the model's own)")
         declare_optional_array(self, "initial_distribution", "double",
-                                      "Prior belief (S probabilities); unset = model start or uniform")
+                               "Prior belief (S probabilities); unset = model start or uniform")
         self.declare_parameter("epoch_timeout", 0.5, d(
             "Seconds to wait for missing sensor readings (or a lost epoch) before going on",
             float_range=(0.001, 60.0)))
         self.declare_parameter("max_pending_epochs", 10, d(
             "Later epochs buffered before a missing one is given up", int_range=(1, 10000)))
-        self.add_on_set_parameters_callback(self._validate_parameters)
+        # ranges and types: the descriptors (nothing else to validate); side effects after a set
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         self.topics = list(self.get_parameter("observation_topics").value)
@@ -108,10 +107,6 @@ class BeliefFilter(Node):
         self.get_logger().info(f"{self.model.describe()}; sensors {self.topics}; prior published as epoch 0")
 
     # ----------------------------------------------------------- parameters
-    def _validate_parameters(self, params) -> SetParametersResult:
-        # Ranges and types are enforced by the descriptors; nothing else to check here.
-        return SetParametersResult(successful=True)
-
     def _apply_parameters(self, params) -> None:
         for p in params:
             if p.name == "epoch_timeout":

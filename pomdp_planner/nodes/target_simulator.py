@@ -53,11 +53,11 @@ class TargetSimulator(Node):
             "Initial 0-based state; -1 = sample from initial_distribution (or the model's start, or uniform)",
             read_only=True, int_range=(-1, 1_000_000)))
         declare_optional_array(self, "initial_distribution", "double",
-                                      "Initial state distribution (S probabilities); unset = model start or uniform")
+                               "Initial state distribution (S probabilities); unset = model start or uniform")
         self.declare_parameter("observation_topics", ["observation"], d(
             "One topic per sensor; each publishes [epoch, action_priority, observation]", read_only=True))
         declare_optional_array(self, "observation_model_files", "string",
-                                      "Per-sensor model file whose observation matrix O is used ('' = the model's own)")
+                               "Per-sensor model file whose observation matrix O is used ('' = the model's own)")
         self.declare_parameter("step_period", 0.0, d(
             "0 = step on each new action; > 0 = step every period (s) with the latest action",
             read_only=True, float_range=(0.0, 3600.0)))
