@@ -1,10 +1,10 @@
 """The executor every node process spins: a work-around for a bug of rclpy 7.1.x (Jazzy).
 
-rclpy 7.1.6, the Jazzy wheel on PyPI (and Jazzy's apt package of the same version), re-submits
-tasks that are still queued in a ``MultiThreadedExecutor``'s thread pool, in a loop that never
-blocks (ros2/rclpy#1452; fixed upstream after Jazzy by ros2/rclpy#1469 and #1547, not in this
-wheel). :class:`NodeExecutor` hands each task to the pool once; ``test/test_nodes_executor.py``
-proves both the fix and that the stock executor still re-submits, so it fails when a fixed rclpy
+rclpy 7.1.6, the Jazzy wheel on PyPI that this project installs, re-submits tasks that are still
+queued in a ``MultiThreadedExecutor``'s thread pool, in a loop that never blocks
+(ros2/rclpy#1452; fixed upstream after Jazzy by ros2/rclpy#1469 and #1547, not in this wheel).
+:class:`NodeExecutor` hands each task to the pool once; ``test/test_nodes_executor.py`` proves
+both the fix and that the stock executor still re-submits, so it fails when a fixed rclpy
 arrives and this module can go. Built on private attributes of rclpy's executor
 (``_executor``, ``_futures``, ``_is_shutdown``, ``_context``), which is why it is kept apart.
 
