@@ -36,6 +36,19 @@ def _file_kind(mode: int) -> str:
     return "not a regular file"
 
 
+def _read_at_most(f, n: int, size_hint: int) -> bytes:
+    """At most ``n`` bytes of ``f``; never allocates much more than what the file holds."""
+    parts, got = [], 0
+    step = max(64 * 2**10, min(size_hint + 1, n))
+    while got < n:
+        chunk = f.read(min(step, n - got))
+        if not chunk:
+            break
+        parts.append(chunk)
+        got += len(chunk)
+    return b"".join(parts)
+
+
 def read_model_text(path: str | Path, what: str = "model file", limit: int | None = None) -> str:
     """The text of the model file ``path`` (module docstring); ``ModelError`` otherwise."""
     limit = MAX_MODEL_FILE_BYTES if limit is None else limit
@@ -48,7 +61,7 @@ def read_model_text(path: str | Path, what: str = "model file", limit: int | Non
             raise ModelError(f"{path}: {what} is {format_bytes(st.st_size)}, larger than the limit of "
                              f"{format_bytes(limit)} (MAX_MODEL_FILE_BYTES)")
         with open(path, "rb") as f:
-            data = f.read(limit + 1)
+            data = _read_at_most(f, limit + 1, st.st_size)
     except OSError as exc:
         raise ModelError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     if len(data) > limit:  # grew since stat, or a file whose size is not known in advance
