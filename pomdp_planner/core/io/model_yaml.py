@@ -38,6 +38,7 @@ A model file is untrusted input, so loading is bounded by design (issue 13):
 
 from __future__ import annotations
 
+import numbers
 import re
 from pathlib import Path
 from typing import Any, ClassVar
@@ -228,7 +229,7 @@ def _size(doc: dict, key: str) -> tuple[int | None, list[str] | None]:
         if not v:
             raise ModelError(f"{key}: expected a positive count or a non-empty list of names, got an empty list")
         return len(v), [check_name(x, f"{key}[{i}]") for i, x in enumerate(v)]
-    if isinstance(v, int) and not isinstance(v, bool):
+    if isinstance(v, numbers.Integral) and not isinstance(v, bool):
         return as_count(v, key), None
     raise ModelError(f"{key}: expected a positive count or a non-empty list of names, got {kind_of(v)}")
 
