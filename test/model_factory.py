@@ -8,11 +8,10 @@ up: (A3)), and one TP2 observation kernel ``O[j, z] ~ exp(u_j v_z)`` with random
 weights are random. A candidate is kept
 only if the structural checks pass and the bound LP is feasible.
 
-Structural checks and the LP come from ``core/structure.py`` / ``core/bounds.py`` when those
-modules exist; until then (and as an independent cross-check) this file has minimal
-versions: TP2 minors (A1), the elementwise sufficient condition (A2') for (A2), the
-dominance sum (A3), and a plain feasibility LP for ``g``/``h`` (Theorem 2 with
-belief-independent constants).
+Assumption 1 is checked by ``core/structure.py`` and the bounds come from ``core/bounds.py``;
+:func:`minimal_bounds` is an independent plain feasibility LP for ``g``/``h`` (Theorem 2 with
+belief-independent constants, scipy's HiGHS instead of Clarabel) that the validation tests use
+where the LP alone, not its tightening, is the subject.
 """
 
 from __future__ import annotations
@@ -22,61 +21,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linprog, minimize_scalar
 
+from pomdp_planner.core.bounds import solve_bounds
 from pomdp_planner.core.domains.tracking import tracking_transitions
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.myopic import MyopicBounds
-
-try:  # the structure helper's module (issue 3), when it exists
-    from pomdp_planner.core.structure import check_assumptions as _check_assumptions
-except ImportError:  # pragma: no cover - depends on the state of the tree
-    _check_assumptions = None
-try:  # the bounds helper's module (issue 3), when it exists
-    from pomdp_planner.core.bounds import solve_bounds as _solve_bounds
-except ImportError:  # pragma: no cover
-    _solve_bounds = None
-
-
-# ------------------------------------------------------------------ structural checks
-def tp2_ok(M: np.ndarray, tol: float = 1e-12) -> bool:
-    """All 2x2 minors ``M[i,k] M[j,l] - M[i,l] M[j,k]`` (i<j, k<l) of every matrix are >= -tol."""
-    M = np.asarray(M)
-    n = M.shape[-2]
-    for i in range(n):
-        for j in range(i + 1, n):
-            minors = M[..., i, :, None] * M[..., j, None, :] - M[..., i, None, :] * M[..., j, :, None]
-            if np.any(np.triu(minors, 1) < -tol):
-                return False
-    return True
-
-
-def a2_elementwise_ok(model: POMDP, tol: float = 1e-12) -> bool:
-    """(A2') in our convention: ``d_mn + d_nm >= 0`` with
-    ``d_mn = O[a,j,z] O[a+1,j+1,z] P[a,m,j] P[a+1,n,j+1] - O[a,j+1,z] O[a+1,j,z] P[a,m,j+1] P[a+1,n,j]``.
-    """
-    P, O = model.P, model.O
-    for a in range(model.A - 1):
-        for j in range(model.S - 1):
-            for z in range(model.Z):
-                d = (O[a, j, z] * O[a + 1, j + 1, z] * np.outer(P[a, :, j], P[a + 1, :, j + 1])
-                     - O[a, j + 1, z] * O[a + 1, j, z] * np.outer(P[a, :, j + 1], P[a + 1, :, j]))
-                if np.any(d + d.T < -tol):
-                    return False
-    return True
-
-
-def a3_ok(model: POMDP, tol: float = 1e-12) -> bool:
-    """(A3): for every previous state, the observation distribution after action a+1
-    first-order dominates that after a: ``cumsum_z (P_a O_a - P_{a+1} O_{a+1})[i] >= 0``."""
-    PO = model.P @ model.O  # (A, S, Z)
-    diff = np.cumsum(PO[:-1] - PO[1:], axis=-1)
-    return bool(np.all(diff >= -tol))
+from pomdp_planner.core.structure import check_assumptions
 
 
 def assumptions_hold(model: POMDP) -> bool:
-    """Assumption 1, through ``core/structure.py`` when present, else the minimal checks."""
-    if _check_assumptions is not None:
-        return bool(_check_assumptions(model).holds)
-    return tp2_ok(model.P) and tp2_ok(model.O) and a2_elementwise_ok(model) and a3_ok(model)
+    """Assumption 1 (``core/structure.py``)."""
+    return bool(check_assumptions(model).holds)
 
 
 # ------------------------------------------------------------------ minimal bound LP
@@ -141,11 +95,9 @@ def minimal_bounds(model: POMDP) -> MyopicBounds | None:
 
 
 def bounds_for(model: POMDP, variant: str = "tight") -> MyopicBounds | None:
-    """Bounds through ``core/bounds.py`` (``variant``) when present, else :func:`minimal_bounds`."""
-    if _solve_bounds is not None:
-        sol = _solve_bounds(model, variant)
-        return sol.myopic if sol.feasible else None
-    return minimal_bounds(model)
+    """The bounds of ``core/bounds.py`` (``variant``), or None if the LP is infeasible."""
+    sol = solve_bounds(model, variant)
+    return sol.myopic if sol.feasible else None
 
 
 # ------------------------------------------------------------------ the generator

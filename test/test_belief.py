@@ -177,7 +177,7 @@ def test_update_batch_index_errors():
 
 
 @pytest.mark.parametrize(("b", "pattern"), [
-    ([0.5, 0.5], "expected 3 entries"),
+    ([0.5, 0.5], "expected 3 probabilities"),
     ([0.5, np.nan, 0.5], "non-finite"),
     ([0.5, -0.1, 0.6], "entry 1 is negative"),
     ([0.5, 0.5, 0.5], "sums to 1.5"),

@@ -1,9 +1,16 @@
-"""The pure core and the command line never import rclpy (issue 2).
+"""The pure core and the command line never import rclpy (issue 2); the layers import only
+downwards (issue 11).
 
 ``pomdp_planner/core`` and ``pomdp_planner/cli`` must run without ROS. Checked twice: statically
 (every import statement, including relative imports of ``pomdp_planner.nodes`` and
 ``importlib.import_module("rclpy")``-style calls) and dynamically (every module imported in a
 fresh interpreter in which importing rclpy raises).
+
+Layering (README, "Repository layout"): the core imports nothing of the package outside itself;
+``cli``, ``nodes`` and ``bench`` are adapters on top of it; nothing imports ``nodes`` except
+``nodes`` itself and ``bench/ros`` (the ROS benchmarks); nothing imports ``cli`` but the entry
+point ``pomdp_planner/__main__.py``; only ``cli`` (its ``bench`` command) and ``bench`` import
+``bench``.
 """
 
 from __future__ import annotations
@@ -123,3 +130,47 @@ def test_no_ros_import_dynamically():
     assert result["attempts"] == [], f"tried to import rclpy: {result}"
     assert result["rclpy_loaded"] == []
     assert result["failed"] == {}, f"pure modules fail to import without ROS: {result['failed']}"
+
+
+# ------------------------------------------------------------------------------ layering
+#: (package, packages it must not import); the most specific package of a module applies.
+LAYERS = (
+    ("pomdp_planner.core", ("pomdp_planner.cli", "pomdp_planner.nodes", "pomdp_planner.bench", "rclpy")),
+    ("pomdp_planner.cli", ("pomdp_planner.nodes", "rclpy")),
+    ("pomdp_planner.bench", ("pomdp_planner.cli", "pomdp_planner.nodes", "rclpy")),
+    ("pomdp_planner.bench.ros", ("pomdp_planner.cli",)),
+    ("pomdp_planner.nodes", ("pomdp_planner.cli", "pomdp_planner.bench")),
+    ("pomdp_planner", ("pomdp_planner.nodes", "pomdp_planner.bench", "rclpy")),  # __init__, __main__
+)
+
+
+def _within(name: str, package: str) -> bool:
+    return name == package or name.startswith(package + ".")
+
+
+def layer_of(module: str) -> tuple[str, tuple[str, ...]]:
+    return max((entry for entry in LAYERS if _within(module, entry[0])), key=lambda e: len(e[0]))
+
+
+def all_files() -> list[Path]:
+    return sorted(p for p in (REPO / "pomdp_planner").rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def test_layer_rules_cover_the_issue_11_statements():
+    assert layer_of("pomdp_planner.core.gate")[0] == "pomdp_planner.core"
+    assert layer_of("pomdp_planner.bench.ros.latency")[0] == "pomdp_planner.bench.ros"
+    assert layer_of("pomdp_planner.bench.experiments.runner")[0] == "pomdp_planner.bench"
+    assert layer_of("pomdp_planner.__main__")[0] == "pomdp_planner"
+    # nothing outside nodes/ and bench/ros may import nodes
+    for package, banned in LAYERS:
+        if package not in ("pomdp_planner.nodes", "pomdp_planner.bench.ros"):
+            assert "pomdp_planner.nodes" in banned, package
+
+
+@pytest.mark.parametrize("path", all_files(), ids=lambda p: str(p.relative_to(REPO)))
+def test_layers_import_only_downwards(path):
+    module = module_name(path)
+    package, banned = layer_of(module)
+    bad = [f"line {line}: {name}" for line, name in imported_names(path)
+           if any(_within(name, b) for b in banned)]
+    assert not bad, f"{path.relative_to(REPO)} ({package}) imports {bad}"

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from pomdp_planner.bench.experiments.pbvi import pbvi, single_action_optimal
+from pomdp_planner.bench.experiments.peers import mean_ci
+from pomdp_planner.bench.experiments.progress import Progress
+from pomdp_planner.bench.experiments.pruning import pruned_percentages
+from pomdp_planner.bench.experiments.sampling import reachable_beliefs
 from pomdp_planner.core.domains.comparison import comparison_model, comparison_y
 from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.reference import alpha_vector_value_iteration
-from pomdp_planner.experiments.pbvi import pbvi, single_action_optimal
-from pomdp_planner.experiments.peers import mean_ci
-from pomdp_planner.experiments.progress import Progress
-from pomdp_planner.experiments.pruning import pruned_percentages
-from pomdp_planner.experiments.sampling import reachable_beliefs
 
 
 @pytest.mark.parametrize("S", [4, 5])

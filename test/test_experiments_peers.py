@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.bench.experiments import peers
+from pomdp_planner.bench.experiments.peers import PeerChunk, PeerPlan, compare_peers
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.simulate import simulate
-from pomdp_planner.experiments import peers
-from pomdp_planner.experiments.peers import PeerChunk, PeerPlan, compare_peers
 
 S3 = load_model(Path(__file__).resolve().parents[1] / "config" / "models" / "tracking_s3_info.yaml")
 
@@ -101,4 +101,4 @@ def test_planner_cache_follows_the_model_not_the_label() -> None:
     p3 = peers._planner_for("m", S3)
     assert peers._planner_for("m", pickle.loads(pickle.dumps(S3))) is p3  # a worker's copy: reused
     p8 = peers._planner_for("m", s8)  # same label, another model: its own planner
-    assert p8 is not p3 and p8.model.S == 8
+    assert p8 is not p3 and p8.planner.model.S == 8

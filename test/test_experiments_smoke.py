@@ -24,8 +24,8 @@ if os.environ.get("POMDP_PLANNER_REQUIRE_INSTALLED") == "1":
 else:
     pytest.importorskip("matplotlib")
 
+from pomdp_planner.bench.experiments.runner import QUICK, run_all
 from pomdp_planner.cli import main
-from pomdp_planner.experiments.runner import QUICK, run_all
 
 
 @pytest.fixture(scope="module")

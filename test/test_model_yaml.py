@@ -136,7 +136,7 @@ def test_model_to_dict_is_yaml_safe():
     (explicit_doc(reward=None, reward_generator={"kind": "tracking_comparison", "c_a": "x"}),
      "reward_generator.c_a: must be a number, got a string 'x'"),
     (explicit_doc(start=[0.5, 0.6]), "start: sums to 1.1"),
-    (explicit_doc(start=[1.0]), "start: expected 2 entries"),
+    (explicit_doc(start=[1.0]), "start: expected 2 probabilities"),
     (explicit_doc(start="middle"), "start: expected a list of 2 probabilities, 'uniform' or a state name"),
 ])
 def test_errors_name_the_source_and_field(doc, pattern):

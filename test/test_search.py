@@ -193,7 +193,7 @@ def test_agreeing_root_bounds_return_their_action() -> None:
     model = _S3
     s = np.arange(3.0)
     bounds = MyopicBounds(model, 1e4 * s, 1e4 * s)  # lower = upper = action 0 everywhere
-    planner = Planner(model, bounds)
+    planner = Planner(model, bounds, guaranteed=True)  # declared valid: tests the certification mechanics
     b = np.array([0.05, 0.15, 0.8])
     exh = planner.search(b, 3, use_bounds=False)
     assert exh.action != 0  # the exhaustive search would choose otherwise: the bounds decide
@@ -205,10 +205,26 @@ def test_agreeing_root_bounds_return_their_action() -> None:
     assert quick.depth == 1 and quick.nodes_expanded == (1 + model.Z,)
 
 
+def test_bounds_without_guarantee_certify_nothing_and_do_not_stop_early() -> None:
+    """The constructor's default: bounds not known to be valid prune but never certify, so agreeing
+    root bounds do not end the anytime search; crossed root bounds are flagged."""
+    model = _S3
+    s = np.arange(3.0)
+    planner = Planner(model, MyopicBounds(model, 1e4 * s, 1e4 * s))
+    b = np.array([0.05, 0.15, 0.8])
+    res = planner.plan(b, max_depth=3)
+    assert res.root_bounds == (0, 0) and res.action == 0 and not res.certified and not res.guaranteed
+    assert res.depth == 3 and not res.crossed
+    crossed = Planner(model, MyopicBounds(model, -1e4 * s, 1e4 * s)).search(b, 2)  # lower = A-1 > upper = 0
+    assert crossed.root_bounds == (2, 0) and crossed.crossed and not crossed.certified
+    assert crossed.to_dict()["root_bounds_crossed"] is True
+    assert crossed.nodes_pruned[0] == 0  # crossed bounds keep every action
+
+
 def test_agreeing_real_bounds_certify_the_exhaustive_action() -> None:
     """With bounds from the LP, wherever lower == upper the exhaustive search agrees."""
     model = _S3
-    planner = Planner(model, model_bounds(model))
+    planner = Planner(model, model_bounds(model), guaranteed=True)  # Assumption 1 holds for the shipped S = 3
     rng = np.random.default_rng(11)
     certified = 0
     for _ in range(40):
@@ -440,12 +456,6 @@ def test_bad_belief_and_budget_are_rejected() -> None:
         planner.search(np.array([0.5, 0.5]), 1)
     with pytest.raises(ValueError, match="time_budget"):
         planner.plan(np.ones(3) / 3, 2, time_budget=-1.0)
-
-
-def test_from_model_uses_the_bounds_lp() -> None:
-    planner = Planner.from_model(_S3, variant="feasible")
-    assert planner.has_bounds and planner.bounds_solution.feasible
-    assert not Planner.from_model(_S3, variant=None).has_bounds
 
 
 def test_tracking_transitions_are_used_unchanged() -> None:

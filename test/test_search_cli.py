@@ -1,4 +1,4 @@
-"""Tests of ``pomdp-planner plan``, ``pomdp-planner bench search`` and the search policies."""
+"""Tests of ``pomdp-planner plan``."""
 
 from __future__ import annotations
 
@@ -8,11 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pomdp_planner.bench.search_bench import BenchConfig, bench_model, format_report, run_search_bench
 from pomdp_planner.cli import main
+from pomdp_planner.core.bounds import BOUND_VARIANTS
+from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.search import Planner, complete_tree_nodes
-from pomdp_planner.core.simulate import make_policy, policy_names
+from pomdp_planner.core.search import (
+    MAX_DEPTH_RANGE,
+    TIME_BUDGET_RANGE,
+    check_depth,
+    check_time_budget,
+    complete_tree_nodes,
+)
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 S3 = str(MODELS / "tracking_s3_info.yaml")
@@ -26,7 +32,7 @@ def run_json(capsys: pytest.CaptureFixture[str], *argv: str) -> dict:
 def test_plan_json_fixed_depth(capsys: pytest.CaptureFixture[str]) -> None:
     out = run_json(capsys, "plan", S3, "--belief", "0.2,0.5,0.3", "--depth", "3", "--json")
     model = load_model(S3)
-    ref = Planner.from_model(model).search(np.array([0.2, 0.5, 0.3]), 3)
+    ref = build_planner(model).planner.search(np.array([0.2, 0.5, 0.3]), 3)
     assert out["action"] == ref.priority and 1 <= out["action"] <= 3
     assert out["depth"] == 3 and out["mode"] == "fixed-depth"
     assert out["nodes_expanded"] == list(ref.nodes_expanded)
@@ -53,8 +59,8 @@ def test_plan_text(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.parametrize(("belief", "message"), [
     ("0.2,0.5", "expected 3 probabilities"),
-    ("0.2,0.5,0.4", "sum to"),
-    ("-0.2,0.7,0.5", "non-negative"),
+    ("0.2,0.5,0.4", "sums to 1.1, not 1"),
+    ("-0.2,0.7,0.5", "entry 0 is negative"),
     ("a,b,c", "comma-separated"),
 ])
 def test_plan_bad_belief_exits_2(capsys: pytest.CaptureFixture[str], belief: str, message: str) -> None:
@@ -62,44 +68,40 @@ def test_plan_bad_belief_exits_2(capsys: pytest.CaptureFixture[str], belief: str
     assert message in capsys.readouterr().err
 
 
-def test_plan_bad_depth_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["plan", S3, "--depth", "0"]) == 2
-    assert "--depth" in capsys.readouterr().err
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--depth", "0"], "--depth: must be an integer in 1..50, got 0"),
+    (["--depth", "51"], "--depth: must be an integer in 1..50"),
+    (["--time-budget", "0.5", "--max-depth", "0"], "--max-depth: must be an integer in 1..50"),
+    (["--time-budget", "0"], "--time-budget: must be a number of seconds in 0.001..60"),
+    (["--time-budget", "nan"], "--time-budget: must be a number of seconds in 0.001..60"),
+    (["--time-budget", "61"], "--time-budget: must be a number of seconds in 0.001..60"),
+])
+def test_plan_search_parameters_use_the_cores_ranges(capsys: pytest.CaptureFixture[str], argv: list[str],
+                                                     message: str) -> None:
+    """The ranges are the core's (``core.search.MAX_DEPTH_RANGE``, ``TIME_BUDGET_RANGE``), the same the
+    planner node's parameters use."""
+    assert (MAX_DEPTH_RANGE, TIME_BUDGET_RANGE) == ((1, 50), (0.001, 60.0))
+    assert main(["plan", S3, *argv]) == 2
+    assert message in capsys.readouterr().err
 
 
-def test_bench_model_small_config() -> None:
-    model = load_model(S3)
-    cfg = BenchConfig(beliefs=4, deep_beliefs=2, timed=2, depths=(2, 3, 4), timed_max_depth=3)
-    res = bench_model(model, cfg)
-    rows = {p["depth"]: p for p in res["pruning"]}
-    assert rows[4]["beliefs"] == 2 and rows[2]["beliefs"] == 4
-    planner = Planner.from_model(model)
-    b = np.random.default_rng(0).dirichlet(np.ones(3), size=4)
-    mean = np.mean([sum(planner.count_nodes(x, 2)) for x in b])
-    assert rows[2]["bnb_nodes_mean"] == pytest.approx(mean)
-    assert rows[2]["percent_pruned_mean"] == pytest.approx(100 * (1 - mean / 91))
-    assert [t["depth"] for t in res["timing"]] == [2, 3]
-    assert all(0.0 <= t["agreement"] <= 1.0 and t["speedup"] > 0 for t in res["timing"])
+def test_variant_choices_come_from_the_core() -> None:
+    from pomdp_planner.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for command in ("plan", "bounds"):
+        variant = next(a for a in sub.choices[command]._actions if a.dest == "variant")
+        assert tuple(variant.choices) == BOUND_VARIANTS
 
 
-def test_bench_cli_writes_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    out = tmp_path / "bench.json"
-    assert main(["bench", "search", "--model", S3, "--beliefs", "2", "--timed", "1", "--json", str(out)]) == 0
-    data = json.loads(out.read_text())
-    assert data["benchmark"] == "search" and data["models"][0]["S"] == 3
-    assert "paper Table II" in capsys.readouterr().out
-    report = format_report(run_search_bench([S3], BenchConfig(beliefs=1, deep_beliefs=1, timed=1, depths=(2,),
-                                                                timed_max_depth=2)))
-    assert "26.3%" not in report  # the paper's row belongs to the S = Z = 8, A = 3 problem only
-
-
-def test_search_policies_registered() -> None:
-    model = load_model(S3)
-    assert {"bnb", "exhaustive", "lower", "upper"} <= set(policy_names())
-    b = np.array([0.2, 0.5, 0.3])
-    planner = Planner.from_model(model)
-    assert make_policy("bnb", model, depth=2).act(b) == planner.search(b, 2).action
-    assert make_policy("exhaustive", model, depth=2).act(b) == planner.search(b, 2, use_bounds=False).action
-    lo, up = planner.root_bounds(b)
-    assert make_policy("lower", model).act(b) == lo and make_policy("upper", model).act(b) == up
-    assert 0 <= make_policy("bnb", model, time_budget=0.01).act(b) < 3
+def test_core_validators_are_the_last_guard() -> None:
+    assert check_depth(3) == 3 and check_depth(np.int64(7), "d", MAX_DEPTH_RANGE) == 7
+    assert check_time_budget(0) == 0.0 and check_time_budget("0.25") == 0.25
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="depth"):
+            check_depth(bad)
+    for bad in (-1.0, float("inf"), "x", None, True):
+        with pytest.raises(ValueError, match="time_budget"):
+            check_time_budget(bad)
+    with pytest.raises(ValueError, match=r"in 1\.\.50"):
+        check_depth(51, allowed=MAX_DEPTH_RANGE)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.search import (
@@ -55,7 +56,9 @@ def s3():
 ])
 def test_estimate_bounds_the_measured_peak(request, name, chunk, use_bounds, depths):
     model = request.getfixturevalue(name)
-    planner = Planner.from_model(model, "tight" if use_bounds else None, chunk_bytes=chunk)
+    setup = build_planner(model, use_bounds=use_bounds, chunk_bytes=chunk)
+    assert setup.mode == ("prune" if use_bounds else "exhaustive")
+    planner = setup.planner
     b = np.full(model.S, 1.0 / model.S)
     for d in depths:
         peak = traced_peak(planner.search, b, d, use_bounds=use_bounds)

@@ -7,19 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from pomdp_planner.core import simulate as sim
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP, ModelError
-from pomdp_planner.core.simulate import (
-    POLICIES,
-    MyopicPolicy,
-    RandomPolicy,
-    make_policy,
-    policy_names,
-    register_policy,
-    simulate,
-)
+from pomdp_planner.core.policies import MyopicPolicy, RandomPolicy, make_policy, policy_names
+from pomdp_planner.core.simulate import simulate
 
 S3 = "config/models/tracking_s3_info.yaml"
 
@@ -129,14 +121,6 @@ def test_policies_callable_object_and_registry(s3):
         simulate(s3, 42, steps=1)
 
 
-def test_register_policy(s3, monkeypatch):
-    monkeypatch.setitem(POLICIES, "dummy", POLICIES["myopic"])  # restored after the test
-    register_policy("dummy", lambda model, opts: (lambda b: opts.get("fixed", 0)), "fixed action")
-    assert "dummy" in policy_names()
-    assert make_policy("dummy", s3, fixed=1)(np.ones(3) / 3) == 1
-    assert simulate(s3, "dummy", steps=2, seed=0).actions.tolist() == [0, 0]
-
-
 def test_to_dict_uses_priorities(s3):
     named = POMDP(P=s3.P, O=s3.O, r=s3.r, gamma=s3.gamma, state_names=["lo", "mid", "hi"])
     d = simulate(named, "random", steps=5, seed=2).to_dict(named.state_names, None)
@@ -144,9 +128,3 @@ def test_to_dict_uses_priorities(s3):
     assert all(1 <= row["priority"] <= 3 for row in d["steps"])
     assert all(row["state_name"] in ("lo", "mid", "hi") for row in d["steps"])
     assert set(d["summary"]) >= {"mean_reward", "discounted_return", "steps"}
-
-
-def test_plugin_modules_are_optional(monkeypatch):
-    monkeypatch.setattr(sim, "POLICY_MODULES", ("pomdp_planner.core.does_not_exist",))
-    monkeypatch.setattr(sim, "_plugins_loaded", False)
-    assert "myopic" in policy_names()

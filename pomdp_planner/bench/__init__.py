@@ -1,5 +1,13 @@
-"""Benchmarks that ship with the package (so ``pomdp-planner bench ...`` works when installed).
+"""Measurement code, all of it, shipped with the package (so ``pomdp-planner bench ...`` works installed).
 
-``bench/`` at the repository root holds the documented entry scripts, e.g.
-``python bench/search_bench.py``.
+* :mod:`.search`: the search benchmark (paper Table II, timings, throughput):
+  ``pomdp-planner bench search`` or ``python -m pomdp_planner.bench.search``.
+* :mod:`.experiments`: every experiment of the paper and the peer comparison, writing
+  docs/RESULTS.md (``pomdp-planner bench all``, ``make experiments``).
+* :mod:`.paper`: the paper's published numbers, shown beside ours.
+* ``ros/``: benchmarks of the ROS 2 nodes (they import rclpy; the only part of ``bench`` that may
+  import ``pomdp_planner.nodes``).
+
+Everything here imports the core (and ``.paper``); nothing in the core, the CLI's other commands
+or the nodes imports it.
 """

@@ -1,28 +1,22 @@
 """The ``pomdp-planner`` command line (also ``python -m pomdp_planner``).
 
-Each subcommand is a module ``pomdp_planner.cli.<name>`` exposing ``register(subparsers)``,
-which adds its parser and sets ``func`` (called with the parsed arguments, returning an exit
-code). Pure core only: nothing here imports rclpy.
+Each subcommand is a module ``pomdp_planner.cli.<name>`` (listed in :data:`SUBCOMMANDS`)
+exposing ``register(subparsers)``, which adds its parser and sets ``func`` (called with the
+parsed arguments, returning an exit code). Pure core only: nothing here imports rclpy.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from collections.abc import Sequence
 
+from ..core.belief import BeliefError
 from ..core.model import ModelError
+from . import bench, bounds, check, export, plan, simulate
 
 #: Subcommand modules, in the order ``--help`` lists them.
-SUBCOMMANDS = [
-    "check",
-    "bounds",
-    "export",
-    "simulate",
-    "plan",
-    "bench",
-]
+SUBCOMMANDS = (check, bounds, export, simulate, plan, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,8 +27,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in SUBCOMMANDS:
-        importlib.import_module(f"{__name__}.{name}").register(sub)
+    for module in SUBCOMMANDS:
+        module.register(sub)
     return parser
 
 
@@ -43,7 +37,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except ModelError as exc:
+    except (ModelError, BeliefError) as exc:  # bad input: the message names the field
         print(f"pomdp-planner: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:

@@ -25,6 +25,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from ..core.belief import check_belief, uniform_belief
 from ..core.io.model_yaml import load_model
 from ..core.model import POMDP, ModelError
 
@@ -54,24 +55,19 @@ def add_belief_argument(parser: argparse.ArgumentParser, default: str = "uniform
 def parse_belief(text: str, model: POMDP, field: str = "--belief") -> np.ndarray:
     """Parse ``uniform`` or ``p1,p2,...,pS`` into a belief of ``model``.
 
-    The probabilities must be finite, non-negative and sum to 1 within 1e-6 (they are then
-    renormalised exactly). Errors are ``ModelError`` naming ``field``.
+    Only the text is handled here; the belief itself is checked by the core's one rule,
+    :func:`~pomdp_planner.core.belief.check_belief` (length S, finite, on the simplex within
+    1e-6). Errors name ``field``: ``ModelError`` for the text, ``BeliefError`` from the core
+    (``cli.main`` turns both into exit code 2).
     """
     text = text.strip()
     if text.lower() == "uniform":
-        return np.full(model.S, 1.0 / model.S)
+        return uniform_belief(model)
     try:
         values = [float(x) for x in text.replace(" ", "").split(",") if x != ""]
     except ValueError:
         raise ModelError(f"{field}: expected 'uniform' or comma-separated numbers, got {text!r}") from None
-    b = np.asarray(values, dtype=float)
-    if b.shape != (model.S,):
-        raise ModelError(f"{field}: expected {model.S} probabilities (one per state), got {b.size}")
-    if not np.all(np.isfinite(b)) or np.any(b < 0.0):
-        raise ModelError(f"{field}: probabilities must be finite and non-negative, got {text!r}")
-    if abs(b.sum() - 1.0) > 1e-6:
-        raise ModelError(f"{field}: probabilities sum to {b.sum():.9g}, not 1")
-    return b / b.sum()
+    return check_belief(model, np.asarray(values, dtype=float), field=field)
 
 
 def to_jsonable(x: Any) -> Any:

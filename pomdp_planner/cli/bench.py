@@ -1,8 +1,9 @@
 """``pomdp-planner bench search|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
-throughput), the same as ``python bench/search_bench.py`` (``pomdp_planner/bench/search_bench.py``).
-``bench all`` regenerates docs/RESULTS.md (``pomdp_planner/cli/experiments.py``, issue 6).
+throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
+``bench all`` regenerates docs/RESULTS.md (``pomdp_planner/bench/experiments/``, through
+``pomdp_planner/cli/experiments.py``).
 """
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..bench import search_bench
+from ..bench import search as search_bench
+from . import experiments
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,8 +25,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=search_bench.__doc__.split("\n\n")[0])
     search_bench.add_arguments(s)
     s.set_defaults(func=_run_search)
-    from . import experiments  # issue 6: every experiment -> docs/RESULTS.md (cli/experiments.py)
-
     experiments.add_arguments(sub.add_parser("all", help="all experiments: docs/RESULTS.md and docs/img/*.png",
                                              description=experiments.__doc__.split("\n\n")[0]))
 
@@ -32,6 +32,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _run_search(args: argparse.Namespace) -> int:
     try:
         return search_bench.run_from_args(args)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, OSError) as exc:  # ModelError included: a bad option or model file; an unwritable --json
         print(f"pomdp-planner bench search: error: {exc}", file=sys.stderr)
         return 2

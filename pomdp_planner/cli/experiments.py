@@ -12,10 +12,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..bench.experiments.runner import SECTIONS, run_all
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..experiments.runner import SECTIONS
-
     parser.add_argument("--output", default="docs", metavar="DIR",
                         help="directory for RESULTS.md and img/*.png (default: docs)")
     parser.add_argument("--quick", action="store_true", help="toy sizes, < 2 minutes (CI smoke test)")
@@ -34,9 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiments.runner import SECTIONS, run_all
-
-    try:
+    try:  # an optional extra, imported only to say clearly that it is missing
         import matplotlib  # noqa: F401
     except ImportError:
         print("pomdp-planner: error: the experiments need matplotlib: pip install 'pomdp_planner[experiments]'",

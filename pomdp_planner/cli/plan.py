@@ -9,8 +9,11 @@ the root bounds agree (certified optimal action) and the time used.
 ``--depth D`` searches exactly depth D; ``--time-budget S`` runs the anytime planner
 (iterative deepening up to ``--max-depth``, stopped by the deadline, returning the deepest
 completed depth). ``--exhaustive`` searches all actions (no bounds are solved). The bounds come
-from the LP of Theorem 2 (``--variant``); if it is infeasible the search falls back to
-exhaustive and says so.
+from the LP of Theorem 2 (``--variant``) through the assumption gate
+(:func:`pomdp_planner.core.gate.build_planner`): if the model fails Assumption 1, the LP is
+infeasible or the Shannon guarantee covers no domain, the search is exhaustive and the output
+says why. ``--prune-without-guarantee`` prunes anyway; the output then says that no guarantee
+holds, and no decision is certified. Crossed root bounds (lower > upper) are reported as such.
 """
 
 from __future__ import annotations
@@ -18,8 +21,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..core.model import ModelError
-from ..core.search import Planner
+from ..core.bounds import BOUND_VARIANTS
+from ..core.gate import build_planner
+from ..core.search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_time_budget
 from ._common import add_belief_argument, add_json_argument, add_model_argument, emit_json, load_model_arg, parse_belief
 
 DEFAULT_DEPTH = 3
@@ -32,15 +36,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_model_argument(p)
     add_belief_argument(p)
     g = p.add_mutually_exclusive_group()
+    depths, budgets = "..".join(map(str, MAX_DEPTH_RANGE)), "..".join(f"{x:g}" for x in TIME_BUDGET_RANGE)
     g.add_argument("--depth", type=int, default=None, metavar="D",
-                   help=f"search exactly this depth (default {DEFAULT_DEPTH} unless --time-budget is given)")
+                   help=f"search exactly this depth, {depths} (default {DEFAULT_DEPTH} unless --time-budget is given)")
     g.add_argument("--time-budget", type=float, default=None, metavar="S",
-                   help="anytime search: iterative deepening for at most S seconds")
+                   help=f"anytime search: iterative deepening for at most S seconds, {budgets}")
     p.add_argument("--max-depth", type=int, default=DEFAULT_MAX_DEPTH, metavar="D",
-                   help=f"deepest depth of the anytime search (default {DEFAULT_MAX_DEPTH})")
+                   help=f"deepest depth of the anytime search, {depths} (default {DEFAULT_MAX_DEPTH})")
     p.add_argument("--exhaustive", action="store_true", help="search all actions (no myopic bounds)")
-    p.add_argument("--variant", default="tight", choices=("tight", "feasible"),
-                   help="bound variant of the LP (default tight)")
+    p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
+                   help=f"bound variant of the LP (default {BOUND_VARIANTS[0]})")
+    p.add_argument("--prune-without-guarantee", action="store_true",
+                   help="prune with the bounds even where the gate finds them not valid (Assumption 1 fails or "
+                        "is unproven, or the Shannon guarantee covers no domain): NO GUARANTEE, nothing certified")
     add_json_argument(p)
     p.set_defaults(func=run)
 
@@ -48,33 +56,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
     belief = parse_belief(args.belief, model)
-    if args.depth is not None and args.depth < 1:
-        raise ModelError(f"--depth: must be >= 1, got {args.depth}")
-    if args.max_depth < 1:
-        raise ModelError(f"--max-depth: must be >= 1, got {args.max_depth}")
-    if args.time_budget is not None and not args.time_budget >= 0.0:
-        raise ModelError(f"--time-budget: must be a non-negative number of seconds, got {args.time_budget}")
-    planner = Planner.from_model(model, variant=None if args.exhaustive else args.variant)
-    sol = planner.bounds_solution
+    depth = DEFAULT_DEPTH if args.depth is None else check_depth(args.depth, "--depth", MAX_DEPTH_RANGE)
+    max_depth = check_depth(args.max_depth, "--max-depth", MAX_DEPTH_RANGE)
+    budget = None if args.time_budget is None else check_time_budget(args.time_budget, "--time-budget",
+                                                                       TIME_BUDGET_RANGE)
+    setup = build_planner(model, use_bounds=not args.exhaustive, variant=args.variant,
+                          prune_without_guarantee=args.prune_without_guarantee,
+                          override_name="--prune-without-guarantee")
+    planner = setup.planner
+    assert planner is not None  # the gate refuses only when asked to (on_assumption_failure="refuse")
+    sol = setup.bounds
     bounds_info = None if sol is None else {"variant": args.variant, "feasible": bool(sol.feasible),
                                             "message": sol.message}
-    if sol is not None and not planner.has_bounds:
-        print(f"pomdp-planner plan: bounds infeasible ({sol.message}); searching exhaustively", file=sys.stderr)
-    use_bounds = planner.has_bounds
-    if args.time_budget is not None:
-        res = planner.plan(belief, max_depth=args.max_depth, time_budget=args.time_budget, use_bounds=use_bounds)
+    if args.json and not args.exhaustive and not setup.guaranteed:  # the text output has a "search:" line
+        print(f"pomdp-planner plan: {setup.describe()}", file=sys.stderr)
+    use_bounds = setup.pruning
+    if budget is not None:
+        res = planner.plan(belief, max_depth=max_depth, time_budget=budget, use_bounds=use_bounds)
     else:
-        res = planner.search(belief, args.depth or DEFAULT_DEPTH, use_bounds=use_bounds)
+        res = planner.search(belief, depth, use_bounds=use_bounds)
     if args.json:
-        emit_json({"model": model.name, "belief": belief, "mode": "anytime" if args.time_budget is not None
-                   else "fixed-depth", "bounds": bounds_info, **res.to_dict()})
+        emit_json({"model": model.name, "belief": belief, "mode": "anytime" if budget is not None
+                   else "fixed-depth", "bounds": bounds_info, "gate": setup.to_dict(), **res.to_dict()})
         return 0
     d = res.to_dict()
     q = ", ".join(f"{i + 1}: {'-' if v is None else f'{v:.6g}'}" for i, v in enumerate(d["q_values"]))
     rbs = d["root_bounds"]
-    rb = "none (exhaustive search)" if rbs is None else f"priorities {rbs[0]}..{rbs[1]}"
+    if rbs is None:
+        rb = "none (exhaustive search)"
+    elif res.crossed:
+        rb = (f"crossed bounds: no guarantee (lower priority {rbs[0]} > upper priority {rbs[1]}; "
+              "every action searched)")
+    else:
+        rb = f"priorities {rbs[0]}..{rbs[1]}" + (
+            "" if res.guaranteed else " (bounds without guarantee: they certify nothing)")
     lines = [
         f"action: priority {d['action']}" + ("  (certified: the root bounds agree)" if d["certified"] else ""),
+        f"search: {setup.describe()}",
         f"Q values by priority: {q}",
         f"root bounds: {rb}",
         f"depth: {d['depth']}" + ("  (next depth predicted not to finish in time: not started)"

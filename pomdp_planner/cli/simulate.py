@@ -3,7 +3,10 @@
 Prints one line per step (true state, action as priority 1..A, observation, Shannon entropy
 of the updated belief in nats, belief reward rho(b, a) and state reward r(s, a)) and a summary
 (mean reward, discounted return). States and observations are shown by name when the model
-names them, else by 0-based index. ``--json`` prints the same as data.
+names them, else by 0-based index. ``--json`` prints the same as data. For the planners
+(``bnb``, ``exhaustive``, ``lower``, ``upper``) a header line (JSON: ``planner``) gives the
+assumption gate's decision: pruning with valid bounds, exhaustive search and why, or pruning
+without guarantee (``--option prune_without_guarantee=1``).
 """
 
 from __future__ import annotations
@@ -11,7 +14,8 @@ from __future__ import annotations
 import argparse
 
 from ..core.model import ModelError
-from ..core.simulate import POLICIES, make_policy, policy_names, simulate
+from ..core.policies import POLICIES, make_policy, policy_names
+from ..core.simulate import simulate
 from ._common import (
     add_belief_argument,
     add_json_argument,
@@ -37,12 +41,15 @@ def _option(text: str) -> tuple[str, object]:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("simulate", help="closed-loop simulation of a policy",
-                              description=__doc__.split("\n\n")[0].replace("``", ""))
+                              description=__doc__.split("\n\n")[0].replace("``", ""),
+                              epilog="policies (--policy NAME):\n" + "\n".join(
+                                  f"  {name:<11} {POLICIES[name].help}" for name in policy_names()),
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     add_model_argument(p)
     p.add_argument("--steps", type=int, default=20, help="number of steps (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same run")
     p.add_argument("--policy", default="myopic",
-                   help=f"policy name (built in: {', '.join(sorted(POLICIES))}; later modules add more)")
+                   help=f"policy name: {', '.join(policy_names())} (default myopic; see below)")
     p.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                    help="option passed to the policy factory (repeatable), e.g. --option depth=3")
     add_belief_argument(p, default="", help_text="initial belief: 'uniform' or p1,...,pS "
@@ -71,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
     if args.steps < 0:
         raise ModelError(f"--steps: must be non-negative, got {args.steps}")
-    if args.policy not in POLICIES and args.policy not in policy_names():
+    if args.policy not in POLICIES:
         raise ModelError(f"--policy: unknown policy {args.policy!r} (known: {', '.join(policy_names())})")
     belief = parse_belief(args.belief, model) if args.belief else None
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.
@@ -81,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
                      initial_state=_initial_state(args.initial_state, model), initial_belief=belief)
     data = trace.to_dict(model.state_names, model.observation_names)
     data["policy"] = args.policy
+    setup = getattr(policy, "setup", None)  # the assumption gate's decision, for the planners
+    if setup is not None:
+        data["planner"] = {**setup.to_dict(), "certified_decisions": getattr(policy, "certified", None)}
     if args.json:
         emit_json(data)
         return 0
@@ -92,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
              label(model.observation_names, row["observation"]), row["entropy"], row["reward"],
              row["state_reward"]] for row in data["steps"]]
     print(f"# {model.describe()}  policy={args.policy} seed={args.seed} steps={args.steps}")
+    if setup is not None:
+        print(f"# planner: {setup.describe()}")
     print(format_table(["step", "state", "priority", "obs", "entropy", "reward", "r(s,a)"], rows))
     s = data["summary"]
     print(f"mean reward {s['mean_reward']:.4f}  discounted return {s['discounted_return']:.4f}  "

@@ -46,10 +46,16 @@ class BeliefError(ValueError):
 
 
 def check_belief(model: POMDP, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
-    """Return ``b`` as a float array after checking it lies on the simplex of ``model``."""
+    """Return ``b`` as a float array after checking it lies on the simplex of ``model``.
+
+    The one belief rule of the package: ``S`` finite entries, none below ``-atol``, summing to 1
+    within ``atol``; the result is clipped at 0 and renormalised. Errors are :class:`BeliefError`
+    naming ``field``; the edges (CLI, nodes) translate them.
+    """
     b = np.asarray(b, dtype=float)
     if b.shape != (model.S,):
-        raise BeliefError(f"{field}: expected {model.S} entries, got shape {b.shape}")
+        got = f"{b.size}" if b.ndim == 1 else f"shape {b.shape}"
+        raise BeliefError(f"{field}: expected {model.S} probabilities (one per state), got {got}")
     if not np.all(np.isfinite(b)):
         raise BeliefError(f"{field}: contains non-finite values")
     if np.any(b < -atol):

@@ -44,9 +44,16 @@ machine multi-threaded BLAS waiting for a busy core made the leaf level several 
 Anytime (:meth:`Planner.plan`): iterative deepening ``1..max_depth``; the deadline is checked
 before every chunk (about 4 MB of work, a few ms), an interrupted depth is discarded and the
 deepest completed one returned; depth 1 ignores the deadline; a depth predicted not to finish
-is not started (:func:`next_depth_cannot_finish`). If the root bounds agree the
-action is certified (Proposition 1) and ``plan`` returns after depth 1 of that one action (the
-other Q values are ``nan``); :meth:`Planner.search` always searches the depth it is given.
+is not started (:func:`next_depth_cannot_finish`). If the root bounds agree and the planner's
+bounds are *guaranteed* (Assumption 1 holds and the LP is feasible: the gate of
+:mod:`~pomdp_planner.core.gate` decides, and only it builds guaranteed planners) the action is
+certified (Proposition 1) and ``plan`` returns after depth 1 of that one action (the other Q
+values are ``nan``); :meth:`Planner.search` always searches the depth it is given. Bounds
+without the guarantee (a model failing Assumption 1 pruned on the user's explicit request, or
+arbitrary bounds given to the constructor) still prune, but never certify: agreeing root bounds
+prove nothing then, so the anytime search does not stop early and deepens as the budget allows.
+Crossed root bounds (lower > upper; impossible for valid bounds) are reported as such
+(:attr:`SearchResult.crossed`).
 The bounds bracket the infinite-horizon optimal action, not a finite lookahead's argmax, so
 B&B and exhaustive search may choose differently; B&B's value never exceeds exhaustive's, and
 they agree whenever no node of the exhaustive-optimal subtree has its argmax pruned
@@ -64,7 +71,7 @@ from typing import Any
 import numpy as np
 
 from .belief import ETA_MIN, check_belief
-from .model import POMDP, format_bytes, priority_of
+from .model import POMDP, ModelError, format_bytes, priority_of
 from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
 
 #: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
@@ -87,8 +94,42 @@ DEFAULT_MEMORY_BUDGET = 2**30
 MAX_SEARCH_DEPTH = 100
 #: Fixed part of :func:`search_memory_estimate` (root arrays, results, small temporaries).
 SEARCH_OVERHEAD_BYTES = 64 * 2**10
+#: The search depths a user may ask for (Table II convention; ``--depth``/``--max-depth`` of the
+#: CLI, the ``simulate`` options, the planner node's ``max_depth``), inclusive.
+MAX_DEPTH_RANGE = (1, 50)
+#: The time budgets a user may ask for, seconds (``--time-budget``, the ``simulate`` option,
+#: the planner node's ``time_budget``), inclusive.
+TIME_BUDGET_RANGE = (0.001, 60.0)
 
 Bounds = MyopicBounds | TrivialBounds
+
+
+def check_depth(depth: Any, field: str = "depth", allowed: tuple[int, int | None] = (1, None)) -> int:
+    """``depth`` as an int after checking it is an integer in ``allowed`` (inclusive; ``None``: no
+    upper limit). The planner's own guard is ``>= 1``; user-facing edges pass :data:`MAX_DEPTH_RANGE`.
+    Raises :class:`~.model.ModelError` naming ``field``."""
+    lo, hi = allowed
+    ok = not isinstance(depth, bool) and isinstance(depth, (int, np.integer))
+    if not ok or depth < lo or (hi is not None and depth > hi):
+        want = f"an integer >= {lo}" if hi is None else f"an integer in {lo}..{hi}"
+        raise ModelError(f"{field}: must be {want}, got {depth!r}")
+    return int(depth)
+
+
+def check_time_budget(seconds: Any, field: str = "time_budget",
+                      allowed: tuple[float, float | None] = (0.0, None)) -> float:
+    """``seconds`` as a float after checking it is a finite number in ``allowed`` (inclusive). The
+    planner's own guard is ``>= 0`` (0: depth 1 only); user-facing edges pass :data:`TIME_BUDGET_RANGE`.
+    Raises :class:`~.model.ModelError` naming ``field``."""
+    lo, hi = allowed
+    try:
+        t = float(seconds)
+    except (TypeError, ValueError):
+        t = math.nan
+    if isinstance(seconds, bool) or not math.isfinite(t) or t < lo or (hi is not None and t > hi):
+        want = f">= {lo:g}" if hi is None else f"in {lo:g}..{hi:g}"
+        raise ModelError(f"{field}: must be a number of seconds {want}, got {seconds!r}")
+    return t
 
 
 def complete_level_sizes(A: int, Z: int, depth: int) -> tuple[int, ...]:
@@ -115,8 +156,11 @@ def next_depth_cannot_finish(depth_times: Sequence[float], remaining: float, mar
     return t_last * max(1.0, growth) > margin * max(remaining, 0.0)
 
 
-class SearchMemoryError(ValueError):
-    """A search would need more memory than the planner's budget (the message gives both figures)."""
+class SearchMemoryError(ModelError):
+    """A search would need more memory than the planner's budget (the message gives both figures).
+
+    A :class:`~.model.ModelError` (hence a ``ValueError``), like the other refusals of a request
+    the planner cannot serve, so the command line reports it as exit code 2."""
 
 
 def _chunk_sizes(S: int, A: int, Z: int, chunk_bytes: int) -> tuple[int, int, int]:
@@ -168,7 +212,9 @@ class SearchResult:
     ``q_values[a]`` is the depth-``depth`` estimate ``Q(b0, a)`` of Algorithm 1, ``nan`` for
     actions pruned at the root. ``nodes_expanded[i]`` / ``nodes_pruned[i]`` refer to the
     tree of depth ``i + 1`` (see the module docstring). ``certified`` means the root bounds
-    agree, so the action is the optimal one under the theory's assumptions (Proposition 1).
+    agree and are guaranteed (``guaranteed``: Assumption 1 holds, the LP is feasible), so the
+    action is the optimal one (Proposition 1); ``crossed``: the root bounds cross (lower > upper),
+    which valid bounds never do.
     """
 
     action: int
@@ -186,6 +232,12 @@ class SearchResult:
     used_bounds: bool = True
     depth_times: tuple[float, ...] = field(default=())
     predicted_stop: bool = False
+    guaranteed: bool = False
+
+    @property
+    def crossed(self) -> bool:
+        """The root bounds cross (``lower > upper``): no guarantee, every action was searched."""
+        return self.root_bounds is not None and self.root_bounds[0] > self.root_bounds[1]
 
     @property
     def complete_nodes(self) -> tuple[int, ...]:
@@ -210,7 +262,9 @@ class SearchResult:
             "nodes_complete": [int(x) for x in self.complete_nodes],
             "percent_pruned": [round(x, 4) for x in self.percent_pruned],
             "certified": bool(self.certified),
+            "guaranteed": bool(self.guaranteed),
             "root_bounds": None if self.root_bounds is None else [int(x) + 1 for x in self.root_bounds],
+            "root_bounds_crossed": bool(self.crossed),
             "used_bounds": bool(self.used_bounds),
             "time_used": float(self.time_used),
             "deadline_hit": bool(self.deadline_hit),
@@ -237,17 +291,22 @@ class Planner:
 
     ``bounds`` is a :class:`MyopicBounds` (or anything with its ``actions(B, rho)``
     interface); ``None`` means :class:`TrivialBounds`, i.e. only exhaustive search.
-    ``chunk_bytes`` bounds the memory of one chunk (smaller chunks: finer deadline checks).
-    ``memory_budget`` bounds the memory of one search: a depth whose
+    ``guaranteed``: the bounds are proven valid for ``model``, so agreeing root bounds certify
+    the action (and stop the anytime search); entry points get planners from
+    :func:`pomdp_planner.core.gate.build_planner`, which sets it only when Assumption 1 holds
+    and the LP is feasible. ``chunk_bytes`` bounds the memory of one chunk (smaller chunks:
+    finer deadline checks). ``memory_budget`` bounds the memory of one search: a depth whose
     :func:`search_memory_estimate` exceeds it is refused before it starts
-    (:class:`SearchMemoryError`), as is a depth beyond :data:`MAX_SEARCH_DEPTH`.
-    ``clock`` is the wall clock used for deadlines and timings (injectable for tests).
+    (:class:`SearchMemoryError`), as is a depth beyond :data:`MAX_SEARCH_DEPTH`. ``clock`` is
+    the wall clock used for deadlines and timings (injectable for tests).
     """
 
     def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 clock: Callable[[], float] = time.perf_counter, memory_budget: int = DEFAULT_MEMORY_BUDGET):
+                 clock: Callable[[], float] = time.perf_counter, guaranteed: bool = False,
+                 memory_budget: int = DEFAULT_MEMORY_BUDGET):
         self.model = model
         self.clock = clock
+        self.guaranteed = bool(guaranteed) and bounds is not None
         self.chunk_bytes = chunk_bytes
         self.memory_budget = memory_budget
         self.trivial = TrivialBounds(model)
@@ -256,7 +315,6 @@ class Planner:
             bm = self.bounds.model
             if (bm.S, bm.A, bm.Z) != (model.S, model.A, model.Z):
                 raise ValueError("bounds: built for a model of different size")
-        self.bounds_solution: Any = None
         self._bound_cache: tuple[Any, np.ndarray] | None = None
         ar = np.arange(model.A)
         lo, up = ar[None, :, None], ar[None, None, :]
@@ -288,31 +346,6 @@ class Planner:
             self._kind = "none"
         self._leaf_chunk, self._expand_chunk, _ = _chunk_sizes(S, A, Z, chunk_bytes)
 
-    # ------------------------------------------------------------ construction
-    @classmethod
-    def from_model(cls, model: POMDP, variant: str | None = "tight", strict: bool = False, **kwargs: Any) -> Planner:
-        """Planner with bounds from ``core.bounds.solve_bounds(model, variant)``.
-
-        ``variant=None`` gives an exhaustive-only planner. If the bounds LP is infeasible,
-        ``strict=True`` raises ``ValueError``; otherwise the planner falls back to
-        :class:`TrivialBounds` (exhaustive search, always correct) and keeps the solution in
-        ``planner.bounds_solution`` so the caller can report its ``message``.
-        """
-        if variant is None:
-            return cls(model, None, **kwargs)
-        from .bounds import solve_bounds  # imported lazily: optional until the bounds module lands
-
-        sol = solve_bounds(model, variant=variant)
-        myopic = getattr(sol, "myopic", None)
-        if not getattr(sol, "feasible", False) or myopic is None:
-            if strict:
-                raise ValueError(f"bounds: variant {variant!r} infeasible: {getattr(sol, 'message', '')}")
-            planner = cls(model, None, **kwargs)
-        else:
-            planner = cls(model, myopic, **kwargs)
-        planner.bounds_solution = sol
-        return planner
-
     @property
     def has_bounds(self) -> bool:
         """Whether the planner has informative bounds (not :class:`TrivialBounds`)."""
@@ -331,7 +364,7 @@ class Planner:
         Always searches the full requested depth (also when the root bounds agree; then
         only one root action is expanded). ``use_bounds=False`` is the exhaustive search.
         """
-        depth = self._check_depth(depth, "depth")
+        depth = check_depth(depth)
         self.check_memory(depth, "depth")
         b = check_belief(self.model, belief)
         t0 = self.clock()
@@ -347,9 +380,10 @@ class Planner:
 
         The deadline (``time_budget`` seconds from the call) is checked between chunks inside
         a depth; an interrupted depth is discarded and the result of the deepest completed
-        depth is returned (``deadline_hit=True``). Depth 1 always completes. If the bounds
-        agree at the root the action is certified: the planner returns at once after the
+        depth is returned (``deadline_hit=True``). Depth 1 always completes. If guaranteed
+        bounds agree at the root the action is certified: the planner returns at once after the
         (tiny) depth-1 search of that single action, so the other Q values are ``nan``.
+        Bounds without the guarantee never stop it early (module docstring).
 
         ``predict_stop``: after two completed depths, depth ``d + 1`` is not started when it
         cannot finish: its predicted time (time of depth ``d`` times the growth ``t_d / t_{d-1}``)
@@ -358,12 +392,10 @@ class Planner:
         ``predicted_stop`` set); the growth measured at shallow depths underestimates the real
         one (fixed per-call costs), so the rule errs towards trying.
         """
-        max_depth = self._check_depth(max_depth, "max_depth")
+        max_depth = check_depth(max_depth, "max_depth")
         self.check_memory(max_depth, "max_depth")
         if time_budget is not None:
-            time_budget = float(time_budget)
-            if not time_budget >= 0.0:
-                raise ValueError(f"time_budget: must be a non-negative number of seconds, got {time_budget}")
+            time_budget = check_time_budget(time_budget)
         b = check_belief(self.model, belief)
         t0 = self.clock()
         deadline = None if time_budget is None else t0 + time_budget
@@ -401,7 +433,7 @@ class Planner:
         Much cheaper than :meth:`search` at the same depth (the leaf level only needs
         ``eta``); ``nodes_expanded`` of depth ``i`` is ``sum(level_sizes[:i + 1])``.
         """
-        depth = self._check_depth(depth, "depth")
+        depth = check_depth(depth)
         self.check_memory(depth, "depth")
         b = check_belief(self.model, belief)
         bounds = self.bounds if use_bounds else self.trivial
@@ -438,12 +470,6 @@ class Planner:
             f"{format_bytes(self.memory_budget)}; {deepest}")
 
     # --------------------------------------------------------------- internals
-    @staticmethod
-    def _check_depth(depth: int, name: str) -> int:
-        if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or depth < 1:
-            raise ValueError(f"{name}: must be an integer >= 1, got {depth!r}")
-        return int(depth)
-
     def _root(self, b: np.ndarray, bounds: Bounds
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int] | None]:
         """``(BT, rho, allowed, root bounds)`` at ``b``: its column, ``rho(b, .)``, the allowed
@@ -454,8 +480,8 @@ class Planner:
         return BT, rhoT, self._allowed(lo, up, 1), rb
 
     def _is_certified(self, rb: tuple[int, int] | None) -> bool:
-        """Root bounds agree (Proposition 1), or there is only one action."""
-        return self.model.A == 1 if rb is None else rb[0] == rb[1]
+        """Guaranteed root bounds agree (Proposition 1), or there is only one action."""
+        return self.model.A == 1 or (rb is not None and self.guaranteed and rb[0] == rb[1])
 
     def _rho(self, BT: np.ndarray, linear: np.ndarray | None = None) -> np.ndarray:
         """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``.
@@ -538,7 +564,7 @@ class Planner:
             nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
             time_used=float(t), deadline_hit=bool(hit), value=float(q[action]),
             level_sizes=tuple(int(x) for x in sizes), used_bounds=rb is not None,
-            depth_times=times, predicted_stop=bool(predicted),
+            depth_times=times, predicted_stop=bool(predicted), guaranteed=self.guaranteed and rb is not None,
         )
 
     def _run(self, root: tuple, depth: int, bounds: Bounds, deadline: float | None
@@ -731,82 +757,3 @@ class Planner:
             CT, _, _ = self._expand(BT[:, s:s + step], allowed[:, s:s + step])
             sizes[level + 1] += CT.shape[1]
             self._count(CT, self._rho_allowed(bounds, CT)[1], remaining - 1, level + 1, sizes, bounds)
-
-
-# ------------------------------------------------------------------ simulation policies
-class SearchPolicy:
-    """A closed-loop policy that plans every step (``pomdp-planner simulate --policy bnb``).
-
-    Options: ``depth`` (fixed-depth search, default 3), or ``time_budget`` seconds of anytime
-    search up to ``max_depth`` (default 10); ``variant`` of the bounds (``tight``).
-    """
-
-    def __init__(self, planner: Planner, depth: int = 3, time_budget: float | None = None, max_depth: int = 10,
-                 use_bounds: bool = True):
-        self.planner = planner
-        self.depth = Planner._check_depth(depth, "depth")
-        self.max_depth = Planner._check_depth(max_depth, "max_depth")
-        self.time_budget = None if time_budget is None else float(time_budget)
-        self.use_bounds = use_bounds and planner.has_bounds
-        self.last: SearchResult | None = None
-
-    def act(self, belief: np.ndarray) -> int:
-        if self.time_budget is None:
-            self.last = self.planner.search(belief, self.depth, use_bounds=self.use_bounds)
-        else:
-            self.last = self.planner.plan(belief, self.max_depth, self.time_budget, use_bounds=self.use_bounds)
-        return self.last.action
-
-
-class BoundPolicy:
-    """The myopic lower or upper bound policy of Sec. IV (``--policy lower`` / ``upper``)."""
-
-    def __init__(self, bounds: MyopicBounds, which: str):
-        if which not in ("lower", "upper"):
-            raise ValueError(f"which: expected 'lower' or 'upper', got {which!r}")
-        self.bounds = bounds
-        self.which = which
-
-    def act(self, belief: np.ndarray) -> int:
-        b = np.asarray(belief, dtype=float)[None, :]
-        return int(getattr(self.bounds, self.which)(b)[0])
-
-
-def _search_policy(model: POMDP, opts: Any, use_bounds: bool) -> SearchPolicy:
-    from .model import ModelError
-
-    variant = str(opts.get("variant", "tight")) if use_bounds else None
-    planner = Planner.from_model(model, variant=variant)
-    if use_bounds and not planner.has_bounds:
-        raise ModelError(f"policy bnb: the bound LP ({variant}) is infeasible for this model: "
-                         f"{planner.bounds_solution.message}; use --policy exhaustive")
-    tb = opts.get("time_budget")
-    return SearchPolicy(planner, depth=int(opts.get("depth", 3)), time_budget=None if tb is None else float(tb),
-                        max_depth=int(opts.get("max_depth", 10)), use_bounds=use_bounds)
-
-
-def _bound_policy(model: POMDP, opts: Any, which: str) -> BoundPolicy:
-    from .bounds import solve_bounds
-    from .model import ModelError
-
-    variant = str(opts.get("variant", "tight"))
-    sol = solve_bounds(model, variant=variant)
-    if not sol.feasible or sol.myopic is None:
-        raise ModelError(f"policy {which}: the bound LP ({variant}) is infeasible for this model: {sol.message}")
-    return BoundPolicy(sol.myopic, which)
-
-
-def _register_policies() -> None:
-    from .simulate import register_policy
-
-    register_policy("bnb", lambda m, o: _search_policy(m, o, True),
-                    "branch-and-bound search, Algorithm 1 (options: depth=3 | time_budget=S, max_depth, variant)")
-    register_policy("exhaustive", lambda m, o: _search_policy(m, o, False),
-                    "exhaustive tree search (options: depth=3 | time_budget=S, max_depth)")
-    register_policy("lower", lambda m, o: _bound_policy(m, o, "lower"),
-                    "myopic lower-bound policy of Theorem 2 (option: variant)")
-    register_policy("upper", lambda m, o: _bound_policy(m, o, "upper"),
-                    "myopic upper-bound policy of Theorem 2 (option: variant)")
-
-
-_register_policies()

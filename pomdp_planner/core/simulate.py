@@ -15,120 +15,20 @@ true initial state (both can be given independently). Then the belief is re-init
 the normalised likelihood ``O[a_t, :, z]`` of the observation and the step is flagged
 ``recovered``.
 
-Policies are callables ``belief -> 0-based action`` or objects with ``.act(belief)``. The
-registry :data:`POLICIES` maps a name to a factory ``factory(model, options) -> policy``
-(``options`` a dict of keyword options, e.g. ``{"seed": 0}``; factories ignore options they
-do not use). Other modules add their policies with :func:`register_policy` at import time;
-the modules listed in :data:`POLICY_MODULES` are imported on demand by :func:`make_policy`
-and :func:`policy_names`, so ``pomdp-planner simulate --policy NAME`` finds them.
+Policies are callables ``belief -> 0-based action`` or objects with ``.act(belief)``; a name
+is looked up in the one policy table :data:`~.policies.POLICIES` (``core/policies.py``).
 """
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol
 
 import numpy as np
 
 from .belief import ImpossibleObservation, check_belief, start_belief, uniform_belief, update
-from .model import POMDP, ModelError
+from .model import POMDP
+from .policies import Policy, as_callable, make_policy
 from .uncertainty import SHANNON
-
-
-class PolicyObject(Protocol):
-    def act(self, belief: np.ndarray) -> int: ...
-
-
-Policy = Callable[[np.ndarray], int] | PolicyObject
-PolicyFactory = Callable[[POMDP, Mapping[str, Any]], Policy]
-
-
-# ------------------------------------------------------------------------- policies
-class RandomPolicy:
-    """Uniformly random actions from its own seeded generator (ignores the belief)."""
-
-    def __init__(self, model: POMDP, seed: int | None = None):
-        self.num_actions = model.A
-        self.rng = np.random.default_rng(seed)
-
-    def act(self, belief: np.ndarray) -> int:
-        return int(self.rng.integers(self.num_actions))
-
-
-class MyopicPolicy:
-    """Greedy one-step policy ``argmax_a rho(b, a)`` (Eq. 3; ties: smallest index = priority)."""
-
-    def __init__(self, model: POMDP):
-        self.model = model
-
-    def act(self, belief: np.ndarray) -> int:
-        return int(np.argmax(self.model.rho(belief)))
-
-
-@dataclass(frozen=True)
-class PolicyEntry:
-    factory: PolicyFactory
-    help: str
-
-
-#: name -> (factory(model, options) -> policy, one-line help). Extend with :func:`register_policy`.
-POLICIES: dict[str, PolicyEntry] = {
-    "random": PolicyEntry(lambda model, opts: RandomPolicy(model, opts.get("seed")),
-                          "uniformly random actions (seeded by --seed)"),
-    "myopic": PolicyEntry(lambda model, opts: MyopicPolicy(model), "greedy argmax_a rho(b, a) (Eq. 3)"),
-}
-
-#: Modules that register further policies when imported (missing ones are skipped).
-POLICY_MODULES = ("pomdp_planner.core.search", "pomdp_planner.core.bounds", "pomdp_planner.core.reference")
-_plugins_loaded = False
-
-
-def register_policy(name: str, factory: PolicyFactory, help: str = "") -> None:
-    """Add (or replace) policy ``name``: ``factory(model, options) -> policy``."""
-    POLICIES[name] = PolicyEntry(factory, help)
-
-
-def _load_plugins() -> None:
-    global _plugins_loaded
-    if _plugins_loaded:
-        return
-    _plugins_loaded = True
-    for mod in POLICY_MODULES:
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:  # the module exists but something it imports is missing
-                raise
-
-
-def policy_names() -> list[str]:
-    """Names of all registered policies (after importing :data:`POLICY_MODULES`)."""
-    _load_plugins()
-    return sorted(POLICIES)
-
-
-def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
-    """Build the registered policy ``name`` for ``model`` (``options`` go to its factory).
-
-    :data:`POLICY_MODULES` are imported only when ``name`` is not registered yet, so the
-    built-in policies never depend on the planners' modules.
-    """
-    if name not in POLICIES:
-        _load_plugins()
-    if name not in POLICIES:
-        raise ModelError(f"policy: unknown policy {name!r} (known: {', '.join(sorted(POLICIES))})")
-    return POLICIES[name].factory(model, options)
-
-
-def _as_callable(policy: Policy) -> Callable[[np.ndarray], int]:
-    act = getattr(policy, "act", None)
-    if callable(act):
-        return act
-    if callable(policy):
-        return policy
-    raise TypeError(f"policy: expected a callable belief -> action or an object with .act(), got {policy!r}")
 
 
 # ------------------------------------------------------------------------- simulation
@@ -245,7 +145,7 @@ def simulate(model: POMDP, policy: Policy | str, steps: int, seed: int | None = 
     """Run ``policy`` in closed loop for ``steps`` steps (see the module docstring).
 
     ``policy``: a callable ``belief -> action`` (0-based), an object with ``.act(belief)``, or
-    the name of a registered policy (built with ``options {"seed": seed}``).
+    the name of a policy of :data:`~.policies.POLICIES` (built with ``options {"seed": seed + 1}``).
     ``initial_belief``: default the model's ``start`` (metadata), else uniform.
     ``initial_state``: default sampled from the initial belief. Same seed, same run.
     """
@@ -258,7 +158,7 @@ def simulate(model: POMDP, policy: Policy | str, steps: int, seed: int | None = 
         policy_name = getattr(policy, "name", None) or getattr(policy, "__name__", None) or type(policy).__name__
     if isinstance(policy, str):
         policy = make_policy(policy, model, seed=None if seed is None else seed + 1)
-    act = _as_callable(policy)
+    act = as_callable(policy)
     if initial_belief is None:
         b = start_belief(model)
         b = uniform_belief(model) if b is None else b

@@ -50,6 +50,7 @@ import time
 from dataclasses import dataclass, field
 from itertools import combinations
 
+import clarabel
 import numpy as np
 import scipy.sparse as sp
 
@@ -435,8 +436,6 @@ def psd_plus_nonnegative(D: np.ndarray, tol: float = SDP_TOL) -> tuple[bool, flo
     ``lambda_min(D/s - N) >= -tol``. Returns ``(certified, t)``. Exact for S <= 4 (Diananda),
     sufficient beyond (e.g. the 5x5 Horn matrix is copositive but not PSD + N).
     """
-    import clarabel
-
     D = np.asarray(D, dtype=float)
     n = D.shape[0]
     scale = float(np.abs(D).max())

@@ -22,9 +22,12 @@ Planning runs in its own ``MutuallyExclusiveCallbackGroup``; parameter services 
 are in the default group, so on the ``MultiThreadedExecutor`` they are answered during a search.
 Parameter changes take effect at the next decision (``bound_variant`` re-solves the bounds then).
 
-Structural assumptions (``core.structure.check_assumptions``): if the model fails them, the node
-warns once and searches exhaustively (``use_bounds`` ignored); with
-``refuse_if_assumptions_fail`` it publishes nothing and reports ERROR in diagnostics instead.
+Structural assumptions: the planner comes from the core's assumption gate
+(``core.gate.build_planner``, the same rule as every other entry point). If the model fails
+Assumption 1, the node warns once and searches exhaustively (``use_bounds`` ignored); with
+``refuse_if_assumptions_fail`` (the gate's ``on_assumption_failure="refuse"``) it publishes
+nothing and reports ERROR in diagnostics instead. An infeasible LP (or Shannon bounds covering no
+domain) also means exhaustive search. Only guaranteed bounds certify a decision.
 """
 
 from __future__ import annotations
@@ -40,8 +43,8 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_VARIANTS
+from ..core.gate import PlannerSetup, build_planner
 from ..core.search import Planner
-from ..core.structure import check_assumptions
 from . import common
 from .messages import MessageError, decode_belief, encode_action, encode_plan_info
 
@@ -82,22 +85,21 @@ class PlannerNode(Node):
         if bad:
             raise common.NodeConfigError(bad)
         self._lock = threading.Lock()
-        self.report = check_assumptions(self.model)
-        self.refusing = False
-        if not self.report.holds:
-            if self.get_parameter("refuse_if_assumptions_fail").value:
-                self.refusing = True
-                self.get_logger().error("model fails the structural assumptions; refusing to plan "
-                                        f"(refuse_if_assumptions_fail): {self.report.summary()}")
-            else:
-                self.get_logger().warning("model fails the structural assumptions; the bounds are not valid, "
-                                          f"falling back to exhaustive search: {self.report.summary()}")
         self._chunk_bytes = 1024 * self.get_parameter("chunk_kib").value
+        self._on_failure = "refuse" if self.get_parameter("refuse_if_assumptions_fail").value else "exhaustive"
         self._planner: Planner | None = None
         self._planner_variant: str | None = None
         self._bounds_ok = False
         self._bounds_message = ""
         self._ensure_planner(self.params["bound_variant"])
+        self.report = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
+        self.refusing = self.setup.mode == "refuse"
+        if self.refusing:
+            self.get_logger().error("model fails the structural assumptions; refusing to plan "
+                                    f"(refuse_if_assumptions_fail): {self.report.summary()}")
+        elif not self.report.holds:
+            self.get_logger().warning("model fails the structural assumptions; the bounds are not valid, "
+                                      f"falling back to exhaustive search: {self.report.summary()}")
         self.last_epoch = -1
         self.planning_epoch: int | None = None
         self.last = None
@@ -142,22 +144,22 @@ class PlannerNode(Node):
 
     # ----------------------------------------------------------- planning
     def _ensure_planner(self, variant: str) -> None:
-        """(Re)build the core planner for ``variant``: bounds solved once per variant (can take a while)."""
-        if self._planner is not None and variant == self._planner_variant:
+        """(Re)build the core planner for ``variant`` through the assumption gate: the bounds are
+        solved once per variant (can take a while), Assumption 1 is checked once per model."""
+        if self._planner_variant == variant:
             return
-        if self.report.holds:
-            planner = Planner.from_model(self.model, variant=variant, chunk_bytes=self._chunk_bytes)
-            sol = planner.bounds_solution
-            if planner.has_bounds:
-                self._bounds_message = f"{variant}: feasible"
-            else:
-                self._bounds_message = f"{variant}: infeasible ({getattr(sol, 'message', '')}); exhaustive search"
-                self.get_logger().warning(f"bounds {self._bounds_message}")
+        setup = build_planner(self.model, variant=variant, on_assumption_failure=self._on_failure,
+                              chunk_bytes=self._chunk_bytes)
+        if setup.pruning:
+            self._bounds_message = f"{variant}: feasible"
+        elif setup.report is not None and setup.report.holds:  # the LP, not the model, is the problem
+            self._bounds_message = f"{variant}: {setup.reason}; exhaustive search"
+            self.get_logger().warning(f"bounds {self._bounds_message}")
         else:
-            planner = Planner.from_model(self.model, variant=None, chunk_bytes=self._chunk_bytes)
             self._bounds_message = "not used (assumptions fail)"
-        self._bounds_ok = planner.has_bounds
-        self._planner = planner
+        self.setup: PlannerSetup = setup
+        self._bounds_ok = setup.pruning
+        self._planner = setup.planner
         self._planner_variant = variant
 
     @common.callback

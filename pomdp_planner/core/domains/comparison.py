@@ -9,7 +9,7 @@ spaced on ``[-9, -1]``) every entry of ``y`` is negative, so every action pulls 
 towards state 1 (the poor-tracking region, reward ``-c_p``), and the lowest priority ``A``
 pulls it there the *least* while also costing the least effort. The lowest priority is then
 optimal at every belief (proven exactly by
-``pomdp_planner.experiments.pbvi.single_action_optimal`` -- the value of always playing
+``pomdp_planner.bench.experiments.pbvi.single_action_optimal`` -- the value of always playing
 ``A`` is a Bellman fixed point -- on S = 4 and 5 and on every Table III size, and confirmed by
 the exact alpha-vector solver of ``core/reference.py``); the bounds then trivially agree at
 ``A`` and every pruning figure would be meaningless.

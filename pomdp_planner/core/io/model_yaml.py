@@ -61,6 +61,7 @@ from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 from ..belief import start_belief
 from ..domains.tracking import comparison_reward, tracking_observations, tracking_transitions
 from ..model import POMDP, ModelError, as_count, as_number, check_model_size, check_name, kind_of, short_repr
+from .cassandra import load_pomdp_file
 from .file_text import read_model_text
 
 KNOWN_FIELDS = {
@@ -396,8 +397,6 @@ def load_model(path: str | Path) -> POMDP:
     """Load a YAML model file (or a Cassandra ``.POMDP`` file, by extension)."""
     path = Path(path)
     if path.suffix.lower() == ".pomdp":
-        from .cassandra import load_pomdp_file
-
         return load_pomdp_file(path)
     text = read_model_text(path, "model file")
     return model_from_dict(parse_model_yaml(text, str(path)), source=str(path))

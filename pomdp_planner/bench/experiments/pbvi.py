@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.model import POMDP
+from ...core.model import POMDP
 
 
 def _blind_alphas(model: POMDP) -> np.ndarray:

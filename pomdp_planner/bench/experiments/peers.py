@@ -9,7 +9,9 @@ random numbers for the initial state and, as long as the actions agree, the traj
 Planners
 --------
 * ``bnb``: Algorithm 1 with the myopic bounds (``Planner.plan``, anytime iterative deepening
-  under the budget; returns at once when the root bounds agree, a certified decision).
+  under the budget; returns at once when the root bounds agree, a certified decision). The
+  planner comes from the assumption gate (``core.gate.build_planner``): on a model whose bounds
+  are not valid it would be exhaustive search; the shipped models pass.
 * ``exhaustive``: the same planner with the action filter off (``use_bounds=False``).
 * ``greedy``: ``argmax_a rho(b, a)`` (depth-1 search; no budget).
 * ``lower-bound``: the myopic lower-bound policy alone (no search).
@@ -36,8 +38,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import t as student_t
 
-from ..core.model import POMDP
-from ..core.simulate import simulate
+from ...core.gate import PlannerSetup, build_planner
+from ...core.model import POMDP
+from ...core.simulate import simulate
 
 
 def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
@@ -212,7 +215,7 @@ def _pomdp_py_agent(pp, model: POMDP, rng: random.Random):
 
 
 def pouct_available() -> bool:
-    try:
+    try:  # the optional extra 'bench'
         import pomdp_py  # noqa: F401
     except ImportError:
         return False
@@ -295,17 +298,16 @@ class PeerPlan:
 
 CHEAP_PLANNERS = ("greedy", "lower-bound", "random")
 
-_PLANNERS: dict = {}  # per process: (label, pickled model) -> Planner; the LP is solved once per model
+_PLANNERS: dict = {}  # per process: (label, pickled model) -> PlannerSetup; the LP is solved once per model
 
 
-def _planner_for(label: str, model: POMDP):
-    """The B&B planner of ``model``. Each chunk brings its own unpickled copy of the model, so the
-    cache is keyed by the model's content (its pickle), not by the object."""
+def _planner_for(label: str, model: POMDP) -> PlannerSetup:
+    """The assumption gate's planner for ``model`` (``bnb`` prunes only with valid bounds, else it
+    is exhaustive search and the gate's reason is in the setup). Each chunk brings its own
+    unpickled copy of the model, so the cache is keyed by the model's content (its pickle)."""
     key = (label, pickle.dumps(model))
     if key not in _PLANNERS:
-        from ..core.search import Planner
-
-        _PLANNERS[key] = Planner.from_model(model, "tight")
+        _PLANNERS[key] = build_planner(model, variant="tight")
     return _PLANNERS[key]
 
 
@@ -315,13 +317,17 @@ def _policy(chunk: PeerChunk, model: POMDP, plan: PeerPlan, k: int) -> _Timed:
     if name == "greedy":
         return FunctionPolicy(name, lambda b: int(np.argmax(model.rho(b))))
     if name == "lower-bound":
-        lower = _planner_for(chunk.model, model).bounds.lower
+        setup = _planner_for(chunk.model, model)
+        if setup.myopic is None or not setup.guaranteed:
+            raise ValueError(f"peer lower-bound on {chunk.model}: no valid bounds: {setup.reason}")
+        lower = setup.myopic.lower
         return FunctionPolicy(name, lambda b: int(lower(b[None, :])[0]))
     if name == "random":
         rng = np.random.default_rng([plan.seed, k])
         return FunctionPolicy(name, lambda b: int(rng.integers(model.A)))
     if name in ("bnb", "exhaustive"):
-        return SearchPolicy(name, _planner_for(chunk.model, model), budget, plan.max_depth, name == "bnb")
+        setup = _planner_for(chunk.model, model)
+        return SearchPolicy(name, setup.planner, budget, plan.max_depth, name == "bnb" and setup.pruning)
     if name == "pouct":
         return POUCTPolicy(model, budget, seed=plan.seed + 7919 * k)
     raise ValueError(f"planner: unknown peer {name!r}")

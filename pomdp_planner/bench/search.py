@@ -16,6 +16,12 @@ initial beliefs (uniform on the simplex):
   under 50 ms), the speed-up (ratio of the medians), how often both choose the same action,
   and throughput in belief nodes per second (tree nodes / median time).
 
+The planner comes from the assumption gate (:func:`pomdp_planner.core.gate.build_planner`): a
+model whose bounds are not valid (Assumption 1 fails, LP infeasible, Shannon guarantee covering
+no domain) is skipped with the gate's reason, unless ``--prune-without-guarantee`` asks to
+measure pruning anyway; the report then says that no guarantee holds and that agreeing root
+bounds certify nothing.
+
 Everything runs in this process on one core's worth of numpy (the planner avoids BLAS
 threads). Timings on a shared machine are noisy: compare ratios measured in one run.
 """
@@ -30,21 +36,19 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.bounds import solve_bounds
+from ..core.bounds import BOUND_VARIANTS
+from ..core.gate import build_planner
 from ..core.io.model_yaml import load_model
+from ..core.io.paths import resolve_path
 from ..core.model import POMDP
-from ..core.search import Planner, complete_tree_nodes
+from ..core.search import complete_tree_nodes
+from .paper import PAPER_TABLE_II
 
-#: The paper's Table II: average % of belief states pruned (S = Z = 8, A = 3, 100 beliefs);
-#: shown next to models of that size only.
-PAPER_TABLE_II = {2: 26.3, 3: 36.3, 4: 44.9, 5: 52.3, 6: 58.8}
 DEFAULT_MODELS = ("tracking_s8_info.yaml", "tracking_s3_info.yaml")
-PACKAGE = "pomdp_planner"
 
 
 @dataclass(frozen=True)
@@ -58,29 +62,11 @@ class BenchConfig:
     timed_max_depth: int = 5
     seed: int = 0
     variant: str = "tight"
+    prune_without_guarantee: bool = False  # measure pruning on a model whose bounds are not valid (said so)
 
     @classmethod
     def quick(cls) -> BenchConfig:
         return cls(beliefs=20, deep_beliefs=3, timed=3, depths=(2, 3, 4, 5, 6), timed_max_depth=4)
-
-
-def model_search_paths() -> list[Path]:
-    """Where shipped model files are looked for: the source tree, then installed share dirs."""
-    paths = [Path(__file__).resolve().parents[2] / "config" / "models"]
-    prefixes = [sys.prefix, *os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)]
-    paths += [Path(p) / "share" / PACKAGE / "config" / "models" for p in prefixes if p]
-    return paths
-
-
-def find_model_file(name: str) -> Path:
-    """A model path as given if it exists, else the shipped model file called ``name``."""
-    p = Path(name)
-    if p.exists():
-        return p
-    for d in model_search_paths():
-        if (d / name).exists():
-            return d / name
-    raise FileNotFoundError(f"model {name!r} not found (looked in: {', '.join(map(str, model_search_paths()))})")
 
 
 def _timed(fn: Callable[[], Any], clock: Callable[[], float] = time.perf_counter) -> tuple[float, Any]:
@@ -100,17 +86,23 @@ def bench_model(model: POMDP, config: BenchConfig, log: Callable[[str], None] = 
     """Pruning and timing figures for one model (a JSON-ready dict)."""
     A, Z, S = model.A, model.Z, model.S
     t0 = time.perf_counter()
-    sol = solve_bounds(model, variant=config.variant)
-    solve_time = time.perf_counter() - t0
+    setup = build_planner(model, variant=config.variant, prune_without_guarantee=config.prune_without_guarantee,
+                          override_name="--prune-without-guarantee")
+    gate_time = time.perf_counter() - t0
+    sol = setup.bounds
     out: dict[str, Any] = {
         "model": model.name, "S": S, "A": A, "Z": Z, "uncertainty": model.uncertainty.name,
-        "variant": config.variant, "bounds_feasible": bool(sol.feasible), "bounds_message": sol.message,
-        "bounds_solve_time": solve_time, "beliefs": config.beliefs, "seed": config.seed,
+        "variant": config.variant, "bounds_feasible": bool(sol is not None and sol.feasible),
+        "bounds_message": setup.reason if sol is None else sol.message,
+        "bounds_solve_time": None if sol is None else sol.solve_time, "gate_time": gate_time,
+        "gate": setup.to_dict(), "beliefs": config.beliefs, "seed": config.seed,
     }
-    if not sol.feasible:
-        log(f"{model.name}: bounds infeasible ({sol.message}); skipped")
+    if not setup.pruning:
+        log(f"{model.name}: {setup.describe()}; skipped")
         return out
-    planner = Planner(model, sol.myopic)
+    if not setup.guaranteed:
+        log(f"{model.name}: {setup.describe()}")
+    planner = setup.planner
     beliefs = np.random.default_rng(config.seed).dirichlet(np.ones(S), size=config.beliefs)
     dmax = max(config.depths)
     expanded: dict[int, list[int]] = {d: [] for d in config.depths}
@@ -188,7 +180,7 @@ def run_search_bench(models: Sequence[str] = DEFAULT_MODELS, config: BenchConfig
     """The whole benchmark: one :func:`bench_model` entry per model file."""
     config = config or BenchConfig()
     t0 = time.perf_counter()
-    results = [bench_model(load_model(find_model_file(m)), config, log) for m in models]
+    results = [bench_model(load_model(resolve_path(m, "--model")), config, log) for m in models]
     return {"benchmark": "search", "config": asdict(config), "models": results,
             "total_time": time.perf_counter() - t0, "python": sys.version.split()[0],
             "numpy": np.__version__, "cpu_count": os.cpu_count()}
@@ -203,13 +195,19 @@ def format_report(result: dict[str, Any]) -> str:
     lines = []
     cfg = result["config"]
     for m in result["models"]:
+        gate = m.get("gate", {})
+        solved = "not solved" if m["bounds_solve_time"] is None else f"solved in {m['bounds_solve_time']:.2f} s"
         lines.append(f"== {m['model']} (S={m['S']}, A={m['A']}, Z={m['Z']}, {m['uncertainty']}), "
-                     f"bounds: {m['variant']}, solved in {m['bounds_solve_time']:.2f} s, "
-                     f"{cfg['beliefs']} beliefs (seed {cfg['seed']})")
+                     f"bounds: {m['variant']}, {solved}, {cfg['beliefs']} beliefs (seed {cfg['seed']})")
         if "pruning" not in m:
-            lines.append(f"   bounds infeasible: {m['bounds_message']}")
+            lines.append(f"   skipped: {gate.get('reason', m['bounds_message'])}")
             continue
-        lines.append(f"   root bounds agree (action certified) on {100 * m['root_bounds_agree']:.0f}% of the beliefs")
+        agree = f"{100 * m['root_bounds_agree']:.0f}% of the beliefs"
+        if gate.get("guaranteed", True):
+            lines.append(f"   root bounds agree (action certified) on {agree}")
+        else:
+            lines.append(f"   WITHOUT GUARANTEE: {gate['reason']}")
+            lines.append(f"   root bounds agree (certifying nothing) on {agree}")
         lines.append("   depth  beliefs  complete nodes  B&B nodes (mean)  % pruned mean [min, max]  paper Table II")
         for p in m["pruning"]:
             paper = f"{p['paper_table_ii']:.1f}%" if p["paper_table_ii"] is not None else "-"
@@ -236,7 +234,7 @@ def _ms(t: float) -> str:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The benchmark's options (shared by ``bench/search_bench.py`` and ``pomdp-planner bench search``)."""
+    """The benchmark's options (``pomdp-planner bench search`` and ``python -m pomdp_planner.bench.search``)."""
     p.add_argument("--json", metavar="FILE", default=None, help="also write the results as JSON to FILE")
     p.add_argument("--quick", action="store_true",
                    help="a smoke run in seconds (20 beliefs, 3 timed, deepest depth on 3 beliefs, timing to depth 4)")
@@ -244,14 +242,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--beliefs", type=int, default=None, help="random initial beliefs for the pruning table (100)")
     p.add_argument("--timed", type=int, default=None, help="beliefs timed per depth (10)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random beliefs (0)")
-    p.add_argument("--variant", default="tight", choices=("tight", "feasible"), help="bound variant (tight)")
+    p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
+                   help=f"bound variant ({BOUND_VARIANTS[0]})")
+    p.add_argument("--prune-without-guarantee", action="store_true",
+                   help="measure pruning also on a model whose bounds the gate finds not valid (NO GUARANTEE; "
+                        "the report says so)")
     p.add_argument("--model", action="append", default=None, metavar="MODEL",
                    help="model file (repeatable; default: the shipped S = 8 and S = 3 tracking models)")
 
 
 def config_from_args(args: argparse.Namespace) -> BenchConfig:
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
-    changes: dict[str, Any] = {"seed": args.seed, "variant": args.variant}
+    changes: dict[str, Any] = {"seed": args.seed, "variant": args.variant,
+                               "prune_without_guarantee": args.prune_without_guarantee}
     if args.beliefs is not None:
         if args.beliefs < 1:
             raise ValueError(f"--beliefs: must be >= 1, got {args.beliefs}")
@@ -279,6 +282,15 @@ def run_from_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="search_bench", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.search",
+                                     description=__doc__.split("\n\n")[0])
     add_arguments(parser)
-    return run_from_args(parser.parse_args(argv))
+    try:
+        return run_from_args(parser.parse_args(argv))
+    except (ValueError, OSError) as exc:  # ModelError included: a bad option or model file; an unwritable --json
+        print(f"search bench: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,9 +1,11 @@
 """Table III (actions pruned by the myopic bounds) and the looseness figure (paper Fig. 4).
 
 For each ``(S, A)`` the Sec. VI-B model (our non-trivial ``y``, see
-:mod:`pomdp_planner.core.domains.comparison`) gets bounds from
-``core.bounds.solve_bounds``; at ``n`` random reachable beliefs the lower and upper myopic
-actions are evaluated in one vectorised call.
+:mod:`pomdp_planner.core.domains.comparison`) gets its bounds through the assumption gate
+(:func:`pomdp_planner.core.gate.build_planner`: Assumption 1 checked once per model, then the
+LP of each variant); a cell whose bounds the gate does not accept is reported with its reason
+instead of figures. At ``n`` random reachable beliefs the lower and upper myopic actions are
+evaluated in one vectorised call.
 
 Percentage formula. The issue (and our reading of the paper) uses
 ``pruned = 100 (1 - (upper - lower) / A)``. It is the only reading consistent with the
@@ -15,7 +17,7 @@ paper's formula in Table III and the literal count beside it (same granularity `
 exactly ``100/A`` lower).
 
 Looseness: the optimal action at the same beliefs comes from the point-based reference
-(:mod:`pomdp_planner.experiments.pbvi`) run on those very beliefs, for ``S <= exact_max_S``;
+(:mod:`pomdp_planner.bench.experiments.pbvi`) run on those very beliefs, for ``S <= exact_max_S``;
 larger cells report only ``upper - lower``.
 """
 
@@ -26,7 +28,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..core.domains.comparison import comparison_model
+from ...core.domains.comparison import comparison_model
+from ...core.gate import build_planner
+from ...core.model import POMDP
 from .pbvi import pbvi
 from .progress import Progress
 from .sampling import reachable_beliefs
@@ -78,20 +82,22 @@ def reference_actions(model, B: np.ndarray, tol: float = 1e-6, tie: float = 1e-6
 
 
 def pruning_cell(S: int, A: int, n: int, seed: int, variant: str = "tight", exact_max_S: int = 0,
-                 ref_max_actions: int = 64) -> PruningCell:
-    """One cell of Table III (and of the looseness figure when ``S <= exact_max_S``)."""
-    from ..core.bounds import solve_bounds
-
-    model = comparison_model(S, A)
-    sol = solve_bounds(model, variant=variant)
-    cell = PruningCell(S=S, A=A, feasible=bool(sol.feasible), message=str(getattr(sol, "message", "")),
-                       lp_time=float(getattr(sol, "solve_time", float("nan"))))
-    if not cell.feasible or sol.myopic is None:
-        cell.feasible = False
+                 ref_max_actions: int = 64, model: POMDP | None = None) -> PruningCell:
+    """One cell of Table III (and of the looseness figure when ``S <= exact_max_S``);
+    ``model`` defaults to ``comparison_model(S, A)``."""
+    model = comparison_model(S, A) if model is None else model
+    t0 = time.perf_counter()
+    setup = build_planner(model, variant=variant)
+    sol = setup.bounds
+    cell = PruningCell(S=S, A=A, feasible=setup.pruning, message=sol.message if setup.pruning else setup.reason,
+                       lp_time=float(sol.solve_time) if sol is not None else float("nan"))
+    cell.extra["gate_time"] = time.perf_counter() - t0
+    if not setup.pruning:
         return cell
+    assert setup.guaranteed  # the gate prunes without the guarantee only when told to, and we never tell it
     rng = np.random.default_rng([seed, S, A])
     B = reachable_beliefs(model, n, rng)
-    lo, up = sol.myopic.actions(B)
+    lo, up = setup.myopic.actions(B)
     paper, count = pruned_percentages(lo, up, A)
     cell.n = n
     cell.pct = _mma(paper)
@@ -110,19 +116,25 @@ def pruning_cell(S: int, A: int, n: int, seed: int, variant: str = "tight", exac
     return cell
 
 
-def pruning_sweep(S_values, A_values, n: int = 500, seed: int = 0, variant: str = "tight",
-                  exact_max_S: int = 8, progress: bool = True) -> list[PruningCell]:
-    """All cells of Table III, smallest first (LP failures become ``feasible=False`` cells)."""
-    cells = []
-    with Progress("table III", len(S_values) * len(A_values), enabled=progress) as bar:
+def pruning_sweep(S_values, A_values, variants: tuple[tuple[str, int], ...] = (("tight", 1 << 30),), n: int = 500,
+                  seed: int = 0, exact_max_S: int = 8, progress: bool = True) -> dict[str, list[PruningCell]]:
+    """All cells of Table III, smallest first, for each ``(variant, largest S)`` of ``variants``:
+    one model per ``(S, A)`` for all variants (so Assumption 1 is checked once per model). LP or
+    solver failures become ``feasible=False`` cells."""
+    out: dict[str, list[PruningCell]] = {v: [] for v, _ in variants}
+    total = sum(1 for S in S_values for _ in A_values for _, m in variants if S <= m)
+    with Progress("table III", total, enabled=progress) as bar:
         for S in S_values:
             for A in A_values:
-                t0 = time.perf_counter()
-                try:
-                    cell = pruning_cell(S, A, n, seed, variant, exact_max_S)
-                except Exception as exc:  # a solver failure must not kill the whole sweep
-                    cell = PruningCell(S=S, A=A, feasible=False, message=f"error: {type(exc).__name__}: {exc}")
-                cell.extra["cell_time"] = time.perf_counter() - t0
-                cells.append(cell)
-                bar.advance(note=f"S={S} A={A}")
-    return cells
+                todo = [v for v, max_S in variants if S <= max_S]
+                model = comparison_model(S, A) if todo else None
+                for variant in todo:
+                    t0 = time.perf_counter()
+                    try:
+                        cell = pruning_cell(S, A, n, seed, variant, exact_max_S, model=model)
+                    except Exception as exc:  # a solver failure must not kill the whole sweep
+                        cell = PruningCell(S=S, A=A, feasible=False, message=f"error: {type(exc).__name__}: {exc}")
+                    cell.extra["cell_time"] = time.perf_counter() - t0
+                    out[variant].append(cell)
+                    bar.advance(note=f"S={S} A={A} {variant}")
+    return out

@@ -1,4 +1,4 @@
-"""Markdown for docs/RESULTS.md from the data of :func:`pomdp_planner.experiments.runner.run_all`."""
+"""Markdown for docs/RESULTS.md from the data of :func:`pomdp_planner.bench.experiments.runner.run_all`."""
 
 from __future__ import annotations
 
@@ -6,19 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bench.search_bench import PAPER_TABLE_II
-
-#: The paper's Table III: S -> (min, avg, max) for A = 4, 8, 16, 32, 64 (None: n/a).
-PAPER_TABLE3 = {
-    4: [(75.0, 94.9, 100), (75.0, 83.3, 87.5), (75.0, 78.7, 87.5), (71.9, 74.7, 75.0), (64.1, 72.0, 75.0)],
-    8: [(50.0, 75.0, 75), (37.5, 59.5, 62.5), (50.0, 58.0, 75.0), (59.4, 64.9, 71.9), (48.4, 57.6, 67.2)],
-    16: [(50.0, 72.7, 75), (50, 65.2, 75.0), (43.8, 61.3, 68.8), (46.9, 55.0, 62.5), (46.9, 55.5, 62.5)],
-    32: [(50.0, 73.9, 75), (37.5, 58.5, 62.5), (37.8, 54.9, 62.5), (37.5, 49.9, 59.4), (43.8, 52.6, 59.4)],
-    64: [(50.0, 71.9, 75), (37.5, 60.4, 62.5), (43.8, 54.0, 62.5), (37.5, 49.6, 59.4), (40.6, 47.9, 53.1)],
-    128: [(50.0, 73.2, 75), (50, 61.1, 62.5), (43.8, 54.7, 56.3), (40.6, 49.3, 53.1), (42.2, 48.3, 53.1)],
-    256: [(50.0, 72.8, 75), (50, 60.4, 62.5), (43.8, 50.9, 56.3), (43.8, 49.1, 53.1), None],
-}
-PAPER_A = (4, 8, 16, 32, 64)
+from ..paper import PAPER_TABLE_II, PAPER_TABLE_III, PAPER_TABLE_III_ACTIONS
 
 
 def _f(x, d: int = 1) -> str:
@@ -62,7 +50,9 @@ def section_header(data: dict) -> list[str]:
                   f"{k} ({data['modes'][k]}, {data['timings'][k]:.0f} s)" for k in data["timings"]) + ".", "",
               "Actions are the paper's tracking priorities 1..A (1 = greatest priority). "
               "Bounds are `core.bounds.solve_bounds` (`tight` is the package default; `feasible` is the plain "
-              "L1-minimal solution of the Theorem 2 LPs); see docs/THEORY.md for what they guarantee.", ""]
+              "L1-minimal solution of the Theorem 2 LPs), obtained through the assumption gate "
+              "(`core.gate.build_planner`: used only where Assumption 1 holds and the LP is feasible; no experiment "
+              "overrides it); see docs/THEORY.md for what they guarantee.", ""]
     return lines
 
 
@@ -102,15 +92,16 @@ def section_fig3(d: dict) -> list[str]:
 def section_table2(d: dict) -> list[str]:
     cfg = d["config"]
     lines = ["## Table II: belief states pruned by depth (and search speed)", "",
-             "From the search benchmark (`pomdp-planner bench search`, `pomdp_planner/bench/search_bench.py`): "
+             "From the search benchmark (`pomdp-planner bench search`, `pomdp_planner/bench/search.py`): "
              "nodes of Algorithm 1 with the `" + cfg["variant"] + "` bounds (`Planner.count_nodes`) against the "
              "complete tree `sum_{i<=d} (AZ)^i`, over " + str(cfg["beliefs"]) + " random initial beliefs "
              "(uniform on the simplex, seed " + str(cfg["seed"]) + "); the deepest depth on the first "
              + str(cfg["deep_beliefs"]) + " of them only. The paper does not give its S = 8 reward or x, y: ours "
              "are in `config/models/tracking_s8_info.yaml` (its header explains them).", ""]
     for r in d["models"]:
-        if not r.get("bounds_feasible"):
-            lines += [f"**{r['model']}**: bounds infeasible ({r.get('bounds_message', '')}).", ""]
+        if "pruning" not in r:  # the assumption gate found no valid bounds
+            reason = r.get("gate", {}).get("reason", f"bounds infeasible ({r.get('bounds_message', '')})")
+            lines += [f"**{r['model']}**: not measured: {reason}.", ""]
             continue
         pr = r["pruning"]
         headers = ["", *[f"d={p['depth']}" for p in pr]]
@@ -138,8 +129,8 @@ def section_model_check(d: dict) -> list[str]:
              "least: **the lowest priority is optimal at every belief**. We prove it exactly: the value of always "
              "playing A, `alpha = (I - gamma P_A)^-1 r_A`, satisfies `r_a + gamma P_a alpha <= alpha` for every a "
              "componentwise, so `b.alpha` is the Bellman fixed point "
-             "(`pomdp_planner.experiments.pbvi.single_action_optimal`). Every pruning figure on that model would be "
-             "meaningless (the bounds only need to find A).", "",
+             "(`pomdp_planner.bench.experiments.pbvi.single_action_optimal`). Every pruning figure on that model "
+             "would be meaningless (the bounds only need to find A).", "",
              f"**Our choice:** keep x_i = 3i/S and spread y evenly and symmetrically on [-{d['y_spread']:g}, "
              f"{d['y_spread']:g}] (S*A points; `core/domains/comparison.py: comparison_model(S, A)`). High priority "
              "then pulls the target into the poor-tracking region, low priority pushes it into the dangerous one, "
@@ -176,13 +167,14 @@ def section_model_check(d: dict) -> list[str]:
 def section_table3(d: dict, cfg: dict) -> list[str]:
     lines = ["## Table III: actions pruned by the bounds, Sec. VI-B model", "",
              f"(min, average, max) over {cfg['table3_beliefs']} random reachable beliefs per cell (random initial "
-             "belief, then 1-20 random actions with sampled states and observations, `experiments/sampling.py`), "
+             "belief, then 1-20 random actions with sampled states and observations, `bench/experiments/sampling.py`), "
              "our Sec. VI-B model above. **Formula:** `100 (1 - (upper - lower)/A)`. It is the only reading that "
              "fits the paper's table: its A = 4 values are multiples of 25 and reach 100 (S = 4), which requires "
              "upper = lower to score 100. The literal share of actions the search skips, "
              "`100 (1 - (upper - lower + 1)/A)`, can never exceed 100 (A-1)/A (75 for A = 4); it is exactly 100/A "
              "below the first formula, so we give its average in the second table. "
-             "'n/a': LP infeasible. LP time is the wall time of `solve_bounds` for the cell.", ""]
+             "'n/a': no valid bounds (LP infeasible, or the assumption gate's reason; listed below the table). "
+             "LP time is the wall time of `solve_bounds` for the cell.", ""]
     for variant, v in d.items():
         cells = {(c.S, c.A): c for c in v["cells"]}
         S_vals = sorted({c.S for c in v["cells"]})
@@ -198,11 +190,11 @@ def section_table3(d: dict, cfg: dict) -> list[str]:
             rows.append(row)
             rows_t.append(row_t)
             rows_c.append(row_c)
-            if S in PAPER_TABLE3:
+            if S in PAPER_TABLE_III:
                 prow = ["paper"]
                 for A in A_vals:
-                    i = PAPER_A.index(A) if A in PAPER_A else None
-                    prow.append(_triple(PAPER_TABLE3[S][i]) if i is not None else "-")
+                    i = PAPER_TABLE_III_ACTIONS.index(A) if A in PAPER_TABLE_III_ACTIONS else None
+                    prow.append(_triple(PAPER_TABLE_III[S][i]) if i is not None else "-")
                 rows.append(prow)
         hdr = ["S", *[f"A={A}" for A in A_vals]]
         crossed = sum(c.crossed for c in v["cells"])
@@ -223,7 +215,7 @@ def section_looseness(data: dict) -> list[str]:
     lines = ["## Looseness of the bounds (the paper's Fig. 4)", "", f"![looseness](img/{data['looseness_image']})", "",
              f"Bounds variant `{variant}`. Solid: mean `upper - optimal` over the Table III beliefs; dashed: mean "
              "`upper - lower`. The optimal action comes from point-based value iteration "
-             "(`experiments/pbvi.py`, run on the very beliefs evaluated plus the simplex vertices, to a value "
+             "(`bench/experiments/pbvi.py`, run on the very beliefs evaluated plus the simplex vertices, to a value "
              "change < 1e-6) for S <= "
              f"{data['configs']['table3']['looseness_max_states']}; on S = 4 it agrees with the exact alpha-vector "
              "solver (table above). For larger S no optimal reference was feasible in our time budget (the paper "
@@ -330,7 +322,7 @@ def section_when(data: dict) -> list[str]:
         "(Table II). Where the root bounds agree it stops at depth 1 with a proven-optimal action, which is "
         "why its mean depth in the peer table is close to 1 and its decision time is milliseconds.",
         "- **Exhaustive search** is the fallback when the bounds LP is infeasible or Assumption 1 fails "
-        "(`pomdp-planner check`); the planner then falls back to it by itself.",
+        "(`pomdp-planner check`); every entry point falls back to it by itself (the assumption gate) and says why.",
         "- **Greedy (argmax rho)** costs microseconds; on these fast-mixing tracking problems the depth of the "
         "search changes the return little (compare the rows above), so it is a sound choice when there is no "
         "time to search. The **lower-bound policy alone** is a bound, not a controller.",
@@ -366,7 +358,8 @@ def section_differences(data: dict) -> list[str]:
             if not cells:
                 continue
             avg = float(np.mean([c.pct[1] for c in cells]))
-            paper = [PAPER_TABLE3[c.S][PAPER_A.index(c.A)] for c in cells if c.S in PAPER_TABLE3 and c.A in PAPER_A]
+            paper = [PAPER_TABLE_III[c.S][PAPER_TABLE_III_ACTIONS.index(c.A)] for c in cells
+                     if c.S in PAPER_TABLE_III and c.A in PAPER_TABLE_III_ACTIONS]
             pavg = float(np.mean([p[1] for p in paper if p is not None])) if paper else float("nan")
             n_inf = sum(1 for c in v["cells"] if not c.feasible)
             lines.append(f"- **Table III, `{variant}` bounds**: mean of the cell averages {avg:.1f} % pruned vs "

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.belief import update_batch
-from ..core.model import POMDP
+from ...core.belief import update_batch
+from ...core.model import POMDP
 
 
 def _categorical(rng: np.random.Generator, probs: np.ndarray) -> np.ndarray:

@@ -16,11 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.domains.comparison import Y_SPREAD, comparison_model
-from ..core.io.model_yaml import load_model
-from ..core.model import POMDP
+from ...core.bounds import BoundsSolution
+from ...core.domains.comparison import Y_SPREAD, comparison_model
+from ...core.gate import build_planner
+from ...core.io.model_yaml import load_model
+from ...core.io.paths import shipped_model_path
+from ...core.model import POMDP
+from ...core.reference import alpha_vector_value_iteration, certified_actions, reference_policy
+from ..search import BenchConfig, run_search_bench
+from .figures import plot_fig1, plot_fig3, plot_looseness, plot_peers
 from .pbvi import pbvi, single_action_optimal
+from .peers import PeerPlan, compare_peers, pouct_available
 from .progress import Progress
+from .pruning import pruning_sweep
+from .report import write_report
 from .sampling import random_beliefs
 
 
@@ -70,21 +79,24 @@ QUICK = ExperimentConfig(
 
 # ------------------------------------------------------------------------------ models
 def shipped_model(name: str) -> POMDP:
-    """A shipped model (``config/models/<name>.yaml``, source tree or installed share dir)."""
-    from ..bench.search_bench import find_model_file
+    """A shipped model (``config/models/<name>.yaml``, installed share dir or source tree)."""
+    return load_model(shipped_model_path(name))
 
-    return load_model(find_model_file(f"{name}.yaml"))
+
+def valid_bounds(model: POMDP, variant: str = "tight") -> BoundsSolution:
+    """The LP solution of ``model`` once the assumption gate accepts its bounds (the figures plot
+    bound policies, so a model without valid bounds is an error naming the gate's reason)."""
+    setup = build_planner(model, variant=variant)
+    if not (setup.pruning and setup.guaranteed):
+        raise ValueError(f"{model.name}: {setup.describe()}")
+    return setup.bounds
 
 
 # ------------------------------------------------------------------------------ sections
 def run_fig1(cfg: ExperimentConfig, img: Path) -> dict:
     """Fig. 1: bound policies and the grid-reference optimum on the S = 3 simplex."""
-    from ..core.bounds import solve_bounds
-    from ..core.reference import reference_policy
-    from .figures import plot_fig1
-
     model = shipped_model("tracking_s3_info")
-    sol = solve_bounds(model)
+    sol = valid_bounds(model)
     ref = reference_policy(model, cfg.fig1_grid)
     B = ref.beliefs
     lo, up = sol.myopic.actions(B)
@@ -103,12 +115,8 @@ def run_fig1(cfg: ExperimentConfig, img: Path) -> dict:
 
 def run_fig3(cfg: ExperimentConfig, img: Path) -> dict:
     """The paper's reward figure on our S = 2 model (config/models/tracking_s2_info.yaml)."""
-    from ..core.bounds import solve_bounds
-    from ..core.reference import reference_policy
-    from .figures import plot_fig3
-
     model = shipped_model("tracking_s2_info")
-    sol = solve_bounds(model)
+    sol = valid_bounds(model)
     b1 = np.linspace(0.0, 1.0, 401)
     B = np.stack([1.0 - b1, b1], axis=1)
     rho = model.rho(B)
@@ -128,8 +136,6 @@ def run_fig3(cfg: ExperimentConfig, img: Path) -> dict:
 
 def run_table2(cfg: ExperimentConfig, progress: bool) -> dict:
     """Table II and search timings: the search helper's benchmark (``pomdp-planner bench search``)."""
-    from ..bench.search_bench import BenchConfig, run_search_bench
-
     if cfg.quick:
         bc = BenchConfig(beliefs=cfg.table2_beliefs, deep_beliefs=cfg.table2_depth6_beliefs, timed=2,
                          depths=cfg.table2_depths, timed_max_depth=max(cfg.table2_depths) - 1, seed=cfg.seed)
@@ -146,8 +152,6 @@ def run_table2(cfg: ExperimentConfig, progress: bool) -> dict:
 
 def run_model_check(cfg: ExperimentConfig, progress: bool) -> dict:
     """Natural vs our Sec. VI-B sequences: which actions the optimal policy uses (exact)."""
-    from ..core.reference import alpha_vector_value_iteration, certified_actions
-
     rows = []
     rng = np.random.default_rng([cfg.seed, 3])
     with Progress("model check", 2 * len(cfg.model_check_states), enabled=progress) as bar:
@@ -181,23 +185,16 @@ def run_model_check(cfg: ExperimentConfig, progress: bool) -> dict:
 
 
 def run_table3(cfg: ExperimentConfig, progress: bool) -> dict:
-    from .pruning import pruning_sweep
-
-    out = {}
-    for variant, max_S in cfg.table3_variants:
-        S_values = tuple(S for S in cfg.table3_states if S <= max_S)
-        t0 = time.perf_counter()
-        cells = pruning_sweep(S_values, cfg.table3_actions, n=cfg.table3_beliefs, seed=cfg.seed, variant=variant,
-                              exact_max_S=cfg.looseness_max_states, progress=progress)
-        out[variant] = {"cells": cells, "time": time.perf_counter() - t0, "max_S": max_S}
-    return out
+    """Table III and the looseness figure's data, for each bound variant of the config."""
+    sweep = pruning_sweep(cfg.table3_states, cfg.table3_actions, tuple(cfg.table3_variants), n=cfg.table3_beliefs,
+                          seed=cfg.seed, exact_max_S=cfg.looseness_max_states, progress=progress)
+    return {variant: {"cells": sweep[variant], "time": float(sum(c.extra["cell_time"] for c in sweep[variant])),
+                      "max_S": max_S} for variant, max_S in cfg.table3_variants}
 
 
 def run_peers(cfg: ExperimentConfig, progress: bool, cache: Path, jobs: int = 1, resume: bool = False) -> dict:
     """The peer comparison; finished chunks of episodes go to ``cache/peers-chunks`` and are
     reused only with ``resume`` (otherwise that folder is emptied first)."""
-    from .peers import PeerPlan, compare_peers, pouct_available
-
     with_pouct = pouct_available()
     plan = PeerPlan(budgets=cfg.peers_budgets, episodes_cheap=cfg.peers_cheap_episodes,
                     episodes_by_budget=dict(zip(cfg.peers_budgets, cfg.peers_episodes, strict=True)),
@@ -237,8 +234,6 @@ def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = T
     The peer comparison runs in ``jobs`` processes and, with ``resume``, reuses the chunks of
     episodes an earlier, interrupted run left in ``output/.experiments-cache/peers-chunks``.
     """
-    from .report import write_report
-
     cfg = QUICK if quick else FULL
     output = Path(output)
     img = output / "img"
@@ -271,15 +266,11 @@ def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = T
         data["timings"][name] = entry["time"]
         data["modes"][name] = ("quick" if entry["config"]["quick"] else "full") + f", {entry['finished']}"
     if "table3" in data:
-        from .figures import plot_looseness
-
         t3 = data["table3"].get("tight") or next(iter(data["table3"].values()))
         data["looseness_variant"] = "tight" if "tight" in data["table3"] else next(iter(data["table3"]))
         data["looseness_image"] = plot_looseness(img / "fig4_looseness.png", t3["cells"],
                                                  data["configs"]["table3"]["table3_actions"]).name
     if "peers" in data:
-        from .figures import plot_peers
-
         pc = data["configs"]["peers"]
         data["peers_image"] = plot_peers(img / "peers_return_vs_budget.png", data["peers"]["results"],
                                          pc["peers_budgets"], pc["peers_models"]).name

@@ -1,0 +1,194 @@
+"""The assumption gate: the one place that decides whether a planner may prune with the bounds.
+
+The myopic bounds of Theorem 2 bracket the optimal action only when the model satisfies
+Assumption 1 (Sec. III; Lemma 1, Corollary 1) and the LP for ``g``/``h`` is feasible (for
+Shannon entropy, only where the guarantee covers the posteriors, see
+:func:`~.bounds.covered_domain`). Every entry point (``pomdp-planner plan``, the ``simulate``
+policies, the benchmarks and experiments, the planner node) builds its planner with
+:func:`build_planner`, which decides, in this order:
+
+1. ``use_bounds=False``: exhaustive search, nothing checked ("bounds disabled").
+2. Assumption 1 (:func:`assumption_report`, cached per model content): if it fails or is
+   unproven, ``on_assumption_failure="exhaustive"`` falls back to exhaustive search with the
+   reason, ``"refuse"`` gives no planner at all (``mode="refuse"``).
+3. The LP (:func:`~.bounds.solve_bounds`): infeasible -> exhaustive search with the LP's message.
+4. Shannon bounds whose guarantee covers no domain (``covers`` starts with ``"none"``) ->
+   exhaustive search with the reason.
+5. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
+   bounds certify it (Proposition 1).
+
+``prune_without_guarantee=True`` is the explicit override: where 2 or 4 would stop pruning, the
+planner prunes anyway with ``guaranteed=False``, and every output says that no guarantee holds
+(an infeasible LP gives no bounds to prune with, so 3 still falls back). A planner built
+without the guarantee never reports a decision as certified and, in the anytime search, does
+not stop early when the root bounds agree (:class:`~.search.Planner`).
+
+``check_assumptions`` takes tens of seconds on large models (27 s measured at S = 256, A = 64),
+so its report is cached by the content of ``P`` and ``O`` (the only inputs of Assumption 1): a
+second gate call for the same model, or an equal copy of it (a model unpickled in a worker
+process), does not recompute it (the same object is not even hashed again).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+from typing import Any
+from weakref import WeakKeyDictionary
+
+import numpy as np
+
+from .bounds import BOUND_VARIANTS, BoundsSolution, solve_bounds
+from .model import POMDP, ModelError
+from .myopic import MyopicBounds
+from .search import DEFAULT_CHUNK_BYTES, Planner
+from .structure import AssumptionReport, check_assumptions
+
+#: What :func:`build_planner` does when Assumption 1 fails or is unproven.
+ON_ASSUMPTION_FAILURE = ("exhaustive", "refuse")
+#: The decisions of the gate: prune with the bounds, search exhaustively, or give no planner.
+MODES = ("prune", "exhaustive", "refuse")
+#: How many assumption reports :func:`assumption_report` keeps (least recently used dropped).
+REPORT_CACHE_SIZE = 32
+
+_reports: OrderedDict[bytes, AssumptionReport] = OrderedDict()
+#: The digest of each live model object, so that one object is hashed once (hashing ``P`` and
+#: ``O`` takes about half a second at S = 256, A = 64; the models are immutable).
+_keys: WeakKeyDictionary[POMDP, bytes] = WeakKeyDictionary()
+
+
+def model_key(model: POMDP) -> bytes:
+    """Digest of what Assumption 1 depends on: the shapes and values of ``P`` and ``O``."""
+    key = _keys.get(model)
+    if key is None:
+        h = hashlib.blake2b(digest_size=20)
+        for M in (model.P, model.O):
+            h.update(repr(M.shape).encode())
+            h.update(np.ascontiguousarray(M).tobytes())
+        key = _keys[model] = h.digest()
+    return key
+
+
+def assumption_report(model: POMDP) -> AssumptionReport:
+    """``check_assumptions(model)`` with its defaults, computed once per model content (LRU cache)."""
+    key = model_key(model)
+    report = _reports.get(key)
+    if report is None:
+        report = check_assumptions(model)
+        _reports[key] = report
+        while len(_reports) > REPORT_CACHE_SIZE:
+            _reports.popitem(last=False)
+    else:
+        _reports.move_to_end(key)
+    return report if report.model_name == model.name else replace(report, model_name=model.name)
+
+
+def assumption_failure(report: AssumptionReport) -> str:
+    """One line saying how Assumption 1 fails, e.g. ``"Assumption 1 fails (A1 fails, A2 unknown)"``."""
+    bad = [k for k, v in report.status.items() if v != "holds"]
+    verdict = "fails" if any(report.status[k] == "fails" for k in bad) else "is not proven"
+    return f"Assumption 1 {verdict} ({', '.join(f'{k} {report.status[k]}' for k in bad)}; see 'pomdp-planner check')"
+
+
+@dataclass(frozen=True, eq=False)
+class PlannerSetup:
+    """What :func:`build_planner` decided (module docstring).
+
+    ``planner`` is ``None`` when refused. ``mode`` is one of :data:`MODES`. ``guaranteed``: the
+    bounds are proven valid for this model, so pruning keeps the optimal action and agreeing
+    root bounds certify it; ``False`` for exhaustive search (nothing pruned, nothing certified),
+    for a refusal and for pruning forced by ``prune_without_guarantee``. ``reason`` is one line
+    for people. ``report`` is the Assumption 1 report (``None`` if bounds were disabled),
+    ``bounds`` the LP solution (``None`` if the LP was not solved).
+    """
+
+    planner: Planner | None
+    mode: str
+    guaranteed: bool
+    reason: str
+    report: AssumptionReport | None
+    bounds: BoundsSolution | None
+    variant: str | None
+    forced: bool = False
+
+    @property
+    def pruning(self) -> bool:
+        """The planner prunes with the bounds (with or without the guarantee)."""
+        return self.mode == "prune"
+
+    @property
+    def myopic(self) -> MyopicBounds | None:
+        """The bound policies the planner prunes with (``None`` unless :attr:`pruning`)."""
+        return self.bounds.myopic if self.pruning and self.bounds is not None else None
+
+    def describe(self) -> str:
+        """One line for a command line: the mode and the reason."""
+        if self.mode == "prune":
+            head = "valid bounds" if self.guaranteed else "bounds used WITHOUT GUARANTEE"
+        else:
+            head = {"exhaustive": "exhaustive search", "refuse": "refused"}[self.mode]
+        return f"{head}: {self.reason}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (the report and LP solution as short dictionaries)."""
+        sol = self.bounds
+        return {
+            "mode": self.mode, "guaranteed": bool(self.guaranteed), "forced": bool(self.forced),
+            "reason": self.reason, "variant": self.variant,
+            "assumptions_hold": None if self.report is None else bool(self.report.holds),
+            "assumptions": None if self.report is None else dict(self.report.status),
+            "bounds": None if sol is None else {"variant": sol.variant, "feasible": bool(sol.feasible),
+                                                "covers": sol.covers, "message": sol.message},
+        }
+
+
+def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tight", constant: str | None = None,
+                  on_assumption_failure: str = "exhaustive", prune_without_guarantee: bool = False,
+                  chunk_bytes: int = DEFAULT_CHUNK_BYTES, report: AssumptionReport | None = None,
+                  override_name: str = "prune_without_guarantee") -> PlannerSetup:
+    """Check Assumption 1, solve the bounds and build the planner (module docstring).
+
+    ``variant`` (and ``constant``, passed to :func:`~.bounds.solve_bounds` only when given)
+    choose the LP's bounds. ``report``: an Assumption 1 report already computed for ``model``
+    (else :func:`assumption_report`). ``override_name`` is how the caller's user spells the
+    override (``--prune-without-guarantee``, ``prune_without_guarantee=1``), quoted in the reason.
+    """
+    if variant not in BOUND_VARIANTS:
+        raise ModelError(f"variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
+    if on_assumption_failure not in ON_ASSUMPTION_FAILURE:
+        raise ModelError(f"on_assumption_failure: expected one of {', '.join(ON_ASSUMPTION_FAILURE)}, "
+                         f"got {on_assumption_failure!r}")
+
+    def exhaustive(reason: str, rep: AssumptionReport | None = None, sol: BoundsSolution | None = None
+                   ) -> PlannerSetup:
+        return PlannerSetup(Planner(model, None, chunk_bytes=chunk_bytes), "exhaustive", False, reason, rep, sol,
+                            variant if sol is not None else None)
+
+    if not use_bounds:
+        return exhaustive("bounds disabled by the user")
+    rep = assumption_report(model) if report is None else report
+    unguaranteed = ""  # why the guarantee is lost, if it is
+    if not rep.holds:
+        unguaranteed = f"{assumption_failure(rep)}: the myopic bounds are not valid for this model"
+        if not prune_without_guarantee:
+            if on_assumption_failure == "refuse":
+                return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
+            return exhaustive(unguaranteed, rep)
+    options = {} if constant is None else {"constant": constant}
+    sol = solve_bounds(model, variant, **options)
+    if not sol.feasible or sol.myopic is None:
+        return exhaustive(f"the bound LP ({variant}) is infeasible: {sol.message}", rep, sol)
+    if sol.covers.startswith("none") and not unguaranteed:
+        unguaranteed = sol.covers.removeprefix("none: ")
+        if not prune_without_guarantee:
+            return exhaustive(unguaranteed, rep, sol)
+    if unguaranteed:
+        reason = (f"forced by {override_name} although {unguaranteed}; no guarantee holds: the bounds may "
+                  "exclude the optimal action, and they certify nothing")
+        return PlannerSetup(Planner(model, sol.myopic, chunk_bytes=chunk_bytes, guaranteed=False), "prune", False,
+                            reason, rep, sol, variant, forced=True)
+    covers = "the simplex" if sol.covers == "simplex" else sol.covers
+    reason = f"Assumption 1 holds and the bound LP ({variant}) is feasible; the guarantee covers {covers}"
+    return PlannerSetup(Planner(model, sol.myopic, chunk_bytes=chunk_bytes, guaranteed=True), "prune", True,
+                        reason, rep, sol, variant)

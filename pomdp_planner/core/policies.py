@@ -1,0 +1,208 @@
+"""The closed-loop policies, in one explicit table (``pomdp-planner simulate --policy NAME``).
+
+A policy is a callable ``belief -> 0-based action`` or an object with ``.act(belief)``.
+:data:`POLICIES` maps every name to a :class:`PolicyEntry`: ``factory(model, options) ->
+policy``, a one-line help and the option names it accepts (``options`` a dict of keyword
+options, e.g. ``{"seed": 1, "depth": 3}``; an unknown option is an error naming the known
+ones). The planners are imported here, at the top: nothing registers itself at import time.
+
+Policies: ``random`` (seeded uniform actions), ``myopic`` (greedy ``argmax_a rho(b, a)``,
+Eq. 3), ``bnb`` (branch-and-bound search, Algorithm 1), ``exhaustive`` (the same search
+without pruning), ``lower`` / ``upper`` (the myopic bound policies of Sec. IV, Theorem 2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from .bounds import BOUND_VARIANTS
+from .gate import PlannerSetup, build_planner
+from .model import POMDP, ModelError
+from .myopic import MyopicBounds
+from .search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, SearchResult, check_depth, check_time_budget
+
+
+class PolicyObject(Protocol):
+    def act(self, belief: np.ndarray) -> int: ...
+
+
+Policy = Callable[[np.ndarray], int] | PolicyObject
+PolicyFactory = Callable[[POMDP, Mapping[str, Any]], Policy]
+
+
+# ------------------------------------------------------------------------- policies
+class RandomPolicy:
+    """Uniformly random actions from its own seeded generator (ignores the belief)."""
+
+    def __init__(self, model: POMDP, seed: int | None = None):
+        self.num_actions = model.A
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, belief: np.ndarray) -> int:
+        return int(self.rng.integers(self.num_actions))
+
+
+class MyopicPolicy:
+    """Greedy one-step policy ``argmax_a rho(b, a)`` (Eq. 3; ties: smallest index = priority)."""
+
+    def __init__(self, model: POMDP):
+        self.model = model
+
+    def act(self, belief: np.ndarray) -> int:
+        return int(np.argmax(self.model.rho(belief)))
+
+
+class SearchPolicy:
+    """A closed-loop policy that plans every step (``--policy bnb`` / ``exhaustive``).
+
+    ``setup`` is the assumption gate's decision (:func:`~.gate.build_planner`): its planner
+    prunes only when the gate said so. ``depth``: fixed-depth search (default 3), or
+    ``time_budget`` seconds of anytime search up to ``max_depth`` (default 10).
+    """
+
+    def __init__(self, setup: PlannerSetup, depth: int = 3, time_budget: float | None = None, max_depth: int = 10):
+        if setup.planner is None:
+            raise ModelError(f"policy: no planner ({setup.reason})")
+        self.setup = setup
+        self.planner = setup.planner
+        self.depth = check_depth(depth, "option depth", MAX_DEPTH_RANGE)
+        self.max_depth = check_depth(max_depth, "option max_depth", MAX_DEPTH_RANGE)
+        self.time_budget = None if time_budget is None else check_time_budget(time_budget, "option time_budget",
+                                                                              TIME_BUDGET_RANGE)
+        self.use_bounds = setup.pruning
+        self.last: SearchResult | None = None
+        self.decisions = self.certified = 0
+
+    def act(self, belief: np.ndarray) -> int:
+        if self.time_budget is None:
+            self.last = self.planner.search(belief, self.depth, use_bounds=self.use_bounds)
+        else:
+            self.last = self.planner.plan(belief, self.max_depth, self.time_budget, use_bounds=self.use_bounds)
+        self.decisions += 1
+        self.certified += bool(self.last.certified)
+        return self.last.action
+
+
+class BoundPolicy:
+    """The myopic lower or upper bound policy of Sec. IV (``--policy lower`` / ``upper``).
+
+    ``setup`` (optional) is the gate's decision the bounds came from.
+    """
+
+    def __init__(self, bounds: MyopicBounds, which: str, setup: PlannerSetup | None = None):
+        if which not in ("lower", "upper"):
+            raise ValueError(f"which: expected 'lower' or 'upper', got {which!r}")
+        self.bounds = bounds
+        self.which = which
+        self.setup = setup
+
+    def act(self, belief: np.ndarray) -> int:
+        b = np.asarray(belief, dtype=float)[None, :]
+        return int(getattr(self.bounds, self.which)(b)[0])
+
+
+# ------------------------------------------------------------------------- factories
+def _variant(opts: Mapping[str, Any]) -> str:
+    variant = str(opts.get("variant", BOUND_VARIANTS[0]))
+    if variant not in BOUND_VARIANTS:
+        raise ModelError(f"option variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
+    return variant
+
+
+def _flag(opts: Mapping[str, Any], name: str) -> bool:
+    """A yes/no option: 1/0, true/false, yes/no (``--option prune_without_guarantee=1``)."""
+    value = opts.get(name, False)
+    text = str(value).strip().lower()
+    if text in ("1", "true", "yes", "on"):
+        return True
+    if text in ("0", "false", "no", "off", ""):
+        return False
+    raise ModelError(f"option {name}: expected 1/0 (true/false), got {value!r}")
+
+
+OVERRIDE = "prune_without_guarantee"
+
+
+def _setup(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> PlannerSetup:
+    return build_planner(model, use_bounds=use_bounds, variant=_variant(opts) if use_bounds else BOUND_VARIANTS[0],
+                         prune_without_guarantee=_flag(opts, OVERRIDE), override_name=f"the option {OVERRIDE}=1")
+
+
+def _search_policy(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> SearchPolicy:
+    """``bnb`` (``use_bounds``) or ``exhaustive``: the gate decides whether ``bnb`` may prune;
+    on a model failing Assumption 1 it searches exhaustively and says why (``policy.setup``)."""
+    return SearchPolicy(_setup(model, opts, use_bounds), depth=opts.get("depth", 3),
+                        time_budget=opts.get("time_budget"), max_depth=opts.get("max_depth", 10))
+
+
+def _bound_policy(model: POMDP, opts: Mapping[str, Any], which: str) -> BoundPolicy:
+    """``lower`` / ``upper``: they ARE the bounds, so without valid bounds they refuse with the
+    gate's reason, unless ``prune_without_guarantee=1`` says to use them anyway."""
+    setup = _setup(model, opts, True)
+    if setup.myopic is None:
+        hint = (f"; --option {OVERRIDE}=1 uses them anyway, without guarantee"
+                if setup.bounds is None or (setup.bounds.feasible and not setup.guaranteed) else "")
+        raise ModelError(f"policy {which}: no valid bounds: {setup.reason}{hint}")
+    return BoundPolicy(setup.myopic, which, setup)
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    """One row of :data:`POLICIES`: the factory, a one-line help and the options it accepts."""
+
+    factory: PolicyFactory
+    help: str
+    options: tuple[str, ...] = ("seed",)
+
+
+_SEARCH_OPTIONS = ("seed", "depth", "time_budget", "max_depth")
+_BOUND_OPTIONS = ("variant", OVERRIDE)
+
+#: Every policy ``simulate`` knows: name -> :class:`PolicyEntry`.
+POLICIES: dict[str, PolicyEntry] = {
+    "random": PolicyEntry(lambda m, o: RandomPolicy(m, o.get("seed")), "uniformly random actions (seeded by --seed)"),
+    "myopic": PolicyEntry(lambda m, o: MyopicPolicy(m), "greedy argmax_a rho(b, a) (Eq. 3)"),
+    "bnb": PolicyEntry(lambda m, o: _search_policy(m, o, True),
+                       "branch-and-bound search, Algorithm 1; exhaustive (and says why) where the bounds are not "
+                       f"valid (options: depth=3 | time_budget=S, max_depth, variant, {OVERRIDE}=1)",
+                       (*_SEARCH_OPTIONS, *_BOUND_OPTIONS)),
+    "exhaustive": PolicyEntry(lambda m, o: _search_policy(m, o, False),
+                              "exhaustive tree search (options: depth=3 | time_budget=S, max_depth)", _SEARCH_OPTIONS),
+    "lower": PolicyEntry(lambda m, o: _bound_policy(m, o, "lower"),
+                         f"myopic lower-bound policy of Theorem 2; refused where the bounds are not valid (options: "
+                         f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
+    "upper": PolicyEntry(lambda m, o: _bound_policy(m, o, "upper"),
+                         f"myopic upper-bound policy of Theorem 2; refused where the bounds are not valid (options: "
+                         f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
+}
+
+
+def policy_names() -> list[str]:
+    """Names of all policies of :data:`POLICIES`, sorted."""
+    return sorted(POLICIES)
+
+
+def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
+    """Build policy ``name`` for ``model`` (``options`` go to its factory; unknown ones are errors)."""
+    entry = POLICIES.get(name)
+    if entry is None:
+        raise ModelError(f"policy: unknown policy {name!r} (known: {', '.join(policy_names())})")
+    unknown = sorted(set(options) - set(entry.options))
+    if unknown:
+        raise ModelError(f"policy {name}: unknown option {', '.join(map(repr, unknown))} "
+                         f"(known: {', '.join(entry.options)})")
+    return entry.factory(model, options)
+
+
+def as_callable(policy: Policy) -> Callable[[np.ndarray], int]:
+    """``policy.act`` for a policy object, the policy itself for a callable."""
+    act = getattr(policy, "act", None)
+    if callable(act):
+        return act
+    if callable(policy):
+        return policy
+    raise TypeError(f"policy: expected a callable belief -> action or an object with .act(), got {policy!r}")

@@ -1,0 +1,60 @@
+"""The search benchmark (pomdp_planner/bench/search.py): ``pomdp-planner bench search``,
+``python -m pomdp_planner.bench.search``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pomdp_planner.bench.search import BenchConfig, bench_model, format_report, run_search_bench
+from pomdp_planner.cli import main
+from pomdp_planner.core.gate import build_planner
+from pomdp_planner.core.io.model_yaml import load_model
+
+REPO = Path(__file__).resolve().parents[1]
+S3 = str(REPO / "config" / "models" / "tracking_s3_info.yaml")
+
+
+def test_bench_model_small_config() -> None:
+    model = load_model(S3)
+    cfg = BenchConfig(beliefs=4, deep_beliefs=2, timed=2, depths=(2, 3, 4), timed_max_depth=3)
+    res = bench_model(model, cfg)
+    rows = {p["depth"]: p for p in res["pruning"]}
+    assert rows[4]["beliefs"] == 2 and rows[2]["beliefs"] == 4
+    planner = build_planner(model).planner
+    b = np.random.default_rng(0).dirichlet(np.ones(3), size=4)
+    mean = np.mean([sum(planner.count_nodes(x, 2)) for x in b])
+    assert rows[2]["bnb_nodes_mean"] == pytest.approx(mean)
+    assert rows[2]["percent_pruned_mean"] == pytest.approx(100 * (1 - mean / 91))
+    assert [t["depth"] for t in res["timing"]] == [2, 3]
+    assert all(0.0 <= t["agreement"] <= 1.0 and t["speedup"] > 0 for t in res["timing"])
+
+
+def test_bench_cli_writes_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "bench.json"
+    assert main(["bench", "search", "--model", S3, "--beliefs", "2", "--timed", "1", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["benchmark"] == "search" and data["models"][0]["S"] == 3
+    assert "paper Table II" in capsys.readouterr().out
+    report = format_report(run_search_bench([S3], BenchConfig(beliefs=1, deep_beliefs=1, timed=1, depths=(2,),
+                                                                timed_max_depth=2)))
+    assert "26.3%" not in report  # the paper's row belongs to the S = Z = 8, A = 3 problem only
+
+
+def test_module_entry_point_and_bad_model(tmp_path: Path) -> None:
+    """``python -m pomdp_planner.bench.search`` is the same benchmark; a missing model is exit 2, no traceback."""
+    proc = subprocess.run([sys.executable, "-m", "pomdp_planner.bench.search", "--model", str(tmp_path / "no.yaml")],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "no.yaml" in proc.stderr and "Traceback" not in proc.stderr
+    assert main(["bench", "search", "--model", "no_such_model"]) == 2
+
+
+def test_shipped_models_resolve_by_bare_name() -> None:
+    res = run_search_bench(["tracking_s3_info.yaml"], BenchConfig(beliefs=1, deep_beliefs=1, timed=1, depths=(2,),
+                                                                  timed_max_depth=2))
+    assert res["models"][0]["model"] == "tracking_s3_info"

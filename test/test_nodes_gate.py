@@ -1,0 +1,62 @@
+"""Issue 11, the planner node's side: it builds its planner through the core's assumption gate, so
+on the model failing Assumption 1 it never certifies a decision and plans exhaustively."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diagnostic_msgs.msg import DiagnosticStatus
+from nodes_support import S3, make_harness, rclpy
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray
+
+from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.search import Planner
+from pomdp_planner.nodes import common
+from pomdp_planner.nodes.messages import encode_belief
+from pomdp_planner.nodes.planner import PlannerNode
+
+harness = pytest.fixture(make_harness)
+FAILING = str(Path(__file__).resolve().parent / "models" / "fails_assumption1_s3.yaml")
+BELIEFS = ([0.3, 0.4, 0.3], [0.1, 0.8, 0.1])  # the failing model's bounds agree at the first, cross at the second
+
+
+def _planner(h, model_file, **params):
+    overrides = [Parameter("model_file", value=model_file)] + [Parameter(k, value=v) for k, v in params.items()]
+    return h.add(PlannerNode(context=h.context, parameter_overrides=overrides))
+
+
+def test_node_on_a_failing_model_plans_exhaustively_and_certifies_nothing(harness):
+    h = harness
+    node = _planner(h, FAILING, max_depth=3, time_budget=30.0)
+    assert node.setup.mode == "exhaustive" and not node.setup.guaranteed and not node.report.holds
+    assert "Assumption 1 fails" in node.setup.reason
+    rec = h.recorder()
+    pub_node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
+    pub = pub_node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    h.start()
+    model = load_model(FAILING)
+    for epoch, b in enumerate(BELIEFS):
+        pub.publish(encode_belief(epoch, b))
+        assert h.wait_until(lambda n=epoch + 1: len(rec.actions) >= n, timeout=20)
+        expected = Planner(model).search(np.array(b), 3, use_bounds=False).priority
+        assert rec.actions[epoch] == (epoch + 1, expected)
+    assert h.wait_until(lambda: (rec.diag_values("planner") or [{}])[-1].get("decisions") == "2", timeout=5)
+    d = rec.diag_values("planner")[-1]
+    assert d["certified"] == "0" and d["last.certified"] == "false" and d["last.use_bounds"] == "false"
+    assert d["assumptions_hold"] == "false" and d["_level"] == DiagnosticStatus.WARN
+
+
+def test_node_on_a_valid_model_prunes_with_the_guarantee(harness):
+    node = _planner(harness, S3)
+    assert node.setup.mode == "prune" and node.setup.guaranteed and node._planner.guaranteed
+
+
+def test_node_refusal_is_the_gates_refusal(harness):
+    node = _planner(harness, FAILING, refuse_if_assumptions_fail=True)
+    assert node.refusing and node.setup.mode == "refuse" and node.setup.planner is None

@@ -1,0 +1,90 @@
+"""The explicit policy table (core/policies.py): every policy listed always, options checked, no cycle."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pomdp_planner.core.gate import build_planner
+from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.model import ModelError
+from pomdp_planner.core.policies import POLICIES, make_policy, policy_names
+from pomdp_planner.core.simulate import simulate
+
+REPO = Path(__file__).resolve().parents[1]
+S3 = str(REPO / "config" / "models" / "tracking_s3_info.yaml")
+PLANNERS = {"random", "myopic", "bnb", "exhaustive", "lower", "upper"}
+
+
+def test_the_table_holds_every_planner() -> None:
+    assert set(policy_names()) == set(POLICIES) >= PLANNERS
+    assert policy_names() == sorted(policy_names())
+    assert all(entry.help for entry in POLICIES.values())
+
+
+def test_simulate_help_lists_every_policy_in_a_fresh_interpreter() -> None:
+    """Nothing but the CLI is imported first: the list cannot depend on import order."""
+    out = subprocess.run([sys.executable, "-m", "pomdp_planner", "simulate", "--help"], cwd=REPO,
+                         capture_output=True, text=True, timeout=120, check=True).stdout
+    listed = out.split("policies (--policy NAME):", 1)[1]
+    for name in POLICIES:
+        assert f"  {name} " in listed, name
+        assert POLICIES[name].help in " ".join(listed.split())
+
+
+def _module_imports(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            names.add(("." * node.level) + (node.module or ""))
+        elif isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+    return names
+
+
+def test_no_import_cycle_between_search_and_simulate() -> None:
+    core = REPO / "pomdp_planner" / "core"
+    assert not {".simulate", ".policies", "importlib"} & _module_imports(core / "search.py")
+    assert not {".simulate", "importlib"} & _module_imports(core / "policies.py")
+    assert ".policies" in _module_imports(core / "simulate.py")
+    assert "importlib" not in _module_imports(core / "simulate.py")
+
+
+def test_a_name_and_the_built_policy_give_the_same_run() -> None:
+    model = load_model(S3)
+    by_name = simulate(model, "random", 12, seed=5)
+    by_object = simulate(model, make_policy("random", model, seed=6), 12, seed=5)
+    np.testing.assert_array_equal(by_name.actions, by_object.actions)
+
+
+def test_unknown_policy_and_option_are_errors_naming_them() -> None:
+    model = load_model(S3)
+    with pytest.raises(ModelError, match=r"unknown policy 'bogus'.*bnb"):
+        make_policy("bogus", model)
+    with pytest.raises(ModelError, match=r"policy bnb: unknown option 'dpth' \(known: .*depth"):
+        make_policy("bnb", model, dpth=2)
+    with pytest.raises(ModelError, match="variant"):
+        make_policy("lower", model, variant="loose")
+    with pytest.raises(ModelError, match=r"option depth: must be an integer in 1\.\.50"):
+        make_policy("exhaustive", model, depth=0)
+    with pytest.raises(ModelError, match=r"option time_budget: must be a number of seconds in 0\.001\.\.60"):
+        make_policy("bnb", model, time_budget=-1)
+    with pytest.raises(ModelError, match="option prune_without_guarantee: expected 1/0"):
+        make_policy("bnb", model, prune_without_guarantee="maybe")
+
+
+def test_planner_policies_act_like_their_planner() -> None:
+    model = load_model(S3)
+    assert {"bnb", "exhaustive", "lower", "upper"} <= set(policy_names())
+    b = np.array([0.2, 0.5, 0.3])
+    planner = build_planner(model).planner
+    assert make_policy("bnb", model, depth=2).act(b) == planner.search(b, 2).action
+    assert make_policy("exhaustive", model, depth=2).act(b) == planner.search(b, 2, use_bounds=False).action
+    lo, up = planner.root_bounds(b)
+    assert make_policy("lower", model).act(b) == lo and make_policy("upper", model).act(b) == up
+    assert 0 <= make_policy("bnb", model, time_budget=0.01).act(b) < 3
