@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 from pomdp_planner.cli import main
-from pomdp_planner.core.io import cassandra, file_text
+from pomdp_planner.core.io import cassandra, file_text, model_yaml
 from pomdp_planner.core.io.cassandra import export_pomdp, parse_pomdp
 from pomdp_planner.core.io.model_yaml import MAX_YAML_DEPTH, load_model, model_from_dict, model_to_dict
 from pomdp_planner.core.model import (
@@ -106,6 +106,19 @@ def test_oversized_file_is_refused_before_parsing(tmp_path, monkeypatch):
 
 def test_default_file_limit_admits_large_explicit_models():
     assert file_text.MAX_MODEL_FILE_BYTES >= 8 * 2**20
+    assert model_yaml.MAX_YAML_NODES >= 2 * 6 * 150 * 150 and cassandra.MAX_TOKENS >= 400_000
+
+
+def test_value_and_word_counts_bound_the_parsing_time(tmp_path, monkeypatch):
+    """A file of many tiny values (``[0,0,0,...]``) is refused once it passes the count, before
+    anything else is built; the shipped models are far below it."""
+    monkeypatch.setattr(model_yaml, "MAX_YAML_NODES", 1000)
+    assert load_model(S3).S == 3
+    refused(write(tmp_path, "many.yaml", "discount: 0.9\nreward: [" + "0," * 2000 + "0]\n"),
+            r"line 2, column \d+: more than 1,000 values \(MAX_YAML_NODES\)")
+    monkeypatch.setattr(cassandra, "MAX_TOKENS", 1000)
+    refused(write(tmp_path, "many.POMDP", "discount: 0.9\nstates: 2\nstart: " + "0 " * 2000 + "\n"),
+            r"line 3: more than 1,000 words \(MAX_TOKENS\)")
 
 
 # ------------------------------------------------------------------------ YAML structure

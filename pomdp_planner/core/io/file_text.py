@@ -21,9 +21,9 @@ from pathlib import Path
 
 from ..model import ModelError, format_bytes
 
-#: Largest model file read (bytes). The explicit YAML form of a model with S = 300 states,
-#: A = 5 actions and Z = 300 observations takes about 10 MiB; both loaders parse this much in
-#: a few seconds (measured: docs/RELIABILITY notes in the loaders' tests).
+#: Largest model file read (bytes): 16 MiB. The loaders bound their work by the number of values
+#: as well (``MAX_YAML_NODES``, ``MAX_TOKENS``); this bounds what a file of long strings or
+#: comments costs.
 MAX_MODEL_FILE_BYTES = 16 * 2**20
 
 
