@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import POMDP, ModelError
+from .model import POMDP, ModelError, short_repr
 
 #: Observations whose probability under the belief is at most this are impossible.
 ETA_MIN = 1e-300
@@ -172,11 +172,11 @@ def start_belief(model: POMDP) -> np.ndarray | None:
             b[model.state_names.index(start)] = 1.0
             return b
         raise ModelError(f"start: expected a list of {model.S} probabilities, 'uniform' or a state name, "
-                         f"got {start!r}")
+                         f"got {short_repr(start)}")
     try:
         b = np.asarray(start, dtype=float)
-    except (TypeError, ValueError):
-        raise ModelError(f"start: expected a list of {model.S} numbers, got {start!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ModelError(f"start: expected a list of {model.S} numbers, got {short_repr(start)}") from None
     try:
         return check_belief(model, b, field="start")
     except BeliefError as exc:
