@@ -1,8 +1,16 @@
-"""Launch-free test support for the ROS 2 node tests (see /work/shared/ROS_NOTES.md).
+"""Launch-free support for the ROS 2 node tests: plain pytest and rclpy, no launch files, no ``ros2``.
 
-One ``rclpy`` Context per test, discovery OFF (nodes of one context still talk, nothing leaks
-between tests), one ``common.NodeExecutor`` (the nodes' MultiThreadedExecutor) spinning in a daemon
-thread, waits on a condition variable that the recording callbacks notify (no fixed sleeps).
+* :class:`RosHarness` (the ``harness`` fixture of each node test, via :func:`make_harness`): one
+  ``rclpy`` Context per test, initialised with ``ROS_AUTOMATIC_DISCOVERY_RANGE=OFF`` (nodes of one
+  context still talk to each other; nothing leaks to or from other tests, processes or machines)
+  and ``ROS_PYTHON_CHECK_FIELDS=1`` (a wrong message field type raises instead of being
+  serialised as garbage); one ``NodeExecutor`` (the nodes' own executor) spinning in a daemon
+  thread; teardown shuts the executor down, then destroys the nodes, then the context.
+* :class:`Recorder`: a node that records every message of the loop's topics and of
+  ``/diagnostics`` under a lock, and notifies a condition variable; tests wait on it with
+  :meth:`RosHarness.wait_until` (a predicate and an upper bound, never a fixed sleep).
+* Discovery runs in DDS threads with no event to wait on, so :meth:`RosHarness.wait_matched` polls
+  a publisher's match count (again with an upper bound).
 """
 
 from __future__ import annotations
@@ -20,11 +28,11 @@ rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float64MultiArray, Int64MultiArray  # noqa: E402
 
-from pomdp_planner.nodes import common  # noqa: E402
+from pomdp_planner.nodes.executor import NodeExecutor, shutdown_executor  # noqa: E402
 from pomdp_planner.nodes.messages import decode_belief  # noqa: E402
+from pomdp_planner.nodes.qos import RECORDER_QOS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 S3 = str(REPO / "config" / "models" / "tracking_s3_info.yaml")
@@ -42,9 +50,7 @@ class Recorder(Node):
         self.beliefs: list = []
         self.true_states: list[tuple[int, int]] = []
         self.diagnostics: list = []
-        # Transient-local like the publishers, but a deep history: every message is recorded.
-        deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        deep = RECORDER_QOS  # transient-local like the publishers, a deep history: every message is recorded
         self.create_subscription(Int64MultiArray, "action", self._rec(self.actions, tuple), deep)
         for t in obs_topics:
             self.create_subscription(Int64MultiArray, t, self._rec(self.observations[t], tuple), deep)
@@ -86,7 +92,7 @@ class RosHarness:
         self.context = Context()
         rclpy.init(context=self.context)
         self.cond = threading.Condition()
-        self.executor = common.NodeExecutor(num_threads=4, context=self.context)
+        self.executor = NodeExecutor(num_threads=4, context=self.context)
         self.nodes: list[Node] = []
         self._thread: threading.Thread | None = None
 
@@ -130,7 +136,7 @@ class RosHarness:
         return True
 
     def close(self) -> None:
-        common.shutdown_executor(self.executor)
+        shutdown_executor(self.executor)
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         for n in self.nodes:

@@ -77,7 +77,7 @@ def test_there_are_pure_modules():
 def test_static_check_catches_indirect_forms():
     """Relative imports are resolved and import_module/__import__ calls are seen."""
     source = """
-from ..nodes import common
+from ..nodes import qos
 from . import belief
 import numpy as np
 def f():
@@ -85,8 +85,8 @@ def f():
     return importlib.import_module("rclpy.node"), __import__("scipy")
 """
     names = [n for _, n in names_in_source(source, "pomdp_planner.core.x", is_package=False)]
-    assert "pomdp_planner.nodes.common" in names and "pomdp_planner.core.belief" in names
-    assert [n for n in names if forbidden(n)] == ["pomdp_planner.nodes", "pomdp_planner.nodes.common", "rclpy.node"]
+    assert "pomdp_planner.nodes.qos" in names and "pomdp_planner.core.belief" in names
+    assert [n for n in names if forbidden(n)] == ["pomdp_planner.nodes", "pomdp_planner.nodes.qos", "rclpy.node"]
     sub = [n for _, n in names_in_source("from .. import nodes", "pomdp_planner.core", is_package=True)]
     assert "pomdp_planner.nodes" in sub
 

@@ -18,10 +18,18 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.search import Planner
-from pomdp_planner.nodes import common
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.messages import encode_belief, encode_observation
+from pomdp_planner.nodes.messages import (
+    PLAN_INFO_FIELDS,
+    MessageError,
+    decode_belief,
+    decode_plan_info,
+    encode_belief,
+    encode_observation,
+    encode_plan_info,
+)
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.qos import LATCHED_QOS, STREAM_QOS
 
 harness = pytest.fixture(make_harness)
 
@@ -33,7 +41,7 @@ def _filter(h, model_file=S3, **params):
 
 def _publisher(h, topic="observation"):
     node = h.add(rclpy.node.Node(f"test_pub_{len(h.nodes)}", context=h.context))
-    return node.create_publisher(Int64MultiArray, topic, common.STREAM_QOS)
+    return node.create_publisher(Int64MultiArray, topic, STREAM_QOS)
 
 
 def _latest_diag(rec, prefix="belief_filter"):
@@ -47,11 +55,12 @@ def _counts_reach(rec, key, n, prefix="belief_filter"):
 
 @pytest.fixture
 def perfect_sensor_model(tmp_path):
-    """S = Z = 2, static state, perfect sensor: observation 1 is impossible under the prior [1, 0]."""
+    """S = 2, static state, perfect sensor: observation 1 is impossible under the prior [1, 0];
+    observation 2 is impossible in every state (it contradicts the model)."""
     doc = {
-        "name": "perfect_sensor", "discount": 0.9, "states": 2, "actions": 2, "observations": 2,
+        "name": "perfect_sensor", "discount": 0.9, "states": 2, "actions": 2, "observations": 3,
         "transition": [[[1, 0], [0, 1]], [[1, 0], [0, 1]]],
-        "observation": [[[1, 0], [0, 1]], [[0.5, 0.5], [0.5, 0.5]]],
+        "observation": [[[1, 0, 0], [0, 1, 0]], [[0.5, 0.5, 0], [0.5, 0.5, 0]]],
         "reward": [[0, 0], [0, 0]],
     }
     path = tmp_path / "perfect.yaml"
@@ -67,7 +76,7 @@ def test_filter_bad_observations_counted_and_node_keeps_running(harness, perfect
     h.start()
     assert h.wait_until(lambda: len(rec.beliefs) >= 1)  # the latched prior (epoch 0)
     # out of range observation, out of range action, wrong length, wrong label: dropped
-    pub.publish(encode_observation(1, 1, 2))
+    pub.publish(encode_observation(1, 1, 3))
     pub.publish(encode_observation(1, 3, 0))
     pub.publish(Int64MultiArray(data=[1, 1]))
     bad_label = encode_observation(1, 1, 0)
@@ -76,12 +85,13 @@ def test_filter_bad_observations_counted_and_node_keeps_running(harness, perfect
     assert h.wait_until(_counts_reach(rec, "out_of_range_observations", 2), timeout=5)
     assert h.wait_until(_counts_reach(rec, "malformed_messages", 2), timeout=5)
     assert [b.epoch for b in rec.decoded_beliefs(2)] == [0]  # nothing published from bad input
-    # impossible observation: recovery = the predicted belief, published for that epoch
+    # impossible observation: the filter restarts from the uniform prior pushed through the
+    # transition, then applies the reading: [0.5, 0.5] * [0, 1] -> [0, 1] (core/filter.py)
     pub.publish(encode_observation(1, 1, 1))
     assert h.wait_until(lambda: len(rec.beliefs) >= 2)
     b1 = rec.decoded_beliefs(2)[-1]
     assert b1.epoch == 1
-    np.testing.assert_allclose(b1.belief, [1.0, 0.0])
+    np.testing.assert_allclose(b1.belief, [0.0, 1.0])
     assert h.wait_until(_counts_reach(rec, "impossible_observations", 1), timeout=5)
     assert any(d["_level"] == DiagnosticStatus.WARN for d in rec.diag_values("belief_filter"))
     # still running: a possible observation of the next epoch is applied normally
@@ -89,7 +99,14 @@ def test_filter_bad_observations_counted_and_node_keeps_running(harness, perfect
     assert h.wait_until(lambda: len(rec.beliefs) >= 3)
     b2 = rec.decoded_beliefs(2)[-1]
     assert b2.epoch == 2
-    np.testing.assert_allclose(b2.belief, [1.0, 0.0])
+    np.testing.assert_allclose(b2.belief, [0.0, 1.0])
+    # a reading no state can produce contradicts the model: dropped, the prediction published
+    pub.publish(encode_observation(3, 1, 2))
+    assert h.wait_until(lambda: len(rec.beliefs) >= 4)
+    b3 = rec.decoded_beliefs(2)[-1]
+    assert b3.epoch == 3
+    np.testing.assert_allclose(b3.belief, [0.0, 1.0])
+    assert h.wait_until(_counts_reach(rec, "contradicting_observations", 1), timeout=5)
 
 
 def test_filter_reordered_delayed_duplicated_delivery_pairs_by_carried_action(harness):
@@ -165,8 +182,6 @@ def test_filter_two_sensors_one_prediction_then_one_update_per_sensor(harness, t
 
 
 def test_belief_encoding_roundtrip_and_rejections():
-    from pomdp_planner.nodes.messages import MessageError, decode_belief
-
     b = np.array([0.2, 0.3, 0.5])
     msg = encode_belief(7, b)
     got = decode_belief(msg, 3)
@@ -174,7 +189,7 @@ def test_belief_encoding_roundtrip_and_rejections():
     np.testing.assert_allclose(got.belief, b)
     with pytest.raises(MessageError, match="expected 3 probabilities"):
         decode_belief(encode_belief(7, [0.5, 0.5]), 3)
-    with pytest.raises(MessageError, match="not finite"):
+    with pytest.raises(MessageError, match="non-finite"):
         decode_belief(encode_belief(7, [np.nan, 0.5, 0.5]), 3)
     with pytest.raises(MessageError, match="sums to"):
         decode_belief(encode_belief(7, [0.5, 0.5, 0.5]), 3)
@@ -192,7 +207,7 @@ def test_planner_bad_beliefs_counted_no_action_then_keeps_running(harness):
     _planner(h, time_budget=0.02, max_depth=2)
     rec = h.recorder()
     node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
-    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     h.start()
     bad = [
         encode_belief(0, [0.5, 0.5]),                # wrong length
@@ -234,7 +249,7 @@ def test_planner_assumptions_fail_exhaustive_fallback_or_refusal(harness, non_tp
     assert not planner.report.holds
     rec = h.recorder()
     node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
-    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     h.start()
     pub.publish(encode_belief(0, [0.5, 0.5]))
     assert h.wait_until(lambda: rec.diag_values("planner"), timeout=5)
@@ -253,8 +268,6 @@ def test_planner_assumptions_fail_exhaustive_fallback_or_refusal(harness, non_tp
 
 def test_plan_info_carries_the_deadline_miss_flag():
     """plan_info round-trips every field, the planner's miss verdict included (the demo counts it)."""
-    from pomdp_planner.nodes.messages import PLAN_INFO_FIELDS, MessageError, decode_plan_info, encode_plan_info
-
     fields = {k: float(i) for i, k in enumerate(PLAN_INFO_FIELDS)}
     fields["deadline_miss"] = 1.0
     msg = encode_plan_info(**fields)

@@ -11,12 +11,15 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from nodes_support import S3, make_harness
+from rclpy.node import Node
 from rclpy.parameter import Parameter
+from std_msgs.msg import Int64MultiArray
 
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.qos import STREAM_QOS
 from pomdp_planner.nodes.target_simulator import TargetSimulator
 
 harness = pytest.fixture(make_harness)
@@ -132,17 +135,12 @@ def test_simulator_waits_for_min_subscribers_then_loses_no_epoch(harness):
     """``min_subscribers``: the first step waits until every observation topic has that many
     subscribers (the demo uses it so that its monitor sees epoch 1); the held action is applied then."""
     h = harness
-    from rclpy.node import Node
-    from std_msgs.msg import Int64MultiArray
-
-    from pomdp_planner.nodes import common
-
     sim, _flt, _planner, rec = start_loop(h, sim_params={"min_subscribers": 3})  # filter + recorder = 2
     assert h.wait_until(lambda: sim._held_action is not None, timeout=10), "no action reached the simulator"
     with h.cond:
         assert rec.observations["observation"] == [] and sim.epoch == 0  # held, not stepped
     late = h.add(Node("late_subscriber", context=h.context))
-    late.create_subscription(Int64MultiArray, "observation", lambda msg: None, common.STREAM_QOS)
+    late.create_subscription(Int64MultiArray, "observation", lambda msg: None, STREAM_QOS)
     assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=15), f"only {len(rec.beliefs)} beliefs"
     with h.cond:
         epochs = [t for t, _, _ in rec.observations["observation"]]

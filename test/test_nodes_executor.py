@@ -1,4 +1,4 @@
-"""``common.NodeExecutor``: every ready callback is handed to the thread pool once.
+"""``executor.NodeExecutor``: every ready callback is handed to the thread pool once.
 
 Regression test for the stalls of the free-running node loop (README, "Latency"): Jazzy's
 ``MultiThreadedExecutor`` yields a task again while it still waits in the pool's queue and
@@ -23,10 +23,11 @@ from nodes_support import make_harness
 
 rclpy = pytest.importorskip("rclpy")
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
-from pomdp_planner.nodes.common import NodeExecutor, shutdown_executor  # noqa: E402
+from pomdp_planner.nodes.executor import NodeExecutor, shutdown_executor  # noqa: E402
 
 harness = pytest.fixture(make_harness)
 BUSY = 0.05  # s a callback holds its worker (time.sleep: without the GIL)
@@ -93,9 +94,6 @@ def test_node_executor_reports_a_shut_down_context_as_shutdown():
     """Ctrl-C shuts the context down while the executor may be between two waits: it must say
     so with rclpy's ExternalShutdownException (a clean exit in run_nodes), not fail building a
     wait set on the dead context (RCLError; seen once as a node exiting 1 on SIGINT)."""
-    from rclpy.context import Context
-    from rclpy.executors import ExternalShutdownException
-
     context = Context()
     rclpy.init(context=context)
     node = Node("shutdown_probe", context=context)

@@ -17,9 +17,9 @@ from std_msgs.msg import Float64MultiArray
 
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.search import Planner
-from pomdp_planner.nodes import common
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.qos import LATCHED_QOS
 
 harness = pytest.fixture(make_harness)
 FAILING = str(Path(__file__).resolve().parent / "models" / "fails_assumption1_s3.yaml")
@@ -38,7 +38,7 @@ def test_node_on_a_failing_model_plans_exhaustively_and_certifies_nothing(harnes
     assert "Assumption 1 fails" in node.setup.reason
     rec = h.recorder()
     pub_node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
-    pub = pub_node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    pub = pub_node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     h.start()
     model = load_model(FAILING)
     for epoch, b in enumerate(BELIEFS):

@@ -25,7 +25,7 @@ from rclpy.executors import SingleThreadedExecutor
 
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.nodes.demo import node_command, stop_nodes
+from pomdp_planner.nodes.processes import node_command, stop_nodes
 
 S3_MODEL = load_model(REPO / "config" / "models" / "tracking_s3_info.yaml")
 SHM = Path("/dev/shm")

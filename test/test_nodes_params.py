@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -12,16 +13,17 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from nodes_support import REPO, S3, S8, make_harness
+from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64MultiArray
 from test_nodes_closed_loop import start_loop
 
-from pomdp_planner.nodes import common
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.common import NodeConfigError
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.qos import LATCHED_QOS
+from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.target_simulator import TargetSimulator
 
 harness = pytest.fixture(make_harness)
@@ -95,8 +97,6 @@ def test_invalid_parameter_values_rejected_with_reason(harness, name, value, rea
 
 
 def rclpy_node(h):
-    from rclpy.node import Node
-
     return Node("test_param_client", context=h.context)
 
 
@@ -145,18 +145,34 @@ def test_shipped_yaml_loads_and_matches_declared_parameters(harness, path):
 
 
 def test_parameter_service_answers_during_a_search(harness):
-    """Planning runs in its own callback group: a parameter set is answered while a search runs."""
+    """Planning runs in its own callback group: a parameter set is answered while a search runs.
+
+    The search is held at its start until the answer has come (a real 1 s budget is no way to
+    keep it running: the anytime search does not start a depth it predicts not to finish, and on
+    a loaded machine it stopped after 70 ms, before the test had seen it start)."""
     h = harness
     planner = h.add(PlannerNode(context=h.context, parameter_overrides=[
-        Parameter("model_file", value=S8), Parameter("time_budget", value=1.0), Parameter("max_depth", value=8)]))
+        Parameter("model_file", value=S8), Parameter("time_budget", value=0.05), Parameter("max_depth", value=3)]))
+    release = threading.Event()
+    search = planner._planner.plan
+
+    def held_search(*args, **kwargs):
+        assert release.wait(timeout=30.0), "the test never released the search"
+        return search(*args, **kwargs)
+
+    planner._planner.plan = held_search
     node = h.add(rclpy_node(h))
-    pub = node.create_publisher(Float64MultiArray, "belief", common.LATCHED_QOS)
+    pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     client = AsyncParameterClient(node, "planner")
     h.start()
-    assert client.wait_for_services(timeout_sec=10.0)
-    pub.publish(encode_belief(0, np.full(8, 1 / 8)))
-    assert h.wait_until(lambda: planner.planning_epoch == 0, timeout=10)
-    (res,) = _set(client, time_budget=0.3)
-    assert res.successful
-    assert planner.planning_epoch == 0  # answered before the 1 s search ended
-    assert planner.counts["decisions"] == 0
+    try:
+        assert client.wait_for_services(timeout_sec=10.0)
+        pub.publish(encode_belief(0, np.full(8, 1 / 8)))
+        assert h.wait_until(lambda: planner.planning_epoch == 0, timeout=10)
+        (res,) = _set(client, time_budget=0.3)
+        assert res.successful
+        assert planner.planning_epoch == 0  # answered while the planning callback was still running
+        assert planner.counts["decisions"] == 0
+    finally:
+        release.set()
+    assert h.wait_until(lambda: planner.counts["decisions"] == 1, timeout=10)  # the held search completes

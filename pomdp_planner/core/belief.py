@@ -9,15 +9,16 @@ Translation of the paper's formulas into our convention (``P[a, i, j] = P(j | i,
   ->  ``tau = b^a * O[a][:, z] / eta[z]``.
 
 An observation with ``eta(z | b, a) <= ETA_MIN`` is impossible under the belief: the single
-update raises :class:`ImpossibleObservation`, which carries ``eta`` and the predicted belief
-so that a caller (e.g. the belief filter node) can choose a recovery.
+update raises :class:`ImpossibleObservation`, which carries ``eta`` and the predicted belief.
+The per-epoch filter of the nodes and of ``simulate`` (``core/filter.py``) has the project's one
+recovery rule for it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .model import POMDP, ModelError
+from .model import POMDP, ModelError, short_repr
 
 #: Observations whose probability under the belief is at most this are impossible.
 ETA_MIN = 1e-300
@@ -45,17 +46,19 @@ class BeliefError(ValueError):
     """A belief, action or observation given to the filter is invalid (message says which)."""
 
 
-def check_belief(model: POMDP, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
+def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
     """Return ``b`` as a float array after checking it lies on the simplex of ``model``.
 
     The one belief rule of the package: ``S`` finite entries, none below ``-atol``, summing to 1
     within ``atol``; the result is clipped at 0 and renormalised. Errors are :class:`BeliefError`
-    naming ``field``; the edges (CLI, nodes) translate them.
+    naming ``field``; the edges (CLI, nodes) translate them. ``model`` may be just the number of
+    states ``S`` (for a message decoder, which knows nothing else of the model).
     """
+    S = int(model) if isinstance(model, (int, np.integer)) else model.S
     b = np.asarray(b, dtype=float)
-    if b.shape != (model.S,):
+    if b.shape != (S,):
         got = f"{b.size}" if b.ndim == 1 else f"shape {b.shape}"
-        raise BeliefError(f"{field}: expected {model.S} probabilities (one per state), got {got}")
+        raise BeliefError(f"{field}: expected {S} probabilities (one per state), got {got}")
     if not np.all(np.isfinite(b)):
         raise BeliefError(f"{field}: contains non-finite values")
     if np.any(b < -atol):
@@ -169,11 +172,11 @@ def start_belief(model: POMDP) -> np.ndarray | None:
             b[model.state_names.index(start)] = 1.0
             return b
         raise ModelError(f"start: expected a list of {model.S} probabilities, 'uniform' or a state name, "
-                         f"got {start!r}")
+                         f"got {short_repr(start)}")
     try:
         b = np.asarray(start, dtype=float)
-    except (TypeError, ValueError):
-        raise ModelError(f"start: expected a list of {model.S} numbers, got {start!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ModelError(f"start: expected a list of {model.S} numbers, got {short_repr(start)}") from None
     try:
         return check_belief(model, b, field="start")
     except BeliefError as exc:

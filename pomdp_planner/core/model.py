@@ -17,6 +17,9 @@ The expected reward is ``rho(b, a) = b . r[:, a] - w[a] f(b)`` (paper Eq. 3).
 
 from __future__ import annotations
 
+import math
+import numbers
+import reprlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -26,10 +29,137 @@ from .uncertainty import Uncertainty, get_uncertainty
 
 #: Rows of ``P`` and ``O`` must sum to one within this absolute tolerance.
 STOCHASTIC_ATOL = 1e-6
+#: Largest model a loader or generator builds: bytes of ``P``, ``O`` and ``r`` as float64
+#: (``8 (A S S + A S Z + S A)``), checked *before* anything is allocated
+#: (:func:`check_model_size`). Building a model needs a few times this transiently. 128 MiB
+#: holds e.g. S = Z = 1600 with A = 3, or S = Z = 256 with A = 64.
+MAX_MODEL_BYTES = 128 * 2**20
+#: Longest text of a value quoted in an error message (:func:`short_repr`).
+MESSAGE_VALUE_CHARS = 80
+#: Longest model name; a name is one line of text (it is written into exported files).
+MAX_NAME_CHARS = 256
 
 
 class ModelError(ValueError):
-    """A model is malformed: the message names the field and the problem."""
+    """A model is malformed: the message names the field and the problem (one line)."""
+
+
+class _ShortRepr(reprlib.Repr):
+    """``reprlib`` limits, plus integers too long to print (Python refuses > 4300 digits)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.maxlevel, self.maxlist, self.maxtuple, self.maxdict = 3, 6, 6, 4
+        self.maxstring, self.maxlong, self.maxother = MESSAGE_VALUE_CHARS, 40, MESSAGE_VALUE_CHARS
+
+    def repr_int(self, x: int, level: int) -> str:
+        if x.bit_length() > 128:
+            return f"<integer of about {int(x.bit_length() * math.log10(2)) + 1} digits>"
+        return repr(x)
+
+
+_SHORT = _ShortRepr()
+
+
+def short_repr(value: object, limit: int = MESSAGE_VALUE_CHARS) -> str:
+    """``repr(value)`` cut to at most ``limit`` characters, on one line, whatever ``value`` is.
+
+    Containers show their first few items only (:mod:`reprlib`), so quoting a value never costs
+    more than a few hundred operations, and an error message never embeds an unbounded value.
+    """
+    try:
+        text = _SHORT.repr(value)
+    except Exception:
+        text = f"<{type(value).__name__}>"
+    text = " ".join(text.split("\n"))
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def kind_of(value: object) -> str:
+    """What a parsed value is, in words, for messages ("a string '0.5'", "a list", "null")."""
+    if value is None:
+        return "null"
+    if isinstance(value, (bool, np.bool_)):
+        return f"a boolean ({value})"
+    if isinstance(value, str):
+        return f"a string {short_repr(value)}"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    if isinstance(value, numbers.Integral):
+        return f"the integer {short_repr(value)}"
+    if isinstance(value, numbers.Real):
+        return f"the number {short_repr(value)}"
+    return f"{type(value).__name__} {short_repr(value)}"
+
+
+def as_number(value: object, field_name: str, finite: bool = True) -> float:
+    """``value`` as a float, strictly: an int or float (numpy scalars too), not a bool or a string.
+
+    Integers too large for a float and (with ``finite``) NaN or infinity are refused.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ModelError(f"{field_name}: must be a number, got {kind_of(value)}")
+    try:
+        x = float(value)
+    except OverflowError:
+        raise ModelError(f"{field_name}: number too large for a float ({short_repr(value)})") from None
+    if finite and not math.isfinite(x):
+        raise ModelError(f"{field_name}: must be a finite number, got {x}")
+    return x
+
+
+def as_count(value: object, field_name: str) -> int:
+    """``value`` as a count ``>= 1``, strictly: an integer, not a bool, a string or a float.
+
+    A float is refused even when integral (``3.0``): counts in model files are written as integers.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ModelError(f"{field_name}: must be an integer count, got {kind_of(value)}")
+    n = int(value)
+    if n < 1:
+        raise ModelError(f"{field_name}: count must be at least 1, got {n}")
+    return n
+
+
+def model_bytes(S: int, A: int, Z: int) -> int:
+    """Bytes of ``P`` (A x S x S), ``O`` (A x S x Z) and ``r`` (S x A) as float64."""
+    return 8 * (A * S * S + A * S * Z + S * A)
+
+
+def check_model_size(S: int, A: int, Z: int, field_name: str, limit: int | None = None) -> None:
+    """Refuse (``ModelError`` naming ``field_name``) a model whose matrices would exceed ``limit``
+    bytes (default :data:`MAX_MODEL_BYTES`); call it before allocating anything of that size."""
+    limit = MAX_MODEL_BYTES if limit is None else limit
+    need = model_bytes(S, A, Z)
+    if need > limit:
+        raise ModelError(f"{field_name}: S={short_repr(S)}, A={short_repr(A)}, Z={short_repr(Z)} need "
+                         f"{format_bytes(need)} for the transition, observation and reward matrices; "
+                         f"the limit is {format_bytes(limit)} (MAX_MODEL_BYTES)")
+
+
+def format_bytes(n: float) -> str:
+    """``n`` bytes in a binary unit (``512 B``, ``1.5 GiB``; beyond PiB in powers of ten)."""
+    if n < 1024:
+        return f"{int(n)} B"
+    if n >= 1024 ** 6:
+        return f"about 1e{int(math.log10(n))} B"
+    for k, unit in enumerate(("KiB", "MiB", "GiB", "TiB", "PiB"), start=1):
+        if n < 1024 ** (k + 1) or unit == "PiB":
+            return f"{n / 1024 ** k:.3g} {unit}"
+    raise AssertionError  # unreachable
+
+
+def check_name(value: object, field_name: str = "name") -> str:
+    """A model name: one line of at most :data:`MAX_NAME_CHARS` characters (a string or a number)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (str, numbers.Real)):
+        raise ModelError(f"{field_name}: must be a string, got {kind_of(value)}")
+    text = value if isinstance(value, str) else short_repr(value)
+    if len(text) > MAX_NAME_CHARS or not text.isprintable():
+        raise ModelError(f"{field_name}: must be one line of at most {MAX_NAME_CHARS} printable characters, "
+                         f"got {short_repr(text)} ({len(text)} characters)")
+    return text
 
 
 def priority_of(action: int | np.ndarray) -> int | np.ndarray:
@@ -70,10 +200,35 @@ def _check_stochastic(name: str, M: np.ndarray, row_label: str, col_label: str) 
         )
 
 
+def _weights(w: object, A: int) -> np.ndarray:
+    """The weights ``w_a`` of Eq. 3: ``None`` (zeros), one number for all actions, or ``A`` numbers."""
+    if w is None:
+        return np.zeros(A)
+    if isinstance(w, (list, tuple)):
+        for i, x in enumerate(w):
+            if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real):
+                raise ModelError(f"uncertainty.weights: must be numbers, got {kind_of(x)} at index {i}")
+    elif isinstance(w, (str, dict, bool, np.bool_)):
+        raise ModelError(f"uncertainty.weights: must be numbers, got {kind_of(w)}")
+    try:
+        arr = np.asarray(w, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ModelError(f"uncertainty.weights: must be numbers, got {short_repr(w)}") from None
+    if arr.ndim == 0:
+        arr = np.full(A, float(arr))
+    if arr.shape != (A,):
+        raise ModelError(f"uncertainty.weights: expected {A} weights (one per action), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ModelError(f"uncertainty.weights[{int(np.argmax(~np.isfinite(arr)))}]: weight is not finite")
+    return arr
+
+
 def _names(field_name: str, names: Sequence[str] | None, n: int) -> tuple[str, ...] | None:
     if names is None:
         return None
-    names = tuple(str(x) for x in names)
+    if isinstance(names, (str, bytes)) or not isinstance(names, Sequence):
+        raise ModelError(f"{field_name}: names must be a list, got {kind_of(names)}")
+    names = tuple(check_name(x, f"{field_name}[{i}]") for i, x in enumerate(names))
     if len(names) != n:
         raise ModelError(f"{field_name}: {len(names)} names given for {n} entries")
     if len(set(names)) != n:
@@ -109,8 +264,9 @@ class POMDP:
             P = np.asarray(self.P, dtype=float)
             O = np.asarray(self.O, dtype=float)
             r = np.asarray(self.r, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ModelError(f"model matrices must be numeric arrays of consistent shape: {exc}") from None
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ModelError(f"model matrices must be numeric arrays of consistent shape: "
+                             f"{short_repr(str(exc), 120)}") from None
         if P.ndim != 3 or P.shape[1] != P.shape[2]:
             raise ModelError(f"transition: expected shape A x S x S, got {P.shape}")
         A, S, _ = P.shape
@@ -127,10 +283,7 @@ class POMDP:
         if not np.all(np.isfinite(r)):
             s, a = np.argwhere(~np.isfinite(r))[0]
             raise ModelError(f"reward[{s}][{a}]: value is not finite ({r[s, a]})")
-        try:
-            gamma = float(self.gamma)
-        except (TypeError, ValueError):
-            raise ModelError(f"discount: must be a number, got {self.gamma!r}") from None
+        gamma = as_number(self.gamma, "discount", finite=False)
         if not (0.0 <= gamma < 1.0):
             raise ModelError(f"discount: must satisfy 0 <= gamma < 1, got {gamma}")
         unc = self.uncertainty
@@ -139,20 +292,11 @@ class POMDP:
                 unc = get_uncertainty(unc)
             except ValueError as exc:
                 raise ModelError(str(exc)) from None
-        try:
-            w = np.zeros(A) if self.w is None else np.asarray(self.w, dtype=float)
-        except (TypeError, ValueError):
-            raise ModelError(f"uncertainty.weights: must be numbers, got {self.w!r}") from None
-        if w.ndim == 0:
-            w = np.full(A, float(w))
-        if w.shape != (A,):
-            raise ModelError(f"uncertainty.weights: expected {A} weights (one per action), got shape {w.shape}")
-        if not np.all(np.isfinite(w)):
-            raise ModelError(f"uncertainty.weights[{int(np.argmax(~np.isfinite(w)))}]: weight is not finite")
-        try:
-            eps = float(self.epsilon)
-        except (TypeError, ValueError):
-            raise ModelError(f"uncertainty.epsilon: must be a number, got {self.epsilon!r}") from None
+        elif not isinstance(unc, Uncertainty):
+            raise ModelError(f"uncertainty.function: must be the name of a function (none, renyi2, shannon), "
+                             f"got {kind_of(unc)}")
+        w = _weights(self.w, A)
+        eps = as_number(self.epsilon, "uncertainty.epsilon", finite=False)
         if not (0.0 < eps < 1.0 / S or (S == 1 and 0.0 < eps <= 1.0)):
             raise ModelError(f"uncertainty.epsilon: must satisfy 0 < epsilon < 1/S = {1.0 / S:.6g}, got {eps}")
         set_(self, "P", _frozen(P))
@@ -162,7 +306,7 @@ class POMDP:
         set_(self, "uncertainty", unc)
         set_(self, "w", _frozen(w))
         set_(self, "epsilon", eps)
-        set_(self, "name", str(self.name))
+        set_(self, "name", check_name(self.name))
         set_(self, "state_names", _names("states", self.state_names, S))
         set_(self, "action_names", _names("actions", self.action_names, A))
         set_(self, "observation_names", _names("observations", self.observation_names, O.shape[2]))

@@ -71,7 +71,7 @@ from typing import Any
 import numpy as np
 
 from .belief import ETA_MIN, check_belief
-from .model import POMDP, ModelError, priority_of
+from .model import POMDP, ModelError, format_bytes, priority_of
 from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
 
 #: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
@@ -87,6 +87,13 @@ LEAF_GATHER_FRACTION = 0.7
 PREDICT_MARGIN = 1.5
 #: Default memory budget (bytes) for one chunk of the leaf level.
 DEFAULT_CHUNK_BYTES = 4 * 2**20
+#: Default memory budget (bytes) of one search: 1 GiB (``Planner(memory_budget=...)`` overrides it).
+DEFAULT_MEMORY_BUDGET = 2**30
+#: Deepest search accepted: the search recurses once per level (Python's stack is finite), and
+#: any depth near this has ``(A Z)^d`` leaves, far beyond any time budget unless ``A = Z = 1``.
+MAX_SEARCH_DEPTH = 100
+#: Fixed part of :func:`search_memory_estimate` (root arrays, results, small temporaries).
+SEARCH_OVERHEAD_BYTES = 64 * 2**10
 #: The search depths a user may ask for (Table II convention; ``--depth``/``--max-depth`` of the
 #: CLI, the ``simulate`` options, the planner node's ``max_depth``), inclusive.
 MAX_DEPTH_RANGE = (1, 50)
@@ -147,6 +154,50 @@ def next_depth_cannot_finish(depth_times: Sequence[float], remaining: float, mar
     t_prev, t_last = float(depth_times[-2]), float(depth_times[-1])
     growth = t_last / t_prev if t_prev > 0.0 else 1.0
     return t_last * max(1.0, growth) > margin * max(remaining, 0.0)
+
+
+class SearchMemoryError(ModelError):
+    """A search would need more memory than the planner's budget (the message gives both figures).
+
+    A :class:`~.model.ModelError` (hence a ``ValueError``), like the other refusals of a request
+    the planner cannot serve, so the command line reports it as exit code 2."""
+
+
+def _chunk_sizes(S: int, A: int, Z: int, chunk_bytes: int) -> tuple[int, int, int]:
+    """``(leaf chunk, expand chunk, bytes per leaf parent)``: parents per chunk of :class:`Planner`."""
+    per_parent = 8 * (Z * (1 + 3 * A + 4) + 2 * S)  # leaf: about (Z + 3 Z A + 4 Z + 2 S) floats per parent
+    leaf = max(64, int(chunk_bytes // per_parent))
+    expand = max(16, int(chunk_bytes // (8 * A * Z * (S + 4))))
+    return leaf, expand, per_parent
+
+
+def search_memory_estimate(S: int, A: int, Z: int, depth: int, chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> int:
+    """Upper estimate of the peak bytes that :class:`Planner` allocates for a depth-``depth`` search.
+
+    The search is depth-first over chunks (module docstring), so memory does not grow with the
+    tree, ``(A Z)^depth`` leaves, but with the depth: at its deepest point it holds, for every
+    level ``k = 1 .. depth - 1``, the children of one chunk of the level above, at most
+    ``n_k = min(n_{k-1}, E) A Z`` columns (``n_0 = 1``, ``E`` parents per expand chunk), each
+    with its belief (``S`` floats), ``Q`` values and allowed actions (``A`` each), key, ``eta``
+    and ``rho`` (``3 A`` floats with bounds: ``rho`` is a view of the bounds' product); plus the
+    temporaries of one expansion (about ``3 S A Z`` floats per parent) or of one leaf chunk
+    (whichever is larger: they never coexist); a quarter more for the small temporaries around
+    them, plus a fixed :data:`SEARCH_OVERHEAD_BYTES`. Exhaustive search reaches these sizes;
+    branch-and-bound prunes, so it needs at most as much (``tracemalloc`` peaks are below the
+    estimate in test/test_search_memory.py). Once ``n_k`` saturates, each further level adds
+    ``E A Z`` columns: an estimated 9.8 MB per level for S = Z = 8, A = 3 with the default
+    ``chunk_bytes`` (RSS measured: about 5.7 MB per level).
+    """
+    leaf, expand, per_parent = _chunk_sizes(S, A, Z, chunk_bytes)
+    per_column = 8 * (S + 4 * A + 2) + A
+    total, n, widest = 0, 1, 1
+    for _ in range(1, depth):
+        widest = min(n, expand)
+        n = widest * A * Z
+        total += n * per_column
+    expansion = (8 * (3 * S + 4) + 1) * A * Z * widest if depth > 1 else 0
+    leaf_chunk = 3 * per_parent * min(leaf, n) // 2
+    return 5 * (total + max(expansion, leaf_chunk)) // 4 + SEARCH_OVERHEAD_BYTES
 
 
 class _DeadlineExceeded(Exception):
@@ -244,15 +295,20 @@ class Planner:
     the action (and stop the anytime search); entry points get planners from
     :func:`pomdp_planner.core.gate.build_planner`, which sets it only when Assumption 1 holds
     and the LP is feasible. ``chunk_bytes`` bounds the memory of one chunk (smaller chunks:
-    finer deadline checks). ``clock`` is the wall clock used for deadlines and timings
-    (injectable for tests).
+    finer deadline checks). ``memory_budget`` bounds the memory of one search: a depth whose
+    :func:`search_memory_estimate` exceeds it is refused before it starts
+    (:class:`SearchMemoryError`), as is a depth beyond :data:`MAX_SEARCH_DEPTH`. ``clock`` is
+    the wall clock used for deadlines and timings (injectable for tests).
     """
 
     def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 clock: Callable[[], float] = time.perf_counter, guaranteed: bool = False):
+                 clock: Callable[[], float] = time.perf_counter, guaranteed: bool = False,
+                 memory_budget: int = DEFAULT_MEMORY_BUDGET):
         self.model = model
         self.clock = clock
         self.guaranteed = bool(guaranteed) and bounds is not None
+        self.chunk_bytes = chunk_bytes
+        self.memory_budget = memory_budget
         self.trivial = TrivialBounds(model)
         self.bounds = self.trivial if bounds is None else bounds
         if getattr(self.bounds, "model", model) is not model:
@@ -288,10 +344,7 @@ class Planner:
         self._kind = model.uncertainty.name if model.uncertainty.name in ("none", "renyi2", "shannon") else "generic"
         if self._kind != "none" and not np.any(self._w):
             self._kind = "none"
-        # leaf chunk: about (Z + 3 Z A + 4 Z + 2 S) floats per (parent, action)
-        per_parent = 8 * (Z * (1 + 3 * A + 4) + 2 * S)
-        self._leaf_chunk = max(64, int(chunk_bytes // per_parent))
-        self._expand_chunk = max(16, int(chunk_bytes // (8 * A * Z * (S + 4))))
+        self._leaf_chunk, self._expand_chunk, _ = _chunk_sizes(S, A, Z, chunk_bytes)
 
     @property
     def has_bounds(self) -> bool:
@@ -312,6 +365,7 @@ class Planner:
         only one root action is expanded). ``use_bounds=False`` is the exhaustive search.
         """
         depth = check_depth(depth)
+        self.check_memory(depth, "depth")
         b = check_belief(self.model, belief)
         t0 = self.clock()
         bounds = self.bounds if use_bounds else self.trivial
@@ -339,6 +393,7 @@ class Planner:
         one (fixed per-call costs), so the rule errs towards trying.
         """
         max_depth = check_depth(max_depth, "max_depth")
+        self.check_memory(max_depth, "max_depth")
         if time_budget is not None:
             time_budget = check_time_budget(time_budget)
         b = check_belief(self.model, belief)
@@ -379,12 +434,40 @@ class Planner:
         ``eta``); ``nodes_expanded`` of depth ``i`` is ``sum(level_sizes[:i + 1])``.
         """
         depth = check_depth(depth)
+        self.check_memory(depth, "depth")
         b = check_belief(self.model, belief)
         bounds = self.bounds if use_bounds else self.trivial
         sizes = [1] + [0] * depth
         BT = np.ascontiguousarray(b[:, None])
         self._count(BT, self._rho_allowed(bounds, BT)[1], depth, 0, sizes, bounds)
         return tuple(sizes)
+
+    def memory_estimate(self, depth: int) -> int:
+        """:func:`search_memory_estimate` for this planner's model and chunk size."""
+        m = self.model
+        return search_memory_estimate(m.S, m.A, m.Z, depth, self.chunk_bytes)
+
+    def check_memory(self, depth: int, name: str = "depth") -> None:
+        """Refuse (:class:`SearchMemoryError`) a search of ``depth`` beyond :data:`MAX_SEARCH_DEPTH`
+        or whose :meth:`memory_estimate` exceeds ``memory_budget``; the message gives the figures
+        and the deepest depth that fits. Called before every search starts."""
+        m = self.model
+        n = complete_tree_nodes(m.A, m.Z, min(depth, MAX_SEARCH_DEPTH))
+        nodes = f"{n:.3g}" if n < 10**300 else f"about 1e{int(math.log10(n))}"
+        if depth > MAX_SEARCH_DEPTH:
+            raise SearchMemoryError(f"{name}: {depth} is deeper than MAX_SEARCH_DEPTH = {MAX_SEARCH_DEPTH} (a complete "
+                                    f"tree of depth {MAX_SEARCH_DEPTH} already has {nodes} belief nodes)")
+        need = self.memory_estimate(depth)
+        if need <= self.memory_budget:
+            return
+        fits = 0
+        while fits < depth and self.memory_estimate(fits + 1) <= self.memory_budget:
+            fits += 1
+        deepest = f"the deepest depth within it is {fits}" if fits else "not even depth 1 fits"
+        raise SearchMemoryError(
+            f"{name}: a search of depth {depth} needs about {format_bytes(need)} (estimate for S={m.S}, A={m.A}, "
+            f"Z={m.Z}; complete tree {nodes} belief nodes), more than the memory budget of "
+            f"{format_bytes(self.memory_budget)}; {deepest}")
 
     # --------------------------------------------------------------- internals
     def _root(self, b: np.ndarray, bounds: Bounds
@@ -522,6 +605,7 @@ class Planner:
             Vc = Qc.max(axis=0)
             acc = np.bincount(key, weights=eta * Vc, minlength=m * A).reshape(m, A).T
             QT[:, s:s + step] = np.where(al, rhoT[:, s:s + step] + self._gamma * acc, -np.inf)
+            del CT, key, eta, rho_c, allowed_c, Qc, Vc, acc  # not held while the next chunk recurses
         return QT
 
     def _expand(self, BT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

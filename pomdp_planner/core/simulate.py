@@ -7,13 +7,14 @@ One step ``t`` of :func:`simulate` (paper Sec. II, Eqs. 1-3):
    reward ``r(s_t, a_t)`` of the hidden true state;
 3. the true state moves, ``s_{t+1} ~ P[a_t, s_t, :]``, and an observation is drawn,
    ``z_{t+1} ~ O[a_t, s_{t+1}, :]``;
-4. the belief is updated, ``b_{t+1} = tau(b_t, a_t, z_{t+1})`` (Eq. 2, ``core/belief.py``).
+4. the belief is updated, ``b_{t+1} = tau(b_t, a_t, z_{t+1})`` (Eqs. 1-2), by the epoch filter
+   of ``core/filter.py`` that the belief filter node uses too.
 
 The discounted return is ``sum_t gamma^t rho(b_t, a_t)``. Observations are sampled from the
 model, so an impossible observation can only happen when the initial belief excludes the
-true initial state (both can be given independently). Then the belief is re-initialised to
-the normalised likelihood ``O[a_t, :, z]`` of the observation and the step is flagged
-``recovered``.
+true initial state (both can be given independently). Then the filter restarts from the
+uniform prior pushed through ``P[a_t]`` (``core/filter.py``: ``b ∝ (u @ P[a_t]) * O[a_t, :, z]``)
+and the step is flagged ``recovered``.
 
 Policies are callables ``belief -> 0-based action`` or objects with ``.act(belief)``; a name
 is looked up in the one policy table :data:`~.policies.POLICIES` (``core/policies.py``).
@@ -25,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .belief import ImpossibleObservation, check_belief, start_belief, uniform_belief, update
+from .belief import check_belief, start_belief, uniform_belief
+from .filter import EpochFilter
 from .model import POMDP
 from .policies import Policy, as_callable, make_policy
 from .uncertainty import SHANNON
@@ -173,6 +175,7 @@ def simulate(model: POMDP, policy: Policy | str, steps: int, seed: int | None = 
         s = int(initial_state)
 
     S = model.S
+    epoch_filter = EpochFilter(model)
     states = np.empty(steps, dtype=int)
     next_states = np.empty(steps, dtype=int)
     actions = np.empty(steps, dtype=int)
@@ -191,12 +194,9 @@ def simulate(model: POMDP, policy: Policy | str, steps: int, seed: int | None = 
         state_rewards[t] = model.r[s, a]
         s_next = _sample(rng, model.P[a, s])
         z = _sample(rng, model.O[a, s_next])
-        try:
-            b = update(model, b, a, z)
-        except ImpossibleObservation:
-            lik = model.O[a, :, z]
-            b = lik / lik.sum()
-            recovered[t] = True
+        epoch = epoch_filter.step(b, a, {0: z})
+        b = epoch.belief
+        recovered[t] = bool(epoch.restarted)
         states[t], next_states[t], actions[t], observations[t] = s, s_next, a, z
         beliefs[t + 1] = b
         s = s_next

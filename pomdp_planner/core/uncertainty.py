@@ -73,9 +73,18 @@ UNCERTAINTY_FUNCTIONS: dict[str, Uncertainty] = {u.name: u for u in (SHANNON, RE
 
 
 def get_uncertainty(name: str) -> Uncertainty:
-    """Return the uncertainty function called ``name`` (``shannon``, ``renyi2`` or ``none``)."""
+    """Return the uncertainty function called ``name`` (``shannon``, ``renyi2`` or ``none``).
+
+    Anything else, including a value that is not a string (a list, a mapping, a number, null
+    from a model file), is a ``ValueError`` naming ``uncertainty.function``; the message quotes
+    at most 40 characters of the name.
+    """
+    known = ", ".join(sorted(UNCERTAINTY_FUNCTIONS))
+    if not isinstance(name, str):
+        got = "null" if name is None else f"a {type(name).__name__}"
+        raise ValueError(f"uncertainty.function: must be the name of a function ({known}), got {got}")
     try:
         return UNCERTAINTY_FUNCTIONS[name]
     except KeyError:
-        known = ", ".join(sorted(UNCERTAINTY_FUNCTIONS))
-        raise ValueError(f"uncertainty.function: unknown function {name!r} (known: {known})") from None
+        shown = repr(name) if len(name) <= 40 else repr(name[:37]) + "..."
+        raise ValueError(f"uncertainty.function: unknown function {shown} (known: {known})") from None

@@ -9,14 +9,14 @@ with ``/**:``), for tests and for users without three terminals::
 
 from __future__ import annotations
 
-from . import common
 from .belief_filter import BeliefFilter
 from .planner import PlannerNode
+from .runtime import main_for
 from .target_simulator import TargetSimulator
 
 
 def main(args=None) -> None:
-    common.main_for([TargetSimulator, BeliefFilter, PlannerNode])
+    main_for([TargetSimulator, BeliefFilter, PlannerNode])
 
 
 if __name__ == "__main__":

@@ -28,83 +28,35 @@ from __future__ import annotations
 import argparse
 import os
 import random
-import signal
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-NODES = ("target_simulator", "belief_filter", "planner")
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
-
-def node_command(name: str) -> list[str]:
-    """How ``ros2 run pomdp_planner <name>`` would start the node: the installed console script if
-    it sits next to this interpreter (a venv's ``bin``), else ``python -m pomdp_planner.nodes.<name>``."""
-    script = Path(sys.executable).parent / name
-    if script.is_file() and os.access(script, os.X_OK):
-        return [str(script)]
-    return [sys.executable, "-m", f"pomdp_planner.nodes.{name}"]
-
-
-def ros_env(domain_id: int) -> dict[str, str]:
-    env = dict(os.environ)
-    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1")
-    return env
-
-
-def start_nodes(model: str, domain_id: int, log_dir: Path, extra: dict[str, list[str]] | None = None,
-                names=NODES) -> dict[str, tuple[subprocess.Popen, Path]]:
-    """Start node processes with ``config/<name>_<model>.yaml``; output goes to ``log_dir/<name>.log``."""
-    from .common import resolve_path
-
-    procs = {}
-    env = ros_env(domain_id)
-    for name in names:
-        params = resolve_path(f"config/{name}_{model}.yaml", "params file")
-        cmd = [*node_command(name), "--ros-args", "--params-file", str(params), *(extra or {}).get(name, [])]
-        log = log_dir / f"{name}.log"
-        with open(log, "wb") as fh:
-            procs[name] = (subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT), log)
-    return procs
-
-
-def stop_nodes(procs: dict[str, tuple[subprocess.Popen, Path]], timeout: float = 10.0) -> dict[str, int]:
-    """SIGINT every process (as Ctrl-C would), wait, SIGKILL stragglers; returns the exit codes."""
-    for p, _ in procs.values():
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-    codes = {}
-    deadline = time.monotonic() + timeout
-    for name, (p, _) in procs.items():
-        try:
-            codes[name] = p.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            codes[name] = p.wait()
-    return codes
+from ..core.io.model_yaml import load_model
+from ..core.io.paths import resolve_path
+from ..core.uncertainty import SHANNON
+from .messages import decode_belief, decode_observation, decode_plan_info, decode_true_state
+from .processes import ros_env, start_nodes, stop_nodes
+from .qos import RECORDER_QOS
 
 
 class Monitor:
     """Subscribes to the loop's topics (in its own rclpy context) and assembles per-epoch rows."""
 
     def __init__(self, model_path: Path):
-        import rclpy
-        from rclpy.node import Node
-        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-        from std_msgs.msg import Float64MultiArray, Int64MultiArray
-
-        from ..core.io.model_yaml import load_model
-        from . import messages as m
-
         self.model = load_model(model_path)
-        self.context = rclpy.context.Context()
+        self.context = Context()
         rclpy.init(context=self.context)
         self.node = Node("demo_monitor", context=self.context)
-        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.beliefs: dict[int, object] = {}
         self.states: dict[int, int] = {}
         self.info: dict[int, dict] = {}
@@ -112,25 +64,26 @@ class Monitor:
         self.observation_time: dict[int, float] = {}
         S = self.model.S
         self.node.create_subscription(Float64MultiArray, "belief",
-                                      lambda msg: self._store(self.beliefs, m.decode_belief(msg, S)), deep)
+                                      lambda msg: self._store(self.beliefs, decode_belief(msg, S)), RECORDER_QOS)
         self.node.create_subscription(Int64MultiArray, "true_state",
-                                      lambda msg: self.states.__setitem__(*m.decode_true_state(msg)), deep)
+                                      lambda msg: self.states.__setitem__(*decode_true_state(msg)), RECORDER_QOS)
         self.subs = {
-            "plan_info": self.node.create_subscription(Float64MultiArray, "plan_info", self._on_info, deep),
-            "observation": self.node.create_subscription(Int64MultiArray, "observation", self._on_observation, deep),
+            "plan_info": self.node.create_subscription(Float64MultiArray, "plan_info", self._on_info,
+                                                       RECORDER_QOS),
+            "observation": self.node.create_subscription(Int64MultiArray, "observation", self._on_observation,
+                                                         RECORDER_QOS),
         }
-        self._m = m
 
     @staticmethod
     def _store(d, bel):
         d[bel.epoch] = bel.belief
 
     def _on_info(self, msg):
-        info = self._m.decode_plan_info(msg)
+        info = decode_plan_info(msg)
         self.info[int(info["epoch"])] = info
 
     def _on_observation(self, msg):
-        obs = self._m.decode_observation(msg, self.model.A, self.model.Z)
+        obs = decode_observation(msg, self.model.A, self.model.Z)
         self.observations[obs.epoch] = (obs.priority, obs.observation)
         self.observation_time.setdefault(obs.epoch, time.monotonic())
 
@@ -163,8 +116,6 @@ class Monitor:
 
 
 def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, out=sys.stdout) -> int:
-    from .common import resolve_path, shannon_entropy
-
     domain_id = random.randint(1, 101) if domain_id is None else domain_id
     os.environ.update(ros_env(domain_id))
     model_path = resolve_path(f"config/models/tracking_{model_key}_info.yaml")
@@ -208,7 +159,7 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
                 a = monitor.observations[t + 1][0] - 1
                 info = monitor.info.get(t + 1)
                 mode = int(b.argmax())
-                h = shannon_entropy(b)
+                h = float(SHANNON.value(b))
                 rewards.append(float(model.r[s, a] - model.w[a] * model.uncertainty.value(b)))
                 entropies.append(h)
                 if info is None:  # plan_info not received (the monitor discovered the planner late)

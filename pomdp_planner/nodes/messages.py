@@ -32,13 +32,14 @@ Decoders raise :class:`MessageError` with a message that names the field and the
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension, MultiArrayLayout
+
+from ..core.belief import BeliefError, check_belief
 
 ACTION_LABEL = "epoch,action_priority"
 OBSERVATION_LABEL = "epoch,action_priority,observation"
@@ -148,8 +149,9 @@ def encode_belief(epoch: int, belief: np.ndarray) -> Float64MultiArray:
     return msg
 
 
-def decode_belief(msg: Float64MultiArray, num_states: int, atol: float = 1e-6) -> BeliefMsg:
-    """Decode and validate a belief message (length, finiteness, simplex, epoch label)."""
+def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
+    """Decode a belief message (layout, epoch label, length) and check the belief with the core's
+    ``check_belief`` (finite, on the simplex); its error becomes a :class:`MessageError`."""
     dims = list(msg.layout.dim)
     if len(dims) != 2 or dims[0].label != BELIEF_STATE_LABEL:
         raise MessageError(
@@ -166,16 +168,11 @@ def decode_belief(msg: Float64MultiArray, num_states: int, atol: float = 1e-6) -
         raise MessageError(
             f"belief: expected {num_states} probabilities, got {len(data)} (layout size {dims[0].size})"
         )
-    b = np.array(data, dtype=float)
-    if not all(math.isfinite(x) for x in data):
-        raise MessageError(f"belief: entry {int(np.argmax(~np.isfinite(b)))} is not finite")
-    if np.any(b < -atol):
-        raise MessageError(f"belief: entry {int(np.argmin(b))} is negative ({b.min():.3g})")
-    total = float(b.sum())
-    if abs(total - 1.0) > atol:
-        raise MessageError(f"belief: sums to {total:.9g}, not 1")
-    b = np.clip(b, 0.0, None)
-    return BeliefMsg(int(m.group(1)), b / b.sum())
+    try:
+        b = check_belief(num_states, np.array(data, dtype=float))
+    except BeliefError as exc:
+        raise MessageError(str(exc)) from None
+    return BeliefMsg(int(m.group(1)), b)
 
 
 def encode_plan_info(**fields: float) -> Float64MultiArray:

@@ -3,8 +3,8 @@
 Topics (relative names, remappable):
 
 * subscribes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``), latest
-  value only (``common.LATCHED_QOS``: a backlog of older beliefs is never planned for);
-* publishes ``action`` (``Int64MultiArray [epoch, action_priority]``, ``common.STREAM_QOS``) with
+  value only (``qos.LATCHED_QOS``: a backlog of older beliefs is never planned for);
+* publishes ``action`` (``Int64MultiArray [epoch, action_priority]``, ``qos.STREAM_QOS``) with
   ``epoch = t + 1``: the action computed from the belief of epoch ``t`` moves the system to epoch
   ``t + 1``; so every action names the belief it was computed from;
 * ``plan_info`` (``Float64MultiArray``, one record per decision: see ``messages``);
@@ -32,7 +32,6 @@ domain) also means exhaustive search. Only guaranteed bounds certify a decision.
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 
@@ -44,9 +43,13 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_VARIANTS
 from ..core.gate import PlannerSetup, build_planner
+from ..core.io.sensors import load_model_file
 from ..core.search import Planner
-from . import common
+from .diagnostics import status
 from .messages import MessageError, decode_belief, encode_action, encode_plan_info
+from .params import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, declare_model_file, descriptor
+from .qos import LATCHED_QOS, STREAM_QOS
+from .runtime import NodeConfigError, callback, config_errors, main_for
 
 TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "deadline_slack")
 
@@ -56,15 +59,15 @@ class PlannerNode(Node):
 
     def __init__(self, node_name: str = "planner", **kwargs):
         super().__init__(node_name, **kwargs)
-        d = common.descriptor
-        self.declare_parameter("model_file", common.DEFAULT_MODEL, d(
-            "Model YAML file (absolute, or relative to the package share dir / source tree)", read_only=True))
+        d = descriptor
+        model_file = declare_model_file(self)
         self.declare_parameter("time_budget", 0.1, d(
             "Planning time per decision in seconds (anytime iterative deepening stops at it)",
-            float_range=(0.001, 60.0)))
-        self.declare_parameter("max_depth", 3, d("Maximum search depth (Table II convention)", int_range=(1, 50)))
+            float_range=TIME_BUDGET_RANGE))
+        self.declare_parameter("max_depth", 3, d("Maximum search depth (Table II convention)",
+                                                 int_range=MAX_DEPTH_RANGE))
         self.declare_parameter("use_bounds", True, d("Prune with the myopic policy bounds (Sec. V)"))
-        self.declare_parameter("bound_variant", "tight", d(
+        self.declare_parameter("bound_variant", BOUND_VARIANTS[0], d(
             "Bound vectors g, h to solve for", constraints=f"one of {', '.join(BOUND_VARIANTS)}"))
         self.declare_parameter("refuse_if_assumptions_fail", False, d(
             "If the model fails the structural assumptions: publish nothing (ERROR) instead of exhaustive search",
@@ -79,11 +82,12 @@ class PlannerNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        self.model = common.load_node_model(self.get_parameter("model_file").value)
+        with config_errors():
+            self.model = load_model_file(model_file)
         self.params = {name: self.get_parameter(name).value for name in TUNABLE}
         bad = self._check_values({k: v for k, v in self.params.items()})
         if bad:
-            raise common.NodeConfigError(bad)
+            raise NodeConfigError(bad)
         self._lock = threading.Lock()
         self._chunk_bytes = 1024 * self.get_parameter("chunk_kib").value
         self._on_failure = "refuse" if self.get_parameter("refuse_if_assumptions_fail").value else "exhaustive"
@@ -110,11 +114,11 @@ class PlannerNode(Node):
         self.last_warning = ""
         self._reported = {"deadline_misses": 0, "bad_beliefs": 0}  # counts at the previous diagnostics
 
-        self.action_pub = self.create_publisher(Int64MultiArray, "action", common.STREAM_QOS)
-        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", common.STREAM_QOS)
+        self.action_pub = self.create_publisher(Int64MultiArray, "action", STREAM_QOS)
+        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.plan_group = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Float64MultiArray, "belief", self._on_belief, common.LATCHED_QOS,
+        self.create_subscription(Float64MultiArray, "belief", self._on_belief, LATCHED_QOS,
                                  callback_group=self.plan_group)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
@@ -127,8 +131,6 @@ class PlannerNode(Node):
     def _check_values(values: dict) -> str:
         if "bound_variant" in values and values["bound_variant"] not in BOUND_VARIANTS:
             return f"bound_variant: {values['bound_variant']!r} is not one of {list(BOUND_VARIANTS)}"
-        if "time_budget" in values and not (math.isfinite(values["time_budget"]) and values["time_budget"] > 0):
-            return f"time_budget: must be a positive number of seconds, got {values['time_budget']}"
         return ""
 
     def _validate_parameters(self, params) -> SetParametersResult:
@@ -162,7 +164,7 @@ class PlannerNode(Node):
         self._planner = setup.planner
         self._planner_variant = variant
 
-    @common.callback
+    @callback
     def _on_belief(self, msg: Float64MultiArray) -> None:
         t0 = time.perf_counter()
         try:
@@ -242,17 +244,17 @@ class PlannerNode(Node):
             return DiagnosticStatus.OK, "waiting for a belief", values
         return DiagnosticStatus.OK, f"depth {r.depth}, {'certified' if r.certified else 'not certified'}", values
 
-    @common.callback
+    @callback
     def _publish_diagnostics(self) -> None:
         level, text, values = self.diagnostics_values()
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [common.status(f"{self.get_name()}: planning", self.model.name, level, text, values)]
+        msg.status = [status(f"{self.get_name()}: planning", self.model.name, level, text, values)]
         self.diag_pub.publish(msg)
 
 
 def main(args=None) -> None:
-    common.main_for([PlannerNode])
+    main_for([PlannerNode])
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Topics (relative names, remappable):
 
-* subscribes ``action`` (``Int64MultiArray [epoch, action_priority]``; every action: ``common.STREAM_QOS``);
+* subscribes ``action`` (``Int64MultiArray [epoch, action_priority]``; every action: ``STREAM_QOS``);
 * publishes, per configured sensor, ``observation`` (default; parameter ``observation_topics``)
   as ``Int64MultiArray [epoch, action_priority, observation]`` and ``true_state``
   (``[epoch, state]``, 0-based; epoch 0 = the initial state) for evaluation;
@@ -31,9 +31,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from std_msgs.msg import Int64MultiArray
 
+from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.model import action_of_priority
-from . import common
+from .diagnostics import status
 from .messages import ActionMsg, MessageError, decode_action, encode_observation, encode_true_state
+from .params import declare_model_file, declare_optional_array, descriptor, optional_array
+from .qos import STREAM_QOS
+from .runtime import NodeConfigError, callback, config_errors, main_for
 
 
 class TargetSimulator(Node):
@@ -41,20 +45,19 @@ class TargetSimulator(Node):
 
     def __init__(self, node_name: str = "target_simulator", **kwargs):
         super().__init__(node_name, **kwargs)
-        d = common.descriptor
-        self.declare_parameter("model_file", common.DEFAULT_MODEL, d(
-            "Model YAML file (absolute, or relative to the package share dir / source tree)", read_only=True))
+        d = descriptor
+        model_file = declare_model_file(self)
         self.declare_parameter("seed", 0, d("Random seed of the simulated target", read_only=True,
                                             int_range=(0, 2**31 - 1)))
         self.declare_parameter("initial_state", -1, d(
             "Initial 0-based state; -1 = sample from initial_distribution (or the model's start, or uniform)",
             read_only=True, int_range=(-1, 1_000_000)))
-        common.declare_optional_array(self, "initial_distribution", "double",
-                                      "Initial state distribution (S probabilities); unset = model start or uniform")
+        declare_optional_array(self, "initial_distribution", "double",
+                               "Initial state distribution (S probabilities); unset = model start or uniform")
         self.declare_parameter("observation_topics", ["observation"], d(
             "One topic per sensor; each publishes [epoch, action_priority, observation]", read_only=True))
-        common.declare_optional_array(self, "observation_model_files", "string",
-                                      "Per-sensor model file whose observation matrix O is used ('' = the model's own)")
+        declare_optional_array(self, "observation_model_files", "string",
+                               "Per-sensor model file whose observation matrix O is used ('' = the model's own)")
         self.declare_parameter("step_period", 0.0, d(
             "0 = step on each new action; > 0 = step every period (s) with the latest action",
             read_only=True, float_range=(0.0, 3600.0)))
@@ -64,32 +67,32 @@ class TargetSimulator(Node):
         self.declare_parameter("default_priority", 1, d(
             "Action used in timer mode before the first action arrives", read_only=True, int_range=(1, 1000)))
 
-        self.model = common.load_node_model(self.get_parameter("model_file").value)
-        m = self.model
         topics = list(self.get_parameter("observation_topics").value)
         if not topics:
-            raise common.NodeConfigError("observation_topics: at least one topic is needed")
-        self.sensor_O = common.load_observation_models(m, common.optional_array(self, "observation_model_files"),
-                                                       len(topics))
+            raise NodeConfigError("observation_topics: at least one topic is needed")
+        with config_errors():
+            self.model = m = load_model_file(model_file)
+            self.sensor_O = load_observation_models(m, optional_array(self, "observation_model_files"), len(topics))
         self.rng = np.random.default_rng(self.get_parameter("seed").value)
         s0 = self.get_parameter("initial_state").value
         if s0 >= m.S:
-            raise common.NodeConfigError(f"initial_state: {s0} out of range -1..{m.S - 1}")
+            raise NodeConfigError(f"initial_state: {s0} out of range -1..{m.S - 1}")
         if s0 < 0:
-            b0 = common.initial_distribution(m, common.optional_array(self, "initial_distribution"))
+            with config_errors():
+                b0 = initial_distribution(m, optional_array(self, "initial_distribution"))
             s0 = int(self.rng.choice(m.S, p=b0))
         self.state = s0
         self.epoch = 0
         default_priority = self.get_parameter("default_priority").value
         if default_priority > m.A:
-            raise common.NodeConfigError(f"default_priority: {default_priority} out of range 1..{m.A}")
+            raise NodeConfigError(f"default_priority: {default_priority} out of range 1..{m.A}")
         self.last_priority = default_priority
         self.counts = {"steps": 0, "stale_actions": 0, "malformed_actions": 0, "epoch_gaps": 0}
 
-        self.obs_pubs = [self.create_publisher(Int64MultiArray, t, common.STREAM_QOS) for t in topics]
-        self.state_pub = self.create_publisher(Int64MultiArray, "true_state", common.STREAM_QOS)
+        self.obs_pubs = [self.create_publisher(Int64MultiArray, t, STREAM_QOS) for t in topics]
+        self.state_pub = self.create_publisher(Int64MultiArray, "true_state", STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Int64MultiArray, "action", self._on_action, common.STREAM_QOS)
+        self.create_subscription(Int64MultiArray, "action", self._on_action, STREAM_QOS)
         self.min_subscribers = self.get_parameter("min_subscribers").value
         self._held_action: ActionMsg | None = None  # arrived before the subscribers (min_subscribers)
         if self.min_subscribers > 0:
@@ -116,7 +119,7 @@ class TargetSimulator(Node):
             pub.publish(encode_observation(epoch, priority, z))
         self.state_pub.publish(encode_true_state(epoch, self.state))
 
-    @common.callback
+    @callback
     def _on_action(self, msg: Int64MultiArray) -> None:
         try:
             act = decode_action(msg, self.model.A)
@@ -158,30 +161,30 @@ class TargetSimulator(Node):
         if held is not None and not self.timer_mode:
             self._apply_action(held)
 
-    @common.callback
+    @callback
     def _check_subscribers(self) -> None:
         if self.subscribers_ready():
             self._wait_timer.cancel()
             self._release_held()
 
-    @common.callback
+    @callback
     def _on_tick(self) -> None:
         if self.subscribers_ready():
             self.step(self.epoch + 1, self.last_priority)
 
-    @common.callback
+    @callback
     def _publish_diagnostics(self) -> None:
         level = DiagnosticStatus.WARN if self.counts["malformed_actions"] else DiagnosticStatus.OK
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [common.status(
+        msg.status = [status(
             f"{self.get_name()}: simulation", self.model.name, level,
             f"epoch {self.epoch}", {"epoch": self.epoch, "true_state": self.state, **self.counts})]
         self.diag_pub.publish(msg)
 
 
 def main(args=None) -> None:
-    common.main_for([TargetSimulator])
+    main_for([TargetSimulator])
 
 
 if __name__ == "__main__":

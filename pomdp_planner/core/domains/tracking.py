@@ -17,6 +17,9 @@
 * Sec. VI-B comparison reward ``r(s,a) = -c_a (A - a + 1) + t(s, a)`` (1-based ``s``, ``a``)
   with ``c_a = 1/(2A)``, ``c_p = 1``, ``c_d = 0.1``, ``k_r = 2/S``, poor-tracking region
   ``s <= S/5`` and dangerous region ``s >= 9S/10``.
+* Sizes: ``S`` and ``A`` must be integers >= 1 and the model's matrices must fit in
+  ``MAX_MODEL_BYTES`` (``core.model.check_model_size``); both are checked before anything
+  is allocated, so a generator asked for S = 5000 refuses at once instead of allocating gigabytes.
 """
 
 from __future__ import annotations
@@ -26,7 +29,14 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.special import logsumexp
 
-from ..model import POMDP, ModelError
+from ..model import POMDP, ModelError, as_count, check_model_size
+
+
+def _check_sizes(S: int, A: int) -> tuple[int, int]:
+    """``S``, ``A`` as counts, and the model's ``P`` and ``O`` (Z = S) within ``MAX_MODEL_BYTES``."""
+    S, A = as_count(S, "generator.S"), as_count(A, "generator.A")
+    check_model_size(S, A, S, "generator")
+    return S, A
 
 
 def default_x(S: int) -> np.ndarray:
@@ -43,6 +53,7 @@ def default_y(S: int, A: int) -> np.ndarray:
 def tracking_transitions(S: int, A: int, x: Sequence[float] | None = None,
                          y: Sequence[float] | None = None) -> np.ndarray:
     """Transition matrices ``P`` (A x S x S, row-stochastic) of Sec. VI."""
+    S, A = _check_sizes(S, A)
     x = default_x(S) if x is None else np.asarray(x, dtype=float)
     y = default_y(S, A) if y is None else np.asarray(y, dtype=float)
     if x.shape != (S,):
@@ -51,16 +62,23 @@ def tracking_transitions(S: int, A: int, x: Sequence[float] | None = None,
         raise ModelError(f"generator.y: expected S*A = {S * A} values, got {y.size}")
     if np.any(np.diff(x) <= 0) or np.any(np.diff(y) <= 0):
         raise ModelError("generator.x/y: both sequences must be strictly increasing (TP2 kernel)")
-    logk = np.outer(x, y)  # (S, S*A): log A_{ij}
-    logk = logk - logsumexp(logk, axis=0, keepdims=True)  # column-normalised
-    cols = np.exp(logk)  # column j = distribution of the next state i
-    # T^a = columns a*S .. (a+1)*S-1; P[a] = (T^a)^T so rows are previous states.
-    P = cols.reshape(S, A, S).transpose(1, 2, 0)  # P[a, j, i] = cols[i, a*S + j]
-    return P / P.sum(axis=-1, keepdims=True)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ModelError("generator.x/y: values must be finite")
+    with np.errstate(over="ignore", invalid="ignore"):
+        logk = np.outer(x, y)  # (S, S*A): log A_{ij}
+        logk -= logsumexp(logk, axis=0, keepdims=True)  # column-normalised
+        cols = np.exp(logk, out=logk)  # column j = distribution of the next state i
+        # T^a = columns a*S .. (a+1)*S-1; P[a] = (T^a)^T so rows are previous states.
+        P = cols.reshape(S, A, S).transpose(1, 2, 0)  # P[a, j, i] = cols[i, a*S + j]
+        P = P / P.sum(axis=-1, keepdims=True)
+    if not np.all(np.isfinite(P)):
+        raise ModelError("generator.x/y: values too large: products x_i y_j overflow, transitions are not finite")
+    return P
 
 
 def tracking_observations(S: int, A: int, q: float) -> np.ndarray:
     """Observation matrices ``O`` (A x S x S) of Eq. 9, identical for every action."""
+    S, A = _check_sizes(S, A)
     if not 0.0 < q <= 1.0:
         raise ModelError(f"generator.q: observation accuracy must be in (0, 1], got {q}")
     O = np.zeros((S, S))

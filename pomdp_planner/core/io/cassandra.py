@@ -17,6 +17,16 @@ by expectation, ``r(s,a) = sum_{s',z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``; ``value
 negates it. The model has no uncertainty term (``function: none``). Errors are
 :class:`~pomdp_planner.core.model.ModelError` with the line number and what is wrong.
 
+Import is bounded (issue 13): the file is read by
+:func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8 file of at most
+``MAX_MODEL_FILE_BYTES``); a token longer than :data:`MAX_TOKEN_CHARS` is refused; the declared
+sizes are checked against ``MAX_MODEL_BYTES`` as soon as each header line is read, before any
+matrix exists; the entries together may write at most :data:`MAX_ENTRY_CELLS` matrix cells (a
+short file of ``T: * uniform`` lines cannot keep the parser busy) and the file at most
+:data:`MAX_TOKENS` words; rewards that depend on the
+end state or the observation need the ``A x S x S x Z`` array ``R(s, a, s', z)``, which must fit
+in ``MAX_MODEL_BYTES`` as well.
+
 Conventions: ``T: a : start : end p`` is ``P(end | start, a)``, our ``P[a, start, end]``;
 ``O: a : end : obs p`` is ``P(obs | end, a)``, our ``O[a, end, obs]``. Indices are 0-based in
 both. Our action index ``a`` is the tracking priority ``a + 1``.
@@ -44,7 +54,30 @@ from typing import NamedTuple
 import numpy as np
 
 from ..belief import start_belief
-from ..model import POMDP, STOCHASTIC_ATOL, ModelError
+from ..model import (
+    MAX_MODEL_BYTES,
+    POMDP,
+    STOCHASTIC_ATOL,
+    ModelError,
+    check_model_size,
+    check_name,
+    format_bytes,
+    short_repr,
+)
+from .file_text import read_model_text
+
+#: Longest token (name, number, keyword) accepted in a ``.POMDP`` file.
+MAX_TOKEN_CHARS = 256
+#: Most matrix cells that the ``T:``, ``O:`` and ``R:`` entries of one file may write in all
+#: (each cell written once for the largest model allowed is about 6e7; later entries may
+#: overwrite earlier ones, so there is room for that).
+MAX_ENTRY_CELLS = 400_000_000
+#: Most words (numbers, names, keywords, ``:``) in a ``.POMDP`` file. Reading costs about 2 us
+#: of CPU per word (measured: 1.8 s for a million), so this bounds the time of any file to a
+#: few seconds; the export of a model with S = Z = 200 and A = 5 has about 400 000.
+MAX_TOKENS = 1_000_000
+#: Longest ``# pomdp_planner: {...}`` comment line that is read (longer ones are ignored).
+MAX_META_CHARS = 1 << 20
 
 #: Words with a meaning in the format; a state/action/observation may not be called so.
 KEYWORDS = frozenset({
@@ -178,25 +211,32 @@ class _Lexer:
     ``meta`` collects the ``# pomdp_planner: {...}`` comment (see the module docstring).
     """
 
-    def __init__(self, text: str):
+    def __init__(self, text: str, source: str = "<string>"):
         self.meta: dict = {}
+        self.source = source
         self.last: _Tok | None = None  # the last token consumed
         self._it = self._tokens(text)
         self.head: _Tok | None = next(self._it, None)
 
     def _tokens(self, text: str):
+        count = 0
         for lineno, raw in enumerate(io.StringIO(text), start=1):
             if "#" in raw:
-                m = _META.match(raw.strip())
-                if m:
+                if len(raw) <= MAX_META_CHARS and (m := _META.match(raw.strip())):
                     try:
                         parsed = json.loads(m.group(1))
-                    except json.JSONDecodeError:
+                    except (ValueError, RecursionError):  # not JSON, or nested too deep
                         parsed = None
                     if isinstance(parsed, dict):
                         self.meta = parsed
                 raw = raw.split("#", 1)[0]
             for t in _TOKEN.findall(raw):
+                count += 1
+                if count > MAX_TOKENS:
+                    raise ModelError(f"{self.source}: line {lineno}: more than {MAX_TOKENS:,} words (MAX_TOKENS)")
+                if len(t) > MAX_TOKEN_CHARS:
+                    raise ModelError(f"{self.source}: line {lineno}: a word of {len(t)} characters "
+                                     f"(at most {MAX_TOKEN_CHARS}): {short_repr(t, 40)}")
                 yield _Tok(t, lineno)
 
     def advance(self) -> _Tok:
@@ -207,10 +247,48 @@ class _Lexer:
         return tok
 
 
+class _Rewards:
+    """The file's ``R(s, a, s', z)``: one value per ``(a, s)`` while every entry covers all end
+    states and observations, the full ``A x S x S x Z`` array (checked against
+    ``MAX_MODEL_BYTES`` before it is allocated) as soon as one entry does not."""
+
+    def __init__(self, A: int, S: int, Z: int):
+        self.shape = (A, S, S, Z)
+        self.whole = np.zeros((A, S))
+        self.full: np.ndarray | None = None
+
+    def set_whole(self, acts: list[int], starts: list[int], v: float) -> None:
+        if self.full is None:
+            self.whole[np.ix_(acts, starts)] = v
+        else:
+            self.full[np.ix_(acts, starts)] = v
+
+    def ensure_full(self, parser: _Parser, tok: _Tok) -> np.ndarray:
+        if self.full is None:
+            A, S, _, Z = self.shape
+            need = 8 * A * S * S * Z
+            if need > MAX_MODEL_BYTES:
+                raise parser.error(f"R: rewards that depend on the end state or the observation need the "
+                                   f"A x S x S x Z array R(s, a, s', z) of {format_bytes(need)}, more than the limit "
+                                   f"of {format_bytes(MAX_MODEL_BYTES)} (MAX_MODEL_BYTES); give R: a : s : * : * "
+                                   "values instead", tok)
+            self.full = np.broadcast_to(self.whole[:, :, None, None], self.shape).copy()
+        return self.full
+
+    def expected(self, P: np.ndarray, O: np.ndarray) -> np.ndarray:
+        """``r(s, a) = sum_{s', z} P(s'|s,a) O(z|s',a) R(s,a,s',z)`` (rows of P, O sum to 1), S x A."""
+        if self.full is None:
+            return self.whole.T.copy()
+        num = np.einsum("asj,ajz,asjz->as", P, O, self.full)
+        den = np.einsum("asj,ajz->as", P, O)
+        return (num / den).T
+
+
 class _Parser:
     def __init__(self, text: str, source: str):
-        self.lex = _Lexer(text)
         self.source = source
+        self.lex = _Lexer(text, source)
+        self.cells = 0  # matrix cells written by the entries so far (MAX_ENTRY_CELLS)
         self.gamma: float | None = None
         self.sign = 1.0
         self.sizes: dict[str, int] = {}
@@ -244,7 +322,10 @@ class _Parser:
         tok = self.next(what)
         if not _NUMBER.match(tok.text):
             raise self.error(f"expected {what} (a number), got {tok.text!r}", tok)
-        return float(tok.text)
+        x = float(tok.text)
+        if not np.isfinite(x):
+            raise self.error(f"{what}: {tok.text!r} is too large for a float", tok)
+        return x
 
     def numbers(self, n: int, what: str) -> np.ndarray:
         out = np.empty(n)
@@ -256,6 +337,8 @@ class _Parser:
                 since = f" (entry starting on line {self.entry.line})" if self.entry.line != where.line else ""
                 raise self.error(f"{what}: expected {n} numbers, got {k} before {got}{since}", where)
             out[k] = float(tok.text)
+            if not np.isfinite(out[k]):
+                raise self.error(f"{what}: {tok.text!r} is too large for a float", tok)
             self.lex.advance()
         tok = self.peek()
         if tok is not None and _NUMBER.match(tok.text):
@@ -275,12 +358,12 @@ class _Parser:
             raise self.error(f"'{kind}:' must be declared before this line", tok)
         return self.sizes[kind]
 
-    def index(self, kind: str, tok: _Tok) -> list[int]:
+    def index(self, kind: str, tok: _Tok) -> list[int] | np.ndarray:
         """A reference to a state/action/observation: ``*``, a 0-based index or a name."""
         n = self.need(kind, tok)
         t = tok.text
         if t == "*":
-            return list(range(n))
+            return np.arange(n)
         if _INDEX.match(t):
             i = int(t)
             if i >= n:
@@ -293,7 +376,7 @@ class _Parser:
         known = f"; known names: {' '.join(names)}" if names else " (declared as a count: use 0-based indices)"
         raise self.error(f"unknown {kind[:-1]} {t!r}{known}", tok)
 
-    def ref(self, kind: str) -> list[int]:
+    def ref(self, kind: str) -> list[int] | np.ndarray:
         return self.index(kind, self.next(f"a {kind[:-1]} (name, index or *)"))
 
     def header_list(self, kind: str, tok: _Tok) -> None:
@@ -308,6 +391,7 @@ class _Parser:
             if n < 1:
                 raise self.error(f"{kind}: count must be at least 1, got {n}", items[0])
             self.sizes[kind], self.names[kind] = n, None
+            self.check_size(kind, items[0])
             return
         names: list[str] = []
         lookup: dict[str, int] = {}
@@ -321,6 +405,22 @@ class _Parser:
             lookup[it.text] = len(names)
             names.append(it.text)
         self.sizes[kind], self.names[kind], self.lookup[kind] = len(names), names, lookup
+        self.check_size(kind, tok)
+
+    def check_size(self, kind: str, tok: _Tok) -> None:
+        """The sizes declared so far (1 for those still missing) against ``MAX_MODEL_BYTES``."""
+        S, A, Z = (self.sizes.get(k, 1) for k in ("states", "actions", "observations"))
+        try:
+            check_model_size(S, A, Z, kind)
+        except ModelError as exc:
+            raise self.error(str(exc), tok) from None
+
+    def write(self, cells: int, tok: _Tok) -> None:
+        """Account for an entry writing ``cells`` matrix cells (refused past ``MAX_ENTRY_CELLS``)."""
+        self.cells += cells
+        if self.cells > MAX_ENTRY_CELLS:
+            raise self.error(f"the T:, O: and R: entries so far write {self.cells:,} matrix cells, more than the "
+                             f"limit of {MAX_ENTRY_CELLS:,} (MAX_ENTRY_CELLS)", tok)
 
     def start_line(self, tok: _Tok) -> None:
         S = self.need("states", tok)
@@ -379,6 +479,7 @@ class _Parser:
                 self.lex.advance()
                 cols = self.ref(col)
                 p = self.probs(np.array([self.number(f"{what}: probability")]), f"{what}: entry", tok)[0]
+                self.write(len(acts) * len(rows) * len(cols), tok)
                 P[np.ix_(acts, rows, cols)] = p
             else:  # row form
                 if nxt is not None and nxt.text == "uniform":
@@ -386,6 +487,7 @@ class _Parser:
                     row = np.full(n, 1.0 / n)
                 else:
                     row = self.probs(self.numbers(n, f"{what}: row"), f"{what}: row", tok)
+                self.write(len(acts) * len(rows) * n, tok)
                 P[np.ix_(acts, rows)] = row
             lines[np.ix_(acts, rows)] = tok.line
             return
@@ -399,10 +501,11 @@ class _Parser:
                 M = np.eye(S)
         else:
             M = self.probs(self.numbers(S * n, f"{what}: matrix"), f"{what}: matrix", tok).reshape(S, n)
+        self.write(len(acts) * S * n, tok)
         P[acts] = M
         lines[acts] = tok.line
 
-    def reward(self, tok: _Tok, S: int, Z: int, blocks: dict) -> None:
+    def reward(self, tok: _Tok, S: int, Z: int, R: _Rewards) -> None:
         self.colon("R")
         acts = self.ref("actions")
         self.colon("R: action")
@@ -416,37 +519,26 @@ class _Parser:
                 self.lex.advance()
                 obs = self.ref("observations")
                 v = self.number("R: value")
-                whole = len(ends) == S and len(obs) == Z
-                for a in acts:
-                    for s in starts:
-                        if whole:
-                            blocks[a, s] = v
-                        else:
-                            self._block(blocks, a, s, S, Z)[np.ix_(ends, obs)] = v
+                if len(ends) == S and len(obs) == Z:
+                    self.write(len(acts) * len(starts) * (1 if R.full is None else S * Z), tok)
+                    R.set_whole(acts, starts, v)
+                else:
+                    self.write(len(acts) * len(starts) * len(ends) * len(obs), tok)
+                    R.ensure_full(self, tok)[np.ix_(acts, starts, ends, obs)] = v
                 return
             row = self.numbers(Z, "R: row (one value per observation)")
-            for a in acts:
-                for s in starts:
-                    self._block(blocks, a, s, S, Z)[ends, :] = row
+            self.write(len(acts) * len(starts) * len(ends) * Z, tok)
+            R.ensure_full(self, tok)[np.ix_(acts, starts, ends)] = row
             return
         M = self.numbers(S * Z, "R: matrix (end states x observations)").reshape(S, Z)
-        for a in acts:
-            for s in starts:
-                blocks[a, s] = M.copy()
-
-    @staticmethod
-    def _block(blocks: dict, a: int, s: int, S: int, Z: int) -> np.ndarray:
-        blk = blocks.get((a, s), 0.0)
-        if not isinstance(blk, np.ndarray):
-            blk = np.full((S, Z), float(blk))
-            blocks[a, s] = blk
-        return blk
+        self.write(len(acts) * len(starts) * S * Z, tok)
+        R.ensure_full(self, tok)[np.ix_(acts, starts)] = M
 
     # -- driver
     def parse(self) -> POMDP:
         P = O = None
         P_lines = O_lines = None
-        blocks: dict = {}
+        R: _Rewards | None = None
         while (tok := self.peek()) is not None:
             self.lex.advance()
             self.entry = tok
@@ -476,12 +568,13 @@ class _Parser:
                 if P is None:
                     P, O = np.zeros((A, S, S)), np.zeros((A, S, Z))
                     P_lines, O_lines = np.zeros((A, S), dtype=int), np.zeros((A, S), dtype=int)
+                    R = _Rewards(A, S, Z)
                 if t == "T":
                     self.stochastic("T", tok, S, S, P, P_lines)
                 elif t == "O":
                     self.stochastic("O", tok, S, Z, O, O_lines)
                 else:
-                    self.reward(tok, S, Z, blocks)
+                    self.reward(tok, S, Z, R)
             else:
                 expected = "discount, values, states, actions, observations, start, T, O or R"
                 raise self.error(f"unexpected {t!r} (expected one of {expected})", tok)
@@ -494,15 +587,7 @@ class _Parser:
             raise ModelError(f"{self.source}: no T: or O: entries")
         self.check_rows("T", "transition", P, P_lines, "start state", "states")
         self.check_rows("O", "observation", O, O_lines, "end state", "observations")
-        S, A = self.sizes["states"], self.sizes["actions"]
-        r = np.zeros((S, A))
-        for (a, s), blk in blocks.items():
-            if isinstance(blk, np.ndarray):
-                W = P[a, s][:, None] * O[a]
-                r[s, a] = float((W * blk).sum() / W.sum())
-            else:
-                r[s, a] = blk
-        r = self.sign * r
+        r = self.sign * R.expected(P, O)
         return self.build(P, O, r)
 
     def check_rows(self, key: str, field: str, M: np.ndarray, lines: np.ndarray, row_label: str, over: str) -> None:
@@ -527,9 +612,16 @@ class _Parser:
             if (isinstance(orig, list) and names[kind] is not None and len(orig) == len(names[kind])
                     and all(isinstance(x, str) for x in orig) and safe_names(orig, kind) == names[kind]):
                 names[kind] = orig
-        name = self.lex.meta.get("name") if isinstance(self.lex.meta.get("name"), str) else None
-        if name is None:
-            name = Path(self.source).stem if self.source not in ("", "<string>") else "pomdp"
+        name = None
+        stem = Path(self.source).stem if self.source not in ("", "<string>") else None
+        for cand in (self.lex.meta.get("name"), stem):
+            try:  # a recorded name or the file's stem, if it is a valid name
+                name = check_name(cand) if isinstance(cand, str) else None
+            except ModelError:
+                continue
+            if name is not None:
+                break
+        name = name or "pomdp"
         metadata: dict = {"source_format": "cassandra"}
         if self.start is not None:
             metadata["start"] = self.start.tolist()
@@ -549,8 +641,4 @@ def parse_pomdp(text: str, source: str = "<string>") -> POMDP:
 def load_pomdp_file(path: str | Path) -> POMDP:
     """Load a Cassandra ``.POMDP`` file (see :func:`parse_pomdp`)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ModelError(f"{path}: cannot read .POMDP file ({exc.strerror})") from None
-    return parse_pomdp(text, source=str(path))
+    return parse_pomdp(read_model_text(path, ".POMDP file"), source=str(path))

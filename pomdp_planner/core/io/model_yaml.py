@@ -1,6 +1,6 @@
 """YAML model files (schema in README.md, "Model files").
 
-Loaded with ``yaml.safe_load``. Field names are fixed so that files written by others load::
+Field names are fixed so that files written by others load::
 
     name: tracking_s3_info
     discount: 0.99
@@ -14,55 +14,298 @@ Loaded with ``yaml.safe_load``. Field names are fixed so that files written by o
 
 Instead of ``transition`` and ``observation``, ``generator: {domain: tracking, S, A, q, x, y}``;
 instead of ``reward``, ``reward_generator: {kind: tracking_comparison, c_a, c_p, c_d, k_r}``.
-Every error is a :class:`~pomdp_planner.core.model.ModelError` that starts with the file
-name and the field.
+Every error is a :class:`~pomdp_planner.core.model.ModelError` of one line that starts with the
+file name and the field.
+
+A model file is untrusted input, so loading is bounded by design (issue 13):
+
+* the file is read by :func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8
+  file of at most ``MAX_MODEL_FILE_BYTES``);
+* it is parsed by :class:`ModelLoader`, a safe loader that refuses what the schema never needs:
+  anchors and aliases (``&a``, ``*a``: an alias bomb expands a few hundred bytes into gigabytes),
+  nesting deeper than :data:`MAX_YAML_DEPTH` (the deepest field, ``transition``, needs 4),
+  integers longer than :data:`MAX_INT_CHARS` characters, more than :data:`MAX_YAML_NODES` values
+  (parsing time grows with them), and the tags PyYAML's safe loader would
+  turn into bytes, dates, sets or ordered pairs. It composes without recursion, so no input
+  reaches Python's recursion limit. As in YAML 1.2, ``1e-3`` is a number;
+* values are typed strictly: a number is an int or a float, never a bool or a string
+  (``discount: "0.5"`` is an error); a count (``states``, ``generator.S``) is an integer, never
+  a float (``S: 3.9`` and ``S: 3.0`` are errors: counts are written as integers); NaN and
+  infinity are refused wherever a number is expected;
+* sizes are checked against ``MAX_MODEL_BYTES`` *before* anything is generated, and the
+  declared ``states``/``actions``/``observations`` against the generator's ``S`` and ``A``;
+* an error message quotes at most ``MESSAGE_VALUE_CHARS`` characters of any value.
 """
 
 from __future__ import annotations
 
+import numbers
+import re
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import yaml
+from yaml.composer import ComposerError
+from yaml.constructor import ConstructorError, SafeConstructor
+from yaml.events import (
+    AliasEvent,
+    MappingEndEvent,
+    MappingStartEvent,
+    ScalarEvent,
+    SequenceEndEvent,
+    SequenceStartEvent,
+    StreamEndEvent,
+)
+from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from ..belief import start_belief
 from ..domains.tracking import comparison_reward, tracking_observations, tracking_transitions
-from ..model import POMDP, ModelError
+from ..model import POMDP, ModelError, as_count, as_number, check_model_size, check_name, kind_of, short_repr
 from .cassandra import load_pomdp_file
+from .file_text import read_model_text
 
 KNOWN_FIELDS = {
     "name", "discount", "states", "actions", "observations", "transition", "observation",
     "reward", "uncertainty", "generator", "reward_generator", "description", "start",
 }
+GENERATOR_FIELDS = {"domain", "S", "A", "q", "x", "y"}
+REWARD_GENERATOR_FIELDS = {"kind", "c_a", "c_p", "c_d", "k_r"}
+UNCERTAINTY_FIELDS = {"function", "weights", "epsilon"}
+#: Deepest nesting of collections accepted in a model file (the schema needs 4).
+MAX_YAML_DEPTH = 16
+#: Longest integer literal accepted (characters); longer ones cannot be a meaningful count or value.
+MAX_INT_CHARS = 64
+#: Most YAML nodes (scalars and collections) in a model file. Parsing costs about 5 us of CPU
+#: per node, so this bounds the time of any file to a few seconds (measured: 4.4 s of CPU for
+#: a million); an explicit model with S = Z = 150 and A = 6 has 270 000 numbers.
+MAX_YAML_NODES = 300_000
+
+try:  # libyaml's event parser is about 5 times faster than PyYAML's pure-Python one
+    from yaml import CSafeLoader as _BaseLoader
+except ImportError:  # pragma: no cover - PyYAML built without libyaml
+    from yaml import SafeLoader as _BaseLoader  # type: ignore[assignment]
+
+_UNSAFE_TAGS = ("binary", "timestamp", "set", "omap", "pairs")
+
+
+class ModelLoader(_BaseLoader):  # type: ignore[misc, valid-type]
+    """A safe YAML loader for model files: no anchors or aliases, bounded depth and integers.
+
+    Composes nodes from the parser's events with an explicit stack (no recursion); refuses any
+    anchor or alias at the event that carries it, so nothing is ever expanded. Dates stay
+    strings (no implicit timestamp resolution); ``!!binary``, ``!!timestamp``, ``!!set``,
+    ``!!omap`` and ``!!pairs`` are refused like any unknown tag.
+    """
+
+    yaml_implicit_resolvers: ClassVar[dict] = {
+        first: [(tag, regexp) for tag, regexp in resolvers if not tag.endswith(":timestamp")]
+        for first, resolvers in _BaseLoader.yaml_implicit_resolvers.items()
+    }
+    yaml_constructors: ClassVar[dict] = {tag: fn for tag, fn in SafeConstructor.yaml_constructors.items()
+                         if not (tag or "").endswith(tuple(":" + t for t in _UNSAFE_TAGS))}
+
+    def construct_yaml_int(self, node):
+        text = self.construct_scalar(node)
+        if len(text) > MAX_INT_CHARS:
+            raise ConstructorError(None, None, f"an integer of {len(text)} characters (at most {MAX_INT_CHARS})",
+                                   node.start_mark)
+        return SafeConstructor.construct_yaml_int(self, node)
+
+    def get_single_node(self):
+        self.get_event()  # stream start
+        document = None
+        if not self.check_event(StreamEndEvent):
+            self.get_event()  # document start
+            document = self._compose()
+            self.get_event()  # document end
+        if not self.check_event(StreamEndEvent):
+            event = self.get_event()
+            raise ComposerError(None, None, "expected a single document, but found another", event.start_mark)
+        self.get_event()  # stream end
+        return document
+
+    def _compose(self):
+        stack: list[list] = []  # [node, pending mapping key]
+        root = None
+        count = 0
+        while True:
+            event = self.get_event()
+            if isinstance(event, AliasEvent) or getattr(event, "anchor", None) is not None:
+                raise ComposerError(None, None, "anchors and aliases (&name, *name) are not allowed in model files",
+                                    event.start_mark)
+            if isinstance(event, (SequenceEndEvent, MappingEndEvent)):
+                node = stack.pop()[0]
+                node.end_mark = event.end_mark
+                if not stack:
+                    return node
+                continue
+            count += 1
+            if count > MAX_YAML_NODES:
+                raise ComposerError(None, None, f"more than {MAX_YAML_NODES:,} values (MAX_YAML_NODES)",
+                                    event.start_mark)
+            tag = event.tag
+            if isinstance(event, ScalarEvent):
+                if tag is None or tag == "!":
+                    tag = self.resolve(ScalarNode, event.value, event.implicit)
+                node = ScalarNode(tag, event.value, event.start_mark, event.end_mark, style=event.style)
+            elif isinstance(event, (SequenceStartEvent, MappingStartEvent)):
+                if len(stack) >= MAX_YAML_DEPTH:
+                    raise ComposerError(None, None, f"nested deeper than {MAX_YAML_DEPTH} levels", event.start_mark)
+                cls = SequenceNode if isinstance(event, SequenceStartEvent) else MappingNode
+                if tag is None or tag == "!":
+                    tag = self.resolve(cls, None, event.implicit)
+                node = cls(tag, [], event.start_mark, None, flow_style=event.flow_style)
+            else:  # pragma: no cover - the parser emits nothing else inside a document
+                raise ComposerError(None, None, f"unexpected {type(event).__name__}", event.start_mark)
+            if stack:
+                parent = stack[-1]
+                if isinstance(parent[0], SequenceNode):
+                    parent[0].value.append(node)
+                elif parent[1] is None:
+                    parent[1] = node
+                else:
+                    parent[0].value.append((parent[1], node))
+                    parent[1] = None
+            else:
+                root = node
+            if isinstance(node, ScalarNode):
+                if not stack:
+                    return root
+            else:
+                stack.append([node, None])
+
+
+ModelLoader.add_constructor("tag:yaml.org,2002:int", ModelLoader.construct_yaml_int)
+# YAML 1.2 floats: an exponent without a decimal point (``1e-3``) is a number, as users expect
+# (YAML 1.1, PyYAML's default, reads it as a string).
+ModelLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """One line: where (line, column) and what, from any PyYAML error."""
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    problem = getattr(exc, "problem", None) or getattr(exc, "reason", None)
+    if not problem:
+        problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    where = ""
+    if mark is not None:
+        where = f"line {mark.line + 1}, column {mark.column + 1}: "
+    elif getattr(exc, "position", None) is not None:
+        where = f"character {exc.position}: "
+    context = getattr(exc, "context", None)
+    text = f"{problem} ({context})" if context and getattr(exc, "problem", None) else problem
+    return where + " ".join(str(text).split())[:200]
+
+
+def parse_model_yaml(text: str, source: str = "<string>") -> Any:
+    """Parse model-file YAML with :class:`ModelLoader`; errors are one-line ``ModelError``."""
+    try:
+        return yaml.load(text, Loader=ModelLoader)
+    except yaml.YAMLError as exc:
+        raise ModelError(f"{source}: not valid YAML for a model file: {_yaml_problem(exc)}") from None
+    except (ValueError, RecursionError) as exc:  # e.g. int('9' * 5000) beyond Python's digit limit
+        raise ModelError(f"{source}: not valid YAML for a model file ({type(exc).__name__}: "
+                         f"{short_repr(str(exc), 120)})") from None
+
+
+# ------------------------------------------------------------------------ typed fields
+def _check_fields(mapping: dict, allowed: set[str], where: str) -> None:
+    """Field names are strings from ``allowed`` (``where`` prefixes the message, e.g. ``generator: ``)."""
+    for key in mapping:
+        if not isinstance(key, str):
+            raise ModelError(f"{where or 'top level: '}field names must be strings, got {kind_of(key)}")
+    unknown = sorted(set(mapping) - allowed)
+    if unknown:
+        shown = ", ".join(short_repr(k, 40) for k in unknown[:5]) + (f", ... ({len(unknown)} in all)"
+                                                                     if len(unknown) > 5 else "")
+        raise ModelError(f"{where}unknown field(s) [{shown}]; known: {sorted(allowed)}")
+
+
+def _mapping(value: Any, key: str, fields: str) -> dict:
+    if not isinstance(value, dict):
+        raise ModelError(f"{key}: expected a mapping {{{fields}}}, got {kind_of(value)}")
+    return value
 
 
 def _size(doc: dict, key: str) -> tuple[int | None, list[str] | None]:
+    """A declared size: a count or a non-empty list of names (``None`` when absent)."""
     v = doc.get(key)
     if v is None:
         return None, None
-    if isinstance(v, bool):
-        raise ModelError(f"{key}: expected a count or a list of names, got {v!r}")
-    if isinstance(v, int):
-        if v < 1:
-            raise ModelError(f"{key}: count must be at least 1, got {v}")
-        return v, None
-    if isinstance(v, list) and v:
-        return len(v), [str(x) for x in v]
-    raise ModelError(f"{key}: expected a positive count or a non-empty list of names, got {v!r}")
+    if isinstance(v, list):
+        if not v:
+            raise ModelError(f"{key}: expected a positive count or a non-empty list of names, got an empty list")
+        return len(v), [check_name(x, f"{key}[{i}]") for i, x in enumerate(v)]
+    if isinstance(v, numbers.Integral) and not isinstance(v, bool):
+        return as_count(v, key), None
+    raise ModelError(f"{key}: expected a positive count or a non-empty list of names, got {kind_of(v)}")
 
 
-def _array(doc: dict, key: str, ndim: int) -> np.ndarray:
+def _numbers(value: Any, field: str, ndim: int) -> np.ndarray:
+    """A rectangular ``ndim``-dimensional nested list of numbers (strict types) as a float array."""
+    if isinstance(value, np.ndarray):  # from code (model_from_dict of a built dict)
+        if value.dtype.kind not in "iuf":
+            raise ModelError(f"{field}: must be numbers, got an array of {value.dtype}")
+        if value.ndim != ndim:
+            raise ModelError(f"{field}: expected a {ndim}-dimensional nested list, got {value.ndim} dimensions "
+                             f"(shape {value.shape})")
+        return value.astype(float)
+    level, shape = [value], []
+    for depth in range(ndim):
+        width = None
+        for item in level:
+            if not isinstance(item, (list, tuple)):
+                got = f"{depth} dimension{'s' * (depth != 1)} ({kind_of(item)} inside)" if depth else kind_of(item)
+                raise ModelError(f"{field}: expected a {ndim}-dimensional nested list, got {got}")
+            if width is None:
+                width = len(item)
+            elif len(item) != width:
+                raise ModelError(f"{field}: not a rectangular array (lists of {width} and of {len(item)} items "
+                                 f"at depth {depth + 1})")
+        shape.append(width or 0)
+        if depth < ndim - 1:
+            level = [x for item in level for x in item]
+    flat = [x for item in level for x in item]
+    for i, x in enumerate(flat):
+        if type(x) not in (int, float):
+            if isinstance(x, (list, tuple)):
+                raise ModelError(f"{field}: expected a {ndim}-dimensional nested list, got more dimensions")
+            idx = "".join(f"[{k}]" for k in np.unravel_index(i, shape))
+            as_number(x, f"{field}{idx}")  # raises, naming the entry and what it is
     try:
-        arr = np.array(doc[key], dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ModelError(f"{key}: not a rectangular array of numbers ({exc})") from None
-    if arr.ndim != ndim:
-        raise ModelError(f"{key}: expected a {ndim}-dimensional nested list, got {arr.ndim} dimensions "
-                         f"(shape {arr.shape})")
-    return arr
+        return np.array(flat, dtype=float).reshape(shape)
+    except OverflowError:
+        i = next(i for i, x in enumerate(flat) if type(x) is int and abs(x) > 1e308)
+        idx = "".join(f"[{k}]" for k in np.unravel_index(i, shape))
+        raise ModelError(f"{field}{idx}: number too large for a float ({short_repr(flat[i])})") from None
 
 
+def _vector(value: Any, field: str) -> np.ndarray:
+    if not isinstance(value, (list, tuple, np.ndarray)):
+        raise ModelError(f"{field}: must be a list of numbers, got {kind_of(value)}")
+    return _numbers(value, field, 1)
+
+
+def _text(value: Any, field: str) -> str:
+    if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+        raise ModelError(f"{field}: must be a string, got {kind_of(value)}")
+    return value if isinstance(value, str) else short_repr(value)
+
+
+def _start(value: Any, S: int) -> str | list[float]:
+    """``start``: a state name, ``uniform``, or ``S`` probabilities (checked by ``start_belief``)."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, list):
+        return _vector(value, "start").tolist()
+    raise ModelError(f"start: expected a list of {S} probabilities, 'uniform' or a state name, got {kind_of(value)}")
+
+
+# ------------------------------------------------------------------------ the schema
 def model_from_dict(doc: Any, source: str = "<dict>") -> POMDP:
     """Build a :class:`POMDP` from a parsed YAML document."""
     try:
@@ -71,86 +314,88 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> POMDP:
         raise ModelError(f"{source}: {exc}") from None
 
 
+def _generated(doc: dict, S: int | None, A: int | None, Z: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """``P`` and ``O`` from ``generator``, after checking its fields and sizes (before allocating)."""
+    if "transition" in doc or "observation" in doc:
+        raise ModelError("generator: give either generator or transition/observation, not both")
+    gen = _mapping(doc["generator"], "generator", "domain, S, A, q, x, y")
+    _check_fields(gen, GENERATOR_FIELDS, "generator: ")
+    if gen.get("domain") != "tracking":
+        raise ModelError(f"generator.domain: only 'tracking' is known, got {kind_of(gen.get('domain'))}")
+    for key in ("S", "A", "q"):
+        if key not in gen:
+            raise ModelError(f"generator.{key}: missing")
+    gS, gA = as_count(gen["S"], "generator.S"), as_count(gen["A"], "generator.A")
+    q = as_number(gen["q"], "generator.q")
+    for key, n, got, src in (("states", S, gS, "S"), ("actions", A, gA, "A"), ("observations", Z, gS, "S")):
+        if n is not None and n != got:
+            raise ModelError(f"{key}: declares {n} but generator.{src} is {got}")
+    check_model_size(gS, gA, gS, "generator")
+    gx = None if gen.get("x") is None else _vector(gen["x"], "generator.x")
+    gy = None if gen.get("y") is None else _vector(gen["y"], "generator.y")
+    return tracking_transitions(gS, gA, gx, gy), tracking_observations(gS, gA, q)
+
+
 def _model_from_dict(doc: Any) -> POMDP:
     if not isinstance(doc, dict):
-        raise ModelError("top level: expected a mapping of fields")
-    unknown = set(doc) - KNOWN_FIELDS
-    if unknown:
-        raise ModelError(f"unknown field(s) {sorted(unknown)}; known: {sorted(KNOWN_FIELDS)}")
+        raise ModelError(f"top level: expected a mapping of fields, got {kind_of(doc)}")
+    _check_fields(doc, KNOWN_FIELDS, "")
     if "discount" not in doc:
         raise ModelError("discount: missing")
+    gamma = as_number(doc["discount"], "discount")
+    name = check_name(doc.get("name", "pomdp"))
     S, state_names = _size(doc, "states")
     A, action_names = _size(doc, "actions")
     Z, obs_names = _size(doc, "observations")
     metadata: dict = {}
     if "generator" in doc:
-        if "transition" in doc or "observation" in doc:
-            raise ModelError("generator: give either generator or transition/observation, not both")
-        gen = doc["generator"]
-        if not isinstance(gen, dict) or gen.get("domain") != "tracking":
-            raise ModelError("generator.domain: only 'tracking' is known")
-        extra = set(gen) - {"domain", "S", "A", "q", "x", "y"}
-        if extra:
-            raise ModelError(f"generator: unknown field(s) {sorted(extra)}")
-        try:
-            gS, gA, q = int(gen["S"]), int(gen["A"]), float(gen["q"])
-        except KeyError as exc:
-            raise ModelError(f"generator.{exc.args[0]}: missing") from None
-        except (TypeError, ValueError) as exc:
-            raise ModelError(f"generator: S, A must be integers and q a number ({exc})") from None
-        try:
-            gx = None if gen.get("x") is None else np.asarray(gen["x"], dtype=float)
-            gy = None if gen.get("y") is None else np.asarray(gen["y"], dtype=float)
-        except (TypeError, ValueError):
-            raise ModelError("generator.x/y: must be lists of numbers") from None
-        P = tracking_transitions(gS, gA, gx, gy)
-        O = tracking_observations(gS, gA, q)
-        metadata["generator"] = dict(gen)
+        P, O = _generated(doc, S, A, Z)
+        metadata["generator"] = dict(doc["generator"])
     else:
         for key in ("transition", "observation"):
             if key not in doc:
                 raise ModelError(f"{key}: missing (give transition and observation, or generator)")
-        P = _array(doc, "transition", 3)
-        O = _array(doc, "observation", 3)
+        P = _numbers(doc["transition"], "transition", 3)
+        O = _numbers(doc["observation"], "observation", 3)
     for key, n, got in (("states", S, P.shape[1]), ("actions", A, P.shape[0]), ("observations", Z, O.shape[2])):
         if n is not None and n != got:
             raise ModelError(f"{key}: declares {n} but the matrices have {got}")
     if "reward_generator" in doc:
         if "reward" in doc:
             raise ModelError("reward_generator: give either reward or reward_generator, not both")
-        rg = doc["reward_generator"]
-        if not isinstance(rg, dict) or rg.get("kind") != "tracking_comparison":
-            raise ModelError("reward_generator.kind: only 'tracking_comparison' is known")
-        extra = set(rg) - {"kind", "c_a", "c_p", "c_d", "k_r"}
-        if extra:
-            raise ModelError(f"reward_generator: unknown field(s) {sorted(extra)}")
-        try:
-            kw = {k: float(v) for k, v in rg.items() if k != "kind"}
-        except (TypeError, ValueError):
-            raise ModelError("reward_generator: c_a, c_p, c_d, k_r must be numbers") from None
+        rg = _mapping(doc["reward_generator"], "reward_generator", "kind, c_a, c_p, c_d, k_r")
+        _check_fields(rg, REWARD_GENERATOR_FIELDS, "reward_generator: ")
+        if rg.get("kind") != "tracking_comparison":
+            raise ModelError("reward_generator.kind: only 'tracking_comparison' is known, "
+                             f"got {kind_of(rg.get('kind'))}")
+        kw = {k: as_number(v, f"reward_generator.{k}") for k, v in rg.items() if k != "kind"}
         r = comparison_reward(P.shape[1], P.shape[0], **kw)
         metadata["reward_generator"] = dict(rg)
     elif "reward" in doc:
-        r = _array(doc, "reward", 2)
+        r = _numbers(doc["reward"], "reward", 2)
     else:
         raise ModelError("reward: missing (give reward or reward_generator)")
-    unc = doc.get("uncertainty") or {"function": "none"}
-    if not isinstance(unc, dict):
-        raise ModelError("uncertainty: expected a mapping {function, weights, epsilon}")
-    extra = set(unc) - {"function", "weights", "epsilon"}
-    if extra:
-        raise ModelError(f"uncertainty: unknown field(s) {sorted(extra)}")
+    unc = doc.get("uncertainty")
+    unc = {"function": "none"} if unc is None else _mapping(unc, "uncertainty", "function, weights, epsilon")
+    _check_fields(unc, UNCERTAINTY_FIELDS, "uncertainty: ")
     func = unc.get("function", "none")
+    if not isinstance(func, str):
+        raise ModelError(f"uncertainty.function: must be the name of a function (none, renyi2, shannon), "
+                         f"got {kind_of(func)}")
     weights = unc.get("weights")
     if func != "none" and weights is None:
         raise ModelError("uncertainty.weights: missing (one weight per action)")
+    if isinstance(weights, list):
+        weights = _vector(weights, "uncertainty.weights")
+    elif weights is not None:
+        weights = as_number(weights, "uncertainty.weights")
+    epsilon = as_number(unc.get("epsilon", 1e-3), "uncertainty.epsilon")
     if "start" in doc:
-        metadata["start"] = doc["start"]
+        metadata["start"] = _start(doc["start"], P.shape[1])
     if "description" in doc:
-        metadata["description"] = str(doc["description"])
+        metadata["description"] = _text(doc["description"], "description")
     model = POMDP(
-        P=P, O=O, r=r, gamma=doc["discount"], uncertainty=func, w=weights,
-        epsilon=unc.get("epsilon", 1e-3), name=doc.get("name", "pomdp"),
+        P=P, O=O, r=r, gamma=gamma, uncertainty=func, w=weights, epsilon=epsilon, name=name,
         state_names=state_names, action_names=action_names, observation_names=obs_names,
         metadata=metadata,
     )
@@ -163,15 +408,8 @@ def load_model(path: str | Path) -> POMDP:
     path = Path(path)
     if path.suffix.lower() == ".pomdp":
         return load_pomdp_file(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ModelError(f"{path}: cannot read model file ({exc.strerror})") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ModelError(f"{path}: not valid YAML ({exc})") from None
-    return model_from_dict(doc, source=str(path))
+    text = read_model_text(path, "model file")
+    return model_from_dict(parse_model_yaml(text, str(path)), source=str(path))
 
 
 def model_to_dict(model: POMDP) -> dict:

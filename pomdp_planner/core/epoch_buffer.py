@@ -1,9 +1,9 @@
-"""Assembling sensor readings into decision epochs, in epoch order (no rclpy here).
+"""Assembling sensor readings into decision epochs, in epoch order.
 
 An *epoch* ``t >= 1`` is one transition of the target under one action followed by one reading
-from every configured sensor. The belief filter applies an epoch as: prediction once with the
-carried action (Eq. 1), then one Bayes update (Eq. 2) per sensor reading of that epoch, with that
-sensor's observation model. Readings are buffered until their epoch is next in line:
+from every configured sensor; :class:`~pomdp_planner.core.filter.EpochFilter` applies it. Readings
+arrive as messages, possibly late, reordered, repeated or lost; they are buffered until their
+epoch is next in line:
 
 * a reading of an epoch already applied, or a second reading of the same sensor and epoch, is a
   *duplicate* and dropped (identical content) or a *conflict* (different content; also dropped);
@@ -12,48 +12,83 @@ sensor's observation model. Readings are buffered until their epoch is next in l
   it has) after ``timeout`` seconds since its first reading or once ``max_pending`` later epochs
   are waiting;
 * if the next epoch has no reading at all while later ones wait (same timeout / backlog rule), it
-  is released as a *gap* (``priority is None``): the caller decides (the filter predicts with the
-  commanded action if it knows it, and reports the gap).
+  is released as a *gap* (``action is None``). The buffer also remembers the last
+  :data:`ACTION_MEMORY` *commanded* actions (:meth:`EpochBuffer.command`, e.g. from the planner's
+  action topic): a gap is applied with the commanded action of its epoch if known
+  (:attr:`EpochReadings.action_to_apply`; the filter then predicts), otherwise held.
+
+Actions are 0-based here, as everywhere in the core. Time comes from ``clock`` (default
+``time.monotonic``), so tests drive it by hand.
 """
 
 from __future__ import annotations
 
+import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+
+#: How many commanded actions (by epoch) are remembered for gaps and cross-checks.
+ACTION_MEMORY = 256
 
 
 @dataclass
 class EpochReadings:
-    """All readings of one epoch: ``readings[sensor] = observation``; ``priority`` None = gap."""
+    """All readings of one epoch: ``readings[sensor] = observation``.
+
+    ``action``: the action the readings carry (``None`` = a gap, no reading); ``commanded``: the
+    action commanded for this epoch, if one was reported with :meth:`EpochBuffer.command`.
+    """
 
     epoch: int
-    priority: int | None
+    action: int | None
     readings: dict[int, int] = field(default_factory=dict)
     first_seen: float = 0.0
     complete: bool = False
+    commanded: int | None = None
+
+    @property
+    def gap(self) -> bool:
+        return self.action is None
+
+    @property
+    def action_to_apply(self) -> int | None:
+        """The carried action; for a gap the commanded one (``None``: unknown, hold the belief)."""
+        return self.commanded if self.action is None else self.action
+
+    @property
+    def mismatch(self) -> bool:
+        """Readings taken under another action than the commanded one (expected when the target
+        numbers epochs itself, e.g. a timer-driven simulator; the carried action is applied)."""
+        return self.action is not None and self.commanded is not None and self.commanded != self.action
 
 
 class EpochBuffer:
     """Orders readings of ``num_sensors`` sensors by epoch (see module docstring)."""
 
     def __init__(self, num_sensors: int, next_epoch: int = 1, timeout: float = 0.5, max_pending: int = 10,
-                 clock: Callable[[], float] | None = None):
+                 clock: Callable[[], float] = time.monotonic):
         if num_sensors < 1:
             raise ValueError("num_sensors: at least one sensor is needed")
-        import time
-
         self.num_sensors = num_sensors
         self.next_epoch = next_epoch
         self.timeout = timeout
         self.max_pending = max_pending
-        self._clock = clock or time.monotonic
+        self._clock = clock
         self._pending: dict[int, EpochReadings] = {}
+        self._commanded: OrderedDict[int, int] = OrderedDict()
 
     @property
     def pending_epochs(self) -> int:
         return len(self._pending)
 
-    def add(self, sensor: int, epoch: int, priority: int, observation: int) -> str:
+    def command(self, epoch: int, action: int) -> None:
+        """Remember the action commanded for ``epoch`` (the last :data:`ACTION_MEMORY` epochs)."""
+        self._commanded[epoch] = action
+        while len(self._commanded) > ACTION_MEMORY:
+            self._commanded.popitem(last=False)
+
+    def add(self, sensor: int, epoch: int, action: int, observation: int) -> str:
         """Buffer one reading; returns ``"buffered"``, ``"duplicate"`` or ``"conflict"``."""
         if not 0 <= sensor < self.num_sensors:
             raise ValueError(f"sensor: index {sensor} out of range 0..{self.num_sensors - 1}")
@@ -61,8 +96,8 @@ class EpochBuffer:
             return "duplicate"
         entry = self._pending.get(epoch)
         if entry is None:
-            entry = self._pending[epoch] = EpochReadings(epoch, priority, first_seen=self._clock())
-        if entry.priority != priority:
+            entry = self._pending[epoch] = EpochReadings(epoch, action, first_seen=self._clock())
+        if entry.action != action:
             return "conflict"
         if sensor in entry.readings:
             return "duplicate" if entry.readings[sensor] == observation else "conflict"
@@ -87,6 +122,7 @@ class EpochBuffer:
                 if not (backlog or now - oldest >= self.timeout):
                     break
                 entry = EpochReadings(self.next_epoch, None, first_seen=now)
+            entry.commanded = self._commanded.get(entry.epoch)
             out.append(entry)
             self.next_epoch += 1
         return out

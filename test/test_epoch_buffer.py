@@ -1,11 +1,11 @@
-"""The epoch buffer of the belief filter (pure Python, no ROS): ordering, duplicates, gaps."""
+"""The epoch buffer (core/epoch_buffer.py): ordering, duplicates, conflicts, gaps, commanded actions."""
 
 from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pomdp_planner.nodes.epoch_buffer import EpochBuffer
+from pomdp_planner.core.epoch_buffer import ACTION_MEMORY, EpochBuffer
 
 
 class Clock:
@@ -21,16 +21,16 @@ class Clock:
 def test_any_delivery_order_releases_epochs_in_order_with_their_own_readings(order, data):
     clock = Clock()
     buf = EpochBuffer(2, timeout=10.0, max_pending=100, clock=clock)
-    priority = {t: 1 + t % 3 for t in range(1, 7)}
+    action = {t: t % 3 for t in range(1, 7)}
     released = []
     for t, k in order:
-        assert buf.add(k, t, priority[t], 10 * t + k) == "buffered"
+        assert buf.add(k, t, action[t], 10 * t + k) == "buffered"
         if data.draw(st.booleans()):  # a redelivery of something already seen
-            assert buf.add(k, t, priority[t], 10 * t + k) == "duplicate"
+            assert buf.add(k, t, action[t], 10 * t + k) == "duplicate"
         released += buf.pop_ready()
     assert [e.epoch for e in released] == list(range(1, 7))
     for e in released:
-        assert e.complete and e.priority == priority[e.epoch]
+        assert e.complete and e.action == action[e.epoch]
         assert e.readings == {0: 10 * e.epoch, 1: 10 * e.epoch + 1}
 
 
@@ -56,4 +56,29 @@ def test_incomplete_epoch_after_timeout_and_gap_after_backlog():
         buf.add(0, t, 1, 0)
         buf.add(1, t, 1, 0)
     out = buf.pop_ready()
-    assert [(e.epoch, e.priority) for e in out] == [(2, None), (3, 1), (4, 1), (5, 1)]
+    assert [(e.epoch, e.action) for e in out] == [(2, None), (3, 1), (4, 1), (5, 1)]
+
+
+def test_gap_is_applied_with_the_commanded_action_if_known_else_held():
+    clock = Clock()
+    buf = EpochBuffer(1, timeout=0.5, max_pending=10, clock=clock)
+    buf.command(1, 2)           # epoch 1 was commanded action 2, its reading is lost
+    buf.command(3, 0)           # epoch 3 commanded 0, but its reading says 1 (e.g. timer mode)
+    for t, a in ((3, 1), (4, 1)):  # epoch 2: neither a reading nor a command
+        buf.add(0, t, a, 0)
+    clock.t = 1.0               # the oldest waiting reading has waited past the timeout
+    out = buf.pop_ready()
+    assert [(e.epoch, e.gap, e.action_to_apply, e.mismatch) for e in out] == [
+        (1, True, 2, False), (2, True, None, False), (3, False, 1, True), (4, False, 1, False)]
+
+
+def test_commanded_actions_are_remembered_for_the_last_epochs_only():
+    clock = Clock()
+    buf = EpochBuffer(1, timeout=0.5, clock=clock)
+    for t in range(1, ACTION_MEMORY + 2):
+        buf.command(t, 1)
+    buf.add(0, 3, 0, 0)
+    clock.t = 1.0
+    out = buf.pop_ready()
+    # epoch 1 was forgotten (ACTION_MEMORY + 1 commands), epoch 2 is still known
+    assert [(e.epoch, e.action_to_apply) for e in out] == [(1, None), (2, 1), (3, 0)]

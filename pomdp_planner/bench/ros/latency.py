@@ -15,9 +15,9 @@ loop runs as fast as messages flow (a test of the transport and the executors); 
 (exhaustive search, ``max_depth`` high enough) makes every search use its whole budget, to
 measure the overhead beyond the budget.
 
-    python bench/latency_bench.py                        # in-process (one NodeExecutor)
-    python bench/latency_bench.py --processes            # three processes, as ros2 run starts them
-    python bench/latency_bench.py --budgets 0.05 0.1 0.5 --decisions 300 --model s3 --no-bounds
+    python -m pomdp_planner.bench.ros.latency               # in-process (one NodeExecutor)
+    python -m pomdp_planner.bench.ros.latency --processes   # three processes, as ros2 run starts them
+    python -m pomdp_planner.bench.ros.latency --budgets 0.05 0.1 0.5 --decisions 300 --model s3 --no-bounds
 
 Prints, per budget: median and 99th percentile of the loop latency and of the overhead beyond
 the budget, the planner's own time_used (median), the depth reached, how many decisions exceeded
@@ -36,37 +36,33 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
-from pomdp_planner.nodes import demo
-from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.common import NodeExecutor, resolve_path, shutdown_executor
-from pomdp_planner.nodes.messages import decode_plan_info
-from pomdp_planner.nodes.planner import PlannerNode
-from pomdp_planner.nodes.target_simulator import TargetSimulator
+from ...core.io.paths import resolve_path
+from ...nodes.belief_filter import BeliefFilter
+from ...nodes.executor import NodeExecutor, shutdown_executor
+from ...nodes.messages import decode_plan_info
+from ...nodes.planner import PlannerNode
+from ...nodes.processes import ros_env, start_nodes, stop_nodes
+from ...nodes.qos import RECORDER_QOS
+from ...nodes.target_simulator import TargetSimulator
 
 
 class Probe(Node):
     def __init__(self, context):
         super().__init__("latency_probe", context=context)
-        deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         # per epoch: (writer's source timestamp, probe's DDS reception, probe's callback), s, system clock
         self.obs_time: dict[int, tuple[float, float, float]] = {}
         self.act_time: dict[int, tuple[float, float, float]] = {}
         self.info: dict[int, dict] = {}
         self.cond = threading.Condition()
-        self.create_subscription(Int64MultiArray, "observation", self._on_obs, deep)
-        self.create_subscription(Int64MultiArray, "action", self._on_act, deep)
-        self.create_subscription(Float64MultiArray, "plan_info", self._on_info, deep)
+        self.create_subscription(Int64MultiArray, "observation", self._on_obs, RECORDER_QOS)
+        self.create_subscription(Int64MultiArray, "action", self._on_act, RECORDER_QOS)
+        self.create_subscription(Float64MultiArray, "plan_info", self._on_info, RECORDER_QOS)
 
     @staticmethod
     def _times(info) -> tuple[float, float, float]:
@@ -106,7 +102,7 @@ class Probe(Node):
 def measure(budget: float, decisions: int, model_key: str, max_depth: int, processes: bool,
             use_bounds: bool = True) -> dict:
     domain_id = random.randint(1, 101)
-    os.environ.update(demo.ros_env(domain_id))
+    os.environ.update(ros_env(domain_id))
     if not processes:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "OFF"
     ctx = Context()
@@ -118,7 +114,7 @@ def measure(budget: float, decisions: int, model_key: str, max_depth: int, proce
     if processes:
         extra = {"planner": ["-p", f"time_budget:={budget}", "-p", f"max_depth:={max_depth}",
                              "-p", f"use_bounds:={str(use_bounds).lower()}"]}
-        procs = demo.start_nodes(model_key, domain_id, Path(tempfile.mkdtemp(prefix="latency_bench_")), extra)
+        procs = start_nodes(model_key, domain_id, Path(tempfile.mkdtemp(prefix="latency_bench_")), extra)
     else:
         model_file = str(resolve_path(f"config/models/tracking_{model_key}_info.yaml"))
         for cls, params in ((TargetSimulator, {}), (BeliefFilter, {}),
@@ -142,7 +138,7 @@ def measure(budget: float, decisions: int, model_key: str, max_depth: int, proce
             depth = np.array([probe.info[t + 1]["depth"] for t in epochs])
     finally:
         if procs:
-            demo.stop_nodes(procs)
+            stop_nodes(procs)
         shutdown_executor(executor)
         thread.join(timeout=2.0)
         for n in [*nodes, probe]:
@@ -158,7 +154,7 @@ def measure(budget: float, decisions: int, model_key: str, max_depth: int, proce
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.ros.latency", description=__doc__.split("\n")[0])
     p.add_argument("--budgets", type=float, nargs="+", default=[0.05, 0.1, 0.5])
     p.add_argument("--decisions", type=int, default=40)
     p.add_argument("--model", choices=("s3", "s8"), default="s8")

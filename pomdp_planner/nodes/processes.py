@@ -1,0 +1,67 @@
+"""Starting and stopping the node executables as processes, as ``ros2 run`` would: used by the
+demo (``nodes/demo.py``), the latency benchmark (``bench/ros/latency.py``) and the tests.
+
+Each process gets this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and the ROS
+domain it is given, its parameter file ``config/<node>_<model>.yaml`` (found by
+``core.io.paths.resolve_path``) and a log file; :func:`stop_nodes` ends them the way Ctrl-C in a
+terminal does (SIGINT), so they exit cleanly.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from ..core.io.paths import resolve_path
+
+NODES = ("target_simulator", "belief_filter", "planner")
+
+
+def node_command(name: str) -> list[str]:
+    """How ``ros2 run pomdp_planner <name>`` would start the node: the installed console script if
+    it sits next to this interpreter (a venv's ``bin``), else ``python -m pomdp_planner.nodes.<name>``."""
+    script = Path(sys.executable).parent / name
+    if script.is_file() and os.access(script, os.X_OK):
+        return [str(script)]
+    return [sys.executable, "-m", f"pomdp_planner.nodes.{name}"]
+
+
+def ros_env(domain_id: int) -> dict[str, str]:
+    """This process's environment with ROS on this machine only, in domain ``domain_id``."""
+    env = dict(os.environ)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1")
+    return env
+
+
+def start_nodes(model: str, domain_id: int, log_dir: Path, extra: dict[str, list[str]] | None = None,
+                names=NODES) -> dict[str, tuple[subprocess.Popen, Path]]:
+    """Start node processes with ``config/<name>_<model>.yaml``; output goes to ``log_dir/<name>.log``."""
+    procs = {}
+    env = ros_env(domain_id)
+    for name in names:
+        params = resolve_path(f"config/{name}_{model}.yaml", "params file")
+        cmd = [*node_command(name), "--ros-args", "--params-file", str(params), *(extra or {}).get(name, [])]
+        log = log_dir / f"{name}.log"
+        with open(log, "wb") as fh:
+            procs[name] = (subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT), log)
+    return procs
+
+
+def stop_nodes(procs: dict[str, tuple[subprocess.Popen, Path]], timeout: float = 10.0) -> dict[str, int]:
+    """SIGINT every process (as Ctrl-C would), wait, SIGKILL stragglers; returns the exit codes."""
+    for p, _ in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    codes = {}
+    deadline = time.monotonic() + timeout
+    for name, (p, _) in procs.items():
+        try:
+            codes[name] = p.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            codes[name] = p.wait()
+    return codes

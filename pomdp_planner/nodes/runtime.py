@@ -1,0 +1,97 @@
+"""How a node process runs: start-up errors, the callback guard, ``main``.
+
+:func:`run_nodes` is the Jazzy idiom (``rclpy.init``, build the nodes, spin, clean exit on Ctrl-C
+and SIGTERM) with the project's :class:`~.executor.NodeExecutor`. A node that cannot start raises
+:class:`NodeConfigError`; :func:`config_errors` turns the core's errors (which name the field, i.e.
+the parameter) into it, and ``run_nodes`` prints it as one ``[FATAL]`` line, exit code 1.
+"""
+
+from __future__ import annotations
+
+import functools
+import signal
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
+from rclpy.node import Node
+
+from ..core.belief import BeliefError
+from ..core.model import ModelError
+from .executor import NodeExecutor, shutdown_executor
+
+
+class NodeConfigError(ValueError):
+    """A node parameter makes the node unable to start (message names the parameter)."""
+
+
+@contextmanager
+def config_errors() -> Iterator[None]:
+    """Translate the core's errors raised while a node starts (bad model file, bad parameter value;
+    their messages name the field) into :class:`NodeConfigError`."""
+    try:
+        yield
+    except (ModelError, BeliefError) as exc:
+        raise NodeConfigError(str(exc)) from None
+
+
+def callback(method):
+    """Decorate a node callback: an exception raised while the context is shutting down (e.g. a
+    publish after Ctrl-C, while a search was still running) is expected and swallowed, so the
+    exit stays clean; any other exception propagates."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except Exception:
+            if self.context.ok():
+                raise
+            return None
+
+    return wrapper
+
+
+def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
+    """The Jazzy idiom: init, build nodes, spin a :class:`NodeExecutor`, clean exit on Ctrl-C/SIGTERM.
+
+    Returns the process exit code: 0 on a normal or signalled shutdown, 1 if a node could not
+    start (bad parameter or model file; the reason is printed, without traceback).
+    """
+    rclpy.init(args=args)
+    nodes: list[Node] = []
+    executor = None
+    code = 0
+    try:
+        for make in factories:
+            nodes.append(make())
+        executor = NodeExecutor()
+        for n in nodes:
+            executor.add_node(n)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except _rclpy_impl.RCLError:
+        if rclpy.ok():
+            raise
+        # the context was shut down (Ctrl-C, SIGTERM) while rclpy was building a wait set: a
+        # clean exit like the others, not a traceback
+    except NodeConfigError as exc:
+        print(f"[FATAL] pomdp_planner: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        # A second Ctrl-C during teardown must not print a traceback either.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if executor is not None:
+            shutdown_executor(executor)
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def main_for(factories: Sequence[Callable[[], Node]]) -> None:
+    sys.exit(run_nodes(factories, args=sys.argv))
