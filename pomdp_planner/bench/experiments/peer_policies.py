@@ -152,12 +152,16 @@ class ReferenceSpec:
 
 def _reference_decider(model: POMDP, spec: ReferenceSpec) -> Callable[[np.ndarray], tuple[int, dict]]:
     if spec.kind == "grid":
-        ref = grid_reference(model, spec.param)
+        # the reference policy of the model search (bench/lookahead_models.py); imported here
+        # because that module imports this package
+        from ..lookahead_models import GridReferencePolicy
+
+        pol = GridReferencePolicy(grid_reference(model, spec.param))
 
         def decide(b: np.ndarray) -> tuple[int, dict]:
-            q = ref.fine.q_values(np.asarray(b, dtype=float)[None, :])[0]
-            top2 = np.sort(q)[-2:]
-            return int(np.argmax(q)), {"certified": model.A < 2 or top2[1] - top2[0] > ref.tie_margin}
+            before = pol.certified
+            a = pol.act(b)
+            return a, {"certified": pol.certified > before}
 
         return decide
     planner = gate_setup(model, use_bounds=False).planner

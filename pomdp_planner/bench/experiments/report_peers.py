@@ -174,7 +174,8 @@ def _sanity_section(d: dict) -> list[str]:
                      f"{k['min_gap']:.3g}.")
     lines.append("")
     rows = [[f"`{r.model}`", r.label, _budget(r.budget), f"{r.correct} / {r.checked}",
-             "pass" if r.passed else ("**FAIL**" if r.required else "fail (baseline)")] for r in s["results"]]
+             "pass" if r.passed else ("**FAIL**" if r.required else "fail (baseline)" if r.label == r.planner
+                                      else "fail (diagnostic)")] for r in s["results"]]
     return lines + _table(["model (w = 0)", "planner", "budget (s)", "optimal decisions", "result"], rows) + [""]
 
 
@@ -289,9 +290,8 @@ def when_to_use(d: dict, data: dict) -> list[str]:
                                f"(CI {_ci(rows[('bnb', first)].regret, rows[('bnb', first)].regret_ci)}, "
                                f"Table {tid}).")
             else:
-                out.append(f"- **`{m}`: no measurable value of lookahead.** Greedy's regret "
-                           f"{_ci(g.regret, g.regret_ci)}{unit} is not distinguishable from 0 (Table {tid}), so no "
-                           "planner can beat greedy by a measurable margin on this model.")
+                out.append(f"- **`{m}`: no measurable value of lookahead in this run.** Greedy's regret "
+                           f"{_ci(g.regret, g.regret_ci)}{unit} has a 95 % CI that contains 0 (Table {tid}).")
         else:
             out.append(f"- **`{m}`** has no optimal reference; greedy's return is {_ci(g.mean, g.ci)} (Table {tid}).")
         out += _best_per_budget(rows, budgets, tid)

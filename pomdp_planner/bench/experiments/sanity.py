@@ -145,8 +145,8 @@ def run_sanity(models: dict[str, POMDP], planners: Sequence[str], budgets: Seque
                 peer = make_peer(name, check, b, max_depth=max_depth, seed=seed + int(i),
                                  reference=(references or {}).get(label), pouct=settings)
                 correct += int(peer.act(beliefs[i].copy()) == opt.actions[i])
-            out["results"].append(SanityResult(label, name, b, correct, int(ok.sum()), name not in NOT_REQUIRED,
-                                               shown))
+            required = name not in NOT_REQUIRED and shown == name  # the untuned POUCT row is a diagnostic
+            out["results"].append(SanityResult(label, name, b, correct, int(ok.sum()), required, shown))
     return out
 
 
