@@ -373,3 +373,34 @@ def test_unknown_options_are_ignored_and_defaults_apply(s3):
 def test_rho_range_covers_the_vertices(s3):
     rho = np.array([rho_ref(s3, e) for e in np.eye(3)])
     assert rho_range(s3) >= np.ptp(rho) - 1e-12
+
+
+# ----------------------------------------------------------------- the benchmark (smoke)
+def test_benchmark_prints_a_row_per_model_and_configuration(capsys):
+    from pomdp_planner.bench import mcts as bench
+
+    assert bench.main(["--simulations", "20", "--beliefs", "1", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    for label, _ in bench.THROUGHPUT_CONFIGS:
+        assert out.count(label) == len(bench.DEFAULT_MODELS)
+    rows = bench.throughput(["tracking_s3_info"], simulations=20, beliefs=1)
+    assert all(r["sims_per_s"] > 0 and 1 <= r["depth"] <= 50 for r in rows)
+
+
+def test_benchmark_closed_loop_and_tuning_rows_are_sane():
+    from pomdp_planner.bench import mcts as bench
+
+    rows = bench.closed_loop("tracking_s3_info", (0.002,), episodes=2, steps=3)
+    assert [r["policy"] for r in rows] == ["greedy", "mcts"]
+    assert all(math.isfinite(r["mean"]) and math.isfinite(r["ci"]) and 0.0 <= r["agree"] <= 1.0 for r in rows)
+    rows = bench.tune(budgets=(0.002,), count=5, configs=bench.TUNE_CONFIGS[:1])
+    assert [r["config"] for r in rows] == ["greedy", bench.TUNE_CONFIGS[0][0]]
+    assert all(r["loss"] >= -1e-12 and 0.0 <= r["optimal"] <= 1.0 for r in rows)
+
+
+def test_benchmark_rejects_bad_arguments():
+    from pomdp_planner.bench import mcts as bench
+
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--simulations", "0"])
+    assert exc.value.code == 2

@@ -43,12 +43,14 @@ from ..core.model import POMDP
 from ..core.simulate import MyopicPolicy, simulate
 
 DEFAULT_MODELS = ("tracking_s3_info", "tracking_s8_info")
-#: Leaf configurations of the throughput table: (label, BeliefMCTS keyword arguments).
+#: Configurations of the throughput table: (label, BeliefMCTS keyword arguments).
 THROUGHPUT_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
-    ("rho leaf", {"leaf": "rho"}),
-    ("value (rollout 0)", {"leaf": "rollout", "rollout_depth": 0}),
-    ("rollout 3", {"leaf": "rollout", "rollout_depth": 3}),
-    ("rollout 10", {"leaf": "rollout", "rollout_depth": 10}),
+    ("default (bellman, rollout 1, max depth 3)", {}),
+    ("bellman, rho leaf, max depth 3", {"leaf": "rho"}),
+    ("bellman, rollout 1, max depth 50", {"max_depth": 50}),
+    ("bellman, rollout 3, max depth 50", {"max_depth": 50, "rollout_depth": 3}),
+    ("bellman, rollout 10, max depth 50", {"max_depth": 50, "rollout_depth": 10}),
+    ("mean, rollout 3, max depth 50", {"backup": "mean", "max_depth": 50, "rollout_depth": 3}),
 )
 #: Configurations compared by ``--tune``: (label, keyword arguments).
 TUNE_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
@@ -93,19 +95,19 @@ def throughput(models: Sequence[str], simulations: int = 5000, beliefs: int = 5,
                 res = planner.search(b, simulations=simulations)
                 rates.append(res.simulations / res.time_used)
                 depths.append(res.depth)
-                nodes.append(res.nodes / res.time_used)
-            row = {"model": model.name, "S": model.S, "leaf": label, "simulations": simulations,
+                nodes.append(res.nodes)
+            row = {"model": model.name, "S": model.S, "config": label, "simulations": simulations,
                    "sims_per_s": statistics.median(rates), "depth": statistics.median(depths),
-                   "nodes_per_s": statistics.median(nodes)}
+                   "nodes": statistics.median(nodes)}
             log(f"{model.name} {label}: {row['sims_per_s']:.0f} sims/s")
             rows.append(row)
     return rows
 
 
 def throughput_table(rows: Sequence[dict[str, Any]]) -> str:
-    return _table(("model", "leaf", "sims/s", "tree depth", "nodes/s"),
-                  [(r["model"], r["leaf"], f"{r['sims_per_s']:.0f}", f"{r['depth']:.0f}", f"{r['nodes_per_s']:.0f}")
-                   for r in rows])
+    return _table(("model", "configuration", "sims/s", "us/sim", "tree depth", "nodes created"),
+                  [(r["model"], r["config"], f"{r['sims_per_s']:.0f}", f"{1e6 / r['sims_per_s']:.1f}",
+                    f"{r['depth']:.0f}", f"{r['nodes']:.0f}") for r in rows])
 
 
 # ------------------------------------------------------------------ tuning

@@ -19,30 +19,61 @@ likely observations. Impossible observations (``eta <= ETA_MIN``, as in
 :mod:`~pomdp_planner.core.belief`) are never sampled. Child node objects are created lazily,
 from the stored posterior, when a simulation first reaches them.
 
-Action selection is UCB1, ``Q(b, a) + c sqrt(ln N(b) / N(b, a))``, untried actions first (in
-random order), exact ties broken by the seeded generator. The statistics are the classic
-Monte Carlo ones (POMCP, PFT-DPW): ``Q(b, a)`` is the mean of the discounted returns
-``rho(b, a) + gamma G'`` of the simulations through ``(b, a)``. As the number of simulations
-grows they converge to the expectimax values of the tree (paper Eqs. 4-6) of depth
-``max_depth`` with the chosen leaf values (``test/test_belief_mcts.py`` checks this against a
-brute-force recursion).
+Action selection is UCB1, ``Q(b, a) + c sqrt(ln N(b) / N(b, a))``, after the untried actions,
+which are tried in greedy order (largest ``rho(b, a)`` first: a node tried once is then valued
+by its greedy action, consistent with the leaf values below); exact UCB1 ties are broken by the
+seeded generator.
+
+Statistics (``backup``)
+-----------------------
+* ``"bellman"`` (default): partial Bellman backups with the exact observation probabilities
+  (DP-UCT, Keller and Helmert, ICAPS 2013): ``Q(b, a) = rho(b, a) + gamma sum_z eta_z V(z) /
+  sum_z eta_z`` over the children ``(a, z)`` visited so far, ``V`` of an expanded node the
+  largest ``Q`` of its tried actions, ``V`` of a leaf the mean of its leaf values. Only the
+  *choice* of observations is sampled, not their weights, so the estimate has no
+  observation-sampling noise; once every possible child of a finite tree has been visited it is
+  the expectimax value exactly (paper Eqs. 4-6).
+* ``"mean"``: the classic Monte Carlo statistics of POMCP and PFT-DPW, ``Q(b, a)`` the mean of
+  the discounted returns ``rho(b, a) + gamma G'`` of the simulations through ``(b, a)``; they
+  converge to the same expectimax values, more slowly.
+
+``test/test_belief_mcts.py`` checks both against a brute-force expectimax recursion.
 
 Exploration constant: returns are sums of ``rho`` values, so ``c`` is scaled to the spread of
 ``rho``: ``c = exploration_scale * (max rho - min rho)`` over the simplex
-(:func:`rho_range`, on the vertices, the centre and a fixed sample of beliefs), with
-``exploration_scale`` :data:`DEFAULT_EXPLORATION_SCALE`, chosen from measurements
-(``python -m pomdp_planner.bench.mcts --tune``). An explicit ``exploration`` overrides it.
+(:func:`rho_range`, on the vertices, the centre and a fixed sample of beliefs). An explicit
+``exploration`` overrides it.
 
 Leaf values (``leaf``)
 ----------------------
-* ``"rollout"`` (default): a greedy rollout, ``a_t = argmax_a rho(b_t, a)``, of
-  ``rollout_depth`` steps along one sampled observation path with exact Bayes updates, plus the
-  tail ``gamma^D max_a rho(b_D, a) / (1 - gamma)`` (the greedy reward held forever), so every
-  leaf estimates an infinite-horizon value and leaves at different depths are comparable.
-  ``rollout_depth = 0`` is the cheap value estimate ``max_a rho(b, a) / (1 - gamma)`` alone.
+* ``"rollout"`` (default): ``rollout_depth`` greedy steps, ``a_t = argmax_a rho(b_t, a)``,
+  along one sampled observation path with exact Bayes updates, then a tail for the rest of the
+  infinite horizon (``tail``):
+
+  - ``"average"`` (default): ``gamma^D rho_bar / (1 - gamma)`` with ``rho_bar`` the long-run
+    mean reward of the greedy policy (:func:`average_greedy_reward`, computed once per model).
+    It adds no variance, and leaves at different depths stay comparable (a truncated return
+    would favour the deeper, more visited subtrees by about one reward per level).
+  - ``"leaf"``: ``gamma^D max_a rho(b_D, a) / (1 - gamma)``, the last greedy reward held
+    forever. It multiplies the spread of ``rho`` between leaves by ``1 / (1 - gamma)`` (100 at
+    ``gamma = 0.99``) and measured much worse.
+  - ``"none"``: the truncated return.
+
+  ``rollout_depth = 1`` is the cheap value estimate ``max_a rho(b, a) + gamma rho_bar / (1 -
+  gamma)``: no belief update at all (``rho`` of every node is cached).
 * ``"rho"``: ``max_a rho(b, a)``, the leaf of :mod:`~pomdp_planner.core.search`: with it the
   tree estimates the depth-``max_depth`` expectimax values of Algorithm 1.
 * ``"zero"``: 0 (the pure finite-horizon problem).
+
+Defaults
+--------
+Chosen from ``python -m pomdp_planner.bench.mcts --tune`` (decisions at 100 grid beliefs of the
+shipped ``S = 3`` model against the grid policy-iteration optimum of ``core/reference.py``, at
+0.01, 0.05 and 0.2 s per decision): Bellman backups, rollout depth 1 with the average tail,
+``max_depth`` 3 and ``exploration_scale`` 1 were optimal at every budget; Monte Carlo means,
+longer rollouts, deeper trees, a smaller ``c`` and the ``"leaf"`` tail lost (the figures are in
+the benchmark's docstring). Greedy-first order of the untried actions was the largest single
+improvement. On a model where lookahead pays beyond three steps, measure ``max_depth`` again.
 
 Speed
 -----
@@ -85,18 +116,20 @@ from .model import POMDP, priority_of
 
 #: Leaf evaluations accepted by :class:`BeliefMCTS` (see the module docstring).
 LEAF_KINDS = ("rollout", "rho", "zero")
+#: Default backup (measured).
+DEFAULT_BACKUP = "bellman"
 #: Tail values after a rollout (module docstring).
 TAILS = ("average", "leaf", "none")
 #: Greedy steps averaged by :func:`average_greedy_reward`.
 AVERAGE_REWARD_STEPS = 2000
 #: Backups accepted by :class:`BeliefMCTS`: Monte Carlo means or partial Bellman backups.
 BACKUPS = ("mean", "bellman")
-#: Default ``c / (max rho - min rho)`` of UCB1 (measured: ``python -m pomdp_planner.bench.mcts --tune``).
+#: Default ``c / (max rho - min rho)`` of UCB1 (measured, module docstring "Defaults").
 DEFAULT_EXPLORATION_SCALE = 1.0
-#: Default number of greedy rollout steps before the tail value.
-DEFAULT_ROLLOUT_DEPTH = 3
-#: Default maximum depth of the tree (action-observation levels below the root).
-DEFAULT_MAX_DEPTH = 50
+#: Default number of greedy rollout steps before the tail value (measured).
+DEFAULT_ROLLOUT_DEPTH = 1
+#: Default maximum depth of the tree (action-observation levels below the root; measured).
+DEFAULT_MAX_DEPTH = 3
 #: Simulations per decision when neither a number of simulations nor a time budget is given.
 DEFAULT_SIMULATIONS = 1000
 #: Tree reuse: the next belief must equal a stored posterior within this (absolute) tolerance.
@@ -251,7 +284,7 @@ class BeliefMCTS:
     def __init__(self, model: POMDP, *, exploration: float | None = None,
                  exploration_scale: float = DEFAULT_EXPLORATION_SCALE, max_depth: int = DEFAULT_MAX_DEPTH,
                  leaf: str = "rollout", rollout_depth: int = DEFAULT_ROLLOUT_DEPTH, tail: str = "average",
-                 backup: str = "mean",
+                 backup: str = DEFAULT_BACKUP,
                  seed: int | None = 0,
                  clock: Callable[[], float] = time.perf_counter):
         self.model = model
@@ -297,8 +330,11 @@ class BeliefMCTS:
         lin = U @ r  # (A, S, Z, A')
         K = np.concatenate([eta, lin.reshape(A, S, Z * A), U.reshape(A, S, Z * S)], axis=2)  # (A, S, L)
         self._L = K.shape[2]
-        self._K = [np.ascontiguousarray(K[a]) for a in range(A)]
-        self._Kall = np.ascontiguousarray(np.moveaxis(K, 0, 1).reshape(S, A * self._L))
+        self._K = [np.ascontiguousarray(K[a]) for a in range(A)]  # rollouts: one action's block
+        # expansions: all actions, and per (a, z) the linear reward and the posterior side by side,
+        # so that one division normalises both
+        Kx = np.concatenate([eta, np.concatenate([lin, U], axis=3).reshape(A, S, Z * (A + S))], axis=2)
+        self._Kall = np.ascontiguousarray(np.moveaxis(Kx, 0, 1).reshape(S, A * self._L))
         self._sure = bool(np.all(eta > 2.0 * ETA_MIN))  # every observation possible from every belief
         self._tail_factor = self._gamma ** self.rollout_depth / (1.0 - self._gamma)
         self._average_reward = average_greedy_reward(model, self) if self.tail == "average" else math.nan
@@ -352,21 +388,19 @@ class BeliefMCTS:
         X = np.dot(node.b, self._Kall).reshape(A, L)
         eta = X[:, :Z]
         if self._sure:
-            den = eta
+            Y = X[:, Z:].reshape(A, Z, A + S) / eta[:, :, None]
         else:
             ok = eta > ETA_MIN
             eta = np.where(ok, eta, 0.0)
-            den = np.where(ok, eta, 1.0)
-        den3 = den[:, :, None]
-        post = X[:, Z + Z * A:].reshape(A, Z, S) / den3
-        crho = X[:, Z:Z + Z * A].reshape(A, Z, A) / den3
+            Y = X[:, Z:].reshape(A, Z, A + S) / np.where(ok, eta, 1.0)[:, :, None]
+            Y[~ok, A:] = 1.0 / S  # impossible children (never sampled): any valid belief
+        crho = Y[:, :, :A]  # rho(tau, .) once the uncertainty term is added
+        post = Y[:, :, A:]
         kind = self._kind
         if kind == "renyi2":
             crho += self._wa * np.log(np.einsum("azs,azs->az", post, post))[:, :, None]
         elif kind == "generic":
             crho -= self._wa * self._f(post)[:, :, None]
-        if not self._sure:  # impossible children are never sampled; keep their values finite
-            crho = np.where(ok[:, :, None], crho, 0.0)
         node.cum = np.cumsum(eta, axis=1).tolist()
         node.post = post.reshape(A * Z, S)
         node.crho = crho.reshape(A * Z, A).tolist()
@@ -378,7 +412,6 @@ class BeliefMCTS:
             node.q = [0.0] * A
         else:
             node.q = [-math.inf] * A  # V = max over the tried actions
-
             node.eta = eta.ravel().tolist()
             node.sw = [0.0] * A
             node.sn = [0.0] * A
@@ -603,7 +636,7 @@ class BeliefMCTSPolicy:
 POLICY_OPTIONS: dict[str, Any] = {
     "time_budget": None, "simulations": None, "max_depth": DEFAULT_MAX_DEPTH, "exploration": None,
     "exploration_scale": DEFAULT_EXPLORATION_SCALE, "leaf": "rollout", "rollout_depth": DEFAULT_ROLLOUT_DEPTH,
-    "tail": "average", "backup": "mean", "seed": 0, "reuse": True,
+    "tail": "average", "backup": DEFAULT_BACKUP, "seed": 0, "reuse": True,
 }
 
 
