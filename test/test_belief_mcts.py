@@ -177,13 +177,21 @@ def test_depth_two_mean_backup_best_action_converges(s3):
         assert res.visits[res.action] == res.visits.max()
 
 
-def test_bellman_matches_expectimax_with_impossible_observations():
-    """Observations with eta = 0 are never sampled and do not bias the estimate (depth 2)."""
-    model = random_model(4, S=3, A=2, Z=3, zeros=True)
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("uncertainty", ["renyi2", "shannon"])
+def test_bellman_matches_expectimax_with_impossible_observations(uncertainty):
+    """Observations with eta = 0 (here one per action: Z = 4 > S = 3 states, each emitting one
+    observation) are never sampled, do not bias the estimate (depth 2) and raise no warning."""
+    model = random_model(4, S=3, A=2, Z=4, zeros=True, uncertainty=uncertainty)
     for b in beliefs(3, 3):
+        assert any(bayes_ref(model, b, a, z)[1] is None for a in range(2) for z in range(4))
         exact = expectimax_ref(model, b, 2)
         res = BeliefMCTS(model, leaf="rho", max_depth=2, backup="bellman", exploration=20.0, seed=0).search(b, 4000)
         assert np.max(np.abs(res.q_values - exact)) < 1e-9 * (1 + np.abs(exact).max())
+        for a in range(2):
+            for z in range(4):
+                if bayes_ref(model, b, a, z)[1] is None:
+                    assert res.root.kids[a * 4 + z] is None
 
 
 @pytest.mark.parametrize("uncertainty", ["shannon", "renyi2", "none"])
@@ -195,6 +203,19 @@ def test_bellman_exact_once_the_depth_two_tree_is_complete(uncertainty):
         exact = expectimax_ref(model, b, 2)
         res = BeliefMCTS(model, leaf="rho", max_depth=2, backup="bellman", exploration=20.0, seed=0).search(b, 5000)
         np.testing.assert_allclose(res.q_values, exact, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("backup", ["bellman", "mean"])
+def test_one_visit_per_action_is_a_one_sample_estimate(s3, backup):
+    """After one simulation per action (depth 1), Q(b, a) = rho(b, a) + gamma max rho(tau(b, a, z))
+    for the one sampled z: the Bellman backup normalises over the visited observations."""
+    b = np.array([0.3, 0.3, 0.4])
+    res = BeliefMCTS(s3, leaf="rho", max_depth=1, backup=backup, seed=0).search(b, s3.A)
+    assert np.all(res.visits == 1)
+    for a in range(s3.A):
+        candidates = [rho_ref(s3, b)[a] + s3.gamma * rho_ref(s3, tau).max()
+                      for tau in (bayes_ref(s3, b, a, z)[1] for z in range(s3.Z))]
+        assert min(abs(res.q_values[a] - c) for c in candidates) < 1e-12
 
 
 def test_zero_leaf_depth_one_is_rho(s3):

@@ -90,7 +90,7 @@ Anytime and determinism
 -----------------------
 A search stops after ``simulations`` simulations or when ``time_budget`` seconds have passed
 (the clock, injectable as in :class:`~pomdp_planner.core.search.Planner`, is read after every
-simulation, a ~0.1 us call next to a simulation's tens of microseconds), whichever comes
+simulation: a call of ~0.1 us next to a simulation's 5-100 us), whichever comes
 first; at least one simulation is always run. Given the seed and a number of simulations the
 result is reproducible. Tree reuse (:class:`BeliefMCTSPolicy`): if the next belief is a child
 posterior of the last root under the action taken (equal up to rounding, checked with
