@@ -372,7 +372,7 @@ def test_result_to_dict_is_json(s3):
     ("time_budget", -1.0), ("time_budget", "fast"), ("time_budget", math.nan), ("simulations", 0),
     ("simulations", 2.5), ("max_depth", 0), ("max_depth", True), ("exploration", -0.1),
     ("exploration", math.inf), ("exploration_scale", -1), ("leaf", "random"), ("rollout_depth", -1),
-    ("tail", "forever"), ("backup", "max"), ("seed", -3), ("seed", "x"), ("reuse", "yes"),
+    ("tail", "forever"), ("backup", "max"), ("seed", -3), ("seed", "x"), ("reuse", "yes"), ("reuse", 2),
 ])
 def test_bad_option_raises_value_error_naming_it(s3, option, value):
     with pytest.raises(ValueError, match=option):
@@ -382,6 +382,12 @@ def test_bad_option_raises_value_error_naming_it(s3, option, value):
 def test_bad_belief_is_rejected(s3):
     with pytest.raises(BeliefError, match="belief"):
         BeliefMCTS(s3).search(np.array([0.5, 0.6, 0.1]), 10)
+
+
+def test_reuse_option_accepts_command_line_spellings(s3):
+    assert make_belief_mcts_policy(s3, {"reuse": "false"}).reuse is False
+    assert make_belief_mcts_policy(s3, {"reuse": "True"}).reuse is True
+    assert make_belief_mcts_policy(s3, {"reuse": 0}).reuse is False
 
 
 def test_unknown_options_are_ignored_and_defaults_apply(s3):
