@@ -56,7 +56,8 @@ from ..core.belief_mcts import BeliefMCTS, BeliefMCTSPolicy, rho_range
 from ..core.io.model_yaml import load_model
 from ..core.io.paths import shipped_model_path
 from ..core.model import POMDP
-from ..core.simulate import MyopicPolicy, simulate
+from ..core.policies import MyopicPolicy
+from ..core.simulate import simulate
 
 DEFAULT_MODELS = ("tracking_s3_info", "tracking_s8_info")
 #: Configurations of the throughput table: (label, BeliefMCTS keyword arguments).
