@@ -268,7 +268,7 @@ def run_peers(cfg: ExperimentConfig, progress: bool, cache: Path, jobs: int = 1,
             f.unlink()
     models, missing = available_models(cfg.peers_models)
     t0 = time.perf_counter()
-    sanity_models = {m: models[m] for m in cfg.peers_sanity_models if m in models}
+    sanity_models, _ = available_models(cfg.peers_sanity_models)
     if progress:
         print(f"  peers: sanity check on {', '.join(sanity_models)} ...", file=sys.stderr, flush=True)
     sanity = run_sanity(sanity_models, plan.planners, plan.budgets, max_depth=plan.max_depth,
