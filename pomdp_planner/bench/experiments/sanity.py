@@ -18,8 +18,10 @@ Each peer decides, from scratch (a fresh policy, no tree reuse), at the check be
 simplex vertices, its centre, and beliefs reached from random initial beliefs under random
 actions (``sampling.reachable_beliefs``; on the tracking models these concentrate near the
 states the dynamics drive to, where the action gaps are smallest). It passes at a budget when
-it picks the proven optimal action at every certified belief. Budgeted peers are checked at
-every budget of the comparison. ``required`` says whether failing matters: greedy, the bound
+it picks the proven optimal action at every certified belief; the largest value loss
+``Q*(b, a*) - Q*(b, a)`` of its decisions is reported beside (a sampling planner that misses a
+near-tie loses about that tie's gap). Budgeted peers are checked at every budget of the
+comparison. ``required`` says whether failing matters: greedy, the bound
 policies and random are baselines whose failure is possible by design.
 """
 
@@ -56,6 +58,7 @@ class KnownOptimum:
     certified: np.ndarray
     how: str
     min_gap: float
+    q: np.ndarray  # Q*(b, a) at the beliefs (exact, or within the alpha-vector error bound)
 
     def to_dict(self) -> dict:
         return {"beliefs": len(self.beliefs), "certified": int(self.certified.sum()),
@@ -81,9 +84,10 @@ def known_optimum(model: POMDP, beliefs: np.ndarray, horizon: int | None = None)
         margin = alpha[None, :] - (model.r.T + model.gamma * (model.P @ alpha))  # (A, S), >= 0
         others = np.delete(margin, a_star, axis=0)
         gaps = (beliefs @ others.T).min(axis=1) if len(others) else np.full(len(beliefs), np.inf)
+        q = beliefs @ (model.r.T + model.gamma * (model.P @ alpha)).T  # Q*(b, a) = b . (r_a + gamma P_a alpha)
         return KnownOptimum(beliefs, np.full(len(beliefs), a_star), np.ones(len(beliefs), bool),
                             f"always priority {a_star + 1}, proven at every belief (Bellman inequality of "
-                            "its value vector)", float(gaps.min()))
+                            "its value vector)", float(gaps.min()), q)
     if horizon is None:  # error bound gamma^H (max r - min r) / (2 (1 - gamma)) below 1e-6 of the range
         horizon = int(np.ceil(np.log(1e-6 * (1 - model.gamma)) / np.log(model.gamma)))
     sol = alpha_vector_value_iteration(model, horizon)
@@ -92,7 +96,7 @@ def known_optimum(model: POMDP, beliefs: np.ndarray, horizon: int | None = None)
     gap = top2[:, 1] - top2[:, 0]
     return KnownOptimum(beliefs, act, cert, f"exact alpha-vector value iteration, horizon {horizon}, certified "
                         f"where the Q gap exceeds {2 * sol.error_bound:.2g}",
-                        float(gap[cert].min()) if cert.any() else float("nan"))
+                        float(gap[cert].min()) if cert.any() else float("nan"), Q)
 
 
 @dataclass
@@ -106,6 +110,7 @@ class SanityResult:
     checked: int
     required: bool
     label: str = ""  # e.g. "pouct (pomdp-py defaults)"
+    worst_loss: float = 0.0  # largest Q*(b, a*) - Q*(b, a) of its decisions
 
     @property
     def passed(self) -> bool:
@@ -140,13 +145,15 @@ def run_sanity(models: dict[str, POMDP], planners: Sequence[str], budgets: Seque
                 if name == "pouct" and pouct_defaults:
                     runs.append((name, "pouct (pomdp-py defaults)", b, POMDP_PY_DEFAULTS))
         for name, shown, b, settings in runs:
-            correct = 0
+            correct, loss = 0, 0.0
             for i in np.flatnonzero(ok):
                 peer = make_peer(name, check, b, max_depth=max_depth, seed=seed + int(i),
                                  reference=(references or {}).get(label), pouct=settings)
-                correct += int(peer.act(beliefs[i].copy()) == opt.actions[i])
+                a = peer.act(beliefs[i].copy())
+                correct += int(a == opt.actions[i])
+                loss = max(loss, float(opt.q[i, opt.actions[i]] - opt.q[i, a]))
             required = name not in NOT_REQUIRED and shown == name  # the untuned POUCT row is a diagnostic
-            out["results"].append(SanityResult(label, name, b, correct, int(ok.sum()), required, shown))
+            out["results"].append(SanityResult(label, name, b, correct, int(ok.sum()), required, shown, loss))
     return out
 
 
