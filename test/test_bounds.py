@@ -1,9 +1,11 @@
 """Tests of core/bounds.py: Theorem 2 constants, the LP for g/h, and what the bounds guarantee.
 
-Every check is against an independent computation: numerical maximisation for the constants,
-the model's own gradient (``rho_gradient``) on many beliefs for the constraints, finite
-differences along MLR-increasing pairs for monotonicity, scipy's HiGHS for the LP, a
-hand-derived Farkas certificate for infeasibility, and a 1-D grid value iteration for Eq. 8.
+Every check is against an independent computation: numerical maximisation for the FOSD
+constant, the model's own gradient (``rho_gradient``) on many beliefs for the FOSD constraints,
+finite differences along MLR-increasing pairs for monotonicity (both constants), scipy's HiGHS
+on constraints written here for the LP (both solvers; and one LP per component for the least
+element), a hand-derived Farkas certificate for infeasibility, and a 1-D grid value iteration
+for Eq. 8.
 """
 
 from __future__ import annotations
@@ -76,7 +78,9 @@ def test_renyi_constant_dense_grid_s3() -> None:
 
 def test_renyi_constant_closed_form_and_paper_value() -> None:
     assert bd.renyi_constant(1) == 0.0
-    assert bd.renyi_constant(2) == 1.0  # the paper's value is right only for S = 2
+    # the FOSD supremum equals the paper's 1 only for S = 2 (for MLR monotonicity 1 is exact for
+    # every S: constant="mlr", test_mlr_constant_is_the_papers_and_weaker_than_fosd)
+    assert bd.renyi_constant(2) == 1.0
     for S in (3, 4, 8, 64, 256):
         C = bd.renyi_constant(S)
         assert C == pytest.approx((1 + math.sqrt(S - 1)) / 2)
@@ -84,8 +88,8 @@ def test_renyi_constant_closed_form_and_paper_value() -> None:
             b = bd.renyi_maximiser(S, i)
             assert b.sum() == pytest.approx(1.0) and b.min() >= 0
             assert _renyi_ratio(b, i) == pytest.approx(C, rel=1e-12)
-        assert C > 1.0  # the paper's bound -1 on (b(i+1)-b(i))/sum b^2 fails for S >= 3
-    # the paper's Example 3 bound, violated by an explicit belief for S = 3
+        assert C > 1.0  # the paper's bound -1 on (b(i+1)-b(i))/sum b^2 fails for S >= 3 (the FOSD route)
+    # the paper's Example 3 bound on the gradient ratio, violated by an explicit belief for S = 3
     b = np.array([1 / math.sqrt(2), 0.0, 1 - 1 / math.sqrt(2)])
     assert (b[1] - b[0]) / np.sum(b * b) < -1.2
 
