@@ -382,6 +382,19 @@ def test_least_element_is_the_componentwise_extreme_feasible_vector(constant: st
     assert checked >= 30
 
 
+def test_value_and_policy_iteration_find_the_same_least_element(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fixed point is computed by value iteration when the contraction is strong and by
+    policy iteration (dense solves) otherwise: forcing either path gives the same vectors."""
+    results = {}
+    for kappa in (0.0, 1.0):  # 0: always policy iteration; 1: value iteration wherever kappa_1 < 1
+        monkeypatch.setattr(bd, "VALUE_ITERATION_KAPPA", kappa)
+        results[kappa] = [bd.solve_bounds(m, "tight", samples=20) for m in _structured_models()]
+    for pi, vi in zip(results[0.0], results[1.0], strict=True):
+        for which in ("g", "h"):
+            a, b = getattr(pi, which), getattr(vi, which)
+            assert np.allclose(a, b, rtol=1e-9, atol=1e-9 * (1 + np.abs(a).max()))
+
+
 def test_least_elements_give_the_tightest_bounds_at_every_belief() -> None:
     """No feasible g gives a higher lower bound, no feasible h a lower upper bound, at any belief:
     compared with the L1-minimal vectors, the hinge-LP vectors of the Clarabel path, and vectors

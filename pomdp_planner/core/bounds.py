@@ -268,7 +268,7 @@ def constraint_system(model: POMDP, which: str, *, constant: str = DEFAULT_CONST
 def _margins(model: POMDP, v: np.ndarray, which: str, rhs: np.ndarray) -> np.ndarray:
     """``(A, S-1)`` margins from the definition ``Delta_i (v - gamma P[a] v)``, without forming ``G``."""
     v = np.asarray(v, dtype=float)
-    steps = np.diff(v[None, :] - model.gamma * (model.P @ v), axis=1)  # (A, S-1)
+    steps = np.diff(v[None, :] - model.gamma * _matvec(model.P, v), axis=1)  # (A, S-1)
     return (steps if which == "g" else -steps) - rhs
 
 
@@ -337,6 +337,7 @@ class _Structure:
     monotone: bool  # every M_a >= 0: each P[a] is stochastically monotone
     kappa: float  # contraction factor of T in a weighted sup norm (inf if none was found)
     ordered: bool  # P[a+1, i] >=_s P[a, i] for every a, i (actions ordered in first-order dominance)
+    kappa1: float  # gamma max_{a,i} sum_k M[a, i, k]: the factor in the plain sup norm
 
     @property
     def contraction(self) -> bool:
@@ -348,40 +349,73 @@ class _Structure:
 
 
 def _structure(model: POMDP) -> _Structure:
-    tails = np.cumsum(model.P[:, :, :0:-1], axis=2)[:, :, ::-1]  # (A, S, S-1): sum_{j>k} P[a, i, j]
+    S = model.S
+    # tails[a, i, k] = sum_{j > k} P[a, i, j], k = 0..S-2
+    tails = np.ascontiguousarray(model.P[:, :, :0:-1]).cumsum(axis=2)[:, :, ::-1]
     M = np.diff(tails, axis=1)
     monotone = bool(M.min() >= -STRUCTURE_TOL) if M.size else True
     ordered = bool(np.all(np.diff(tails, axis=0) >= -STRUCTURE_TOL)) if tails.size else True
-    kappa = _contraction_factor(M, model.gamma) if monotone and M.size else (0.0 if not M.size else math.inf)
-    return _Structure(M, monotone, kappa, ordered)
+    # row sums of M_a: E[next | i+1, a] - E[next | i, a] in units of states
+    kappa1 = float(model.gamma * np.diff(_matvec(model.P, np.arange(S, dtype=float)), axis=1).max()) if M.size else 0.0
+    if not M.size:
+        kappa = 0.0
+    else:
+        kappa = _contraction_factor(M, model.gamma, kappa1) if monotone else math.inf
+    return _Structure(M, monotone, kappa, ordered, kappa1)
 
 
-def _contraction_factor(M: np.ndarray, gamma: float) -> float:
+def _contraction_factor(M: np.ndarray, gamma: float, kappa1: float) -> float:
     """``kappa = max_{a,i} gamma (M_a u)_i / u_i`` for weights ``u > 0`` (``M >= 0``): ``T`` is a
-    ``kappa``-contraction in the ``u``-weighted sup norm. ``u = 1`` first (``kappa`` = gamma times
-    the largest row sum of ``M_a``); if that is ``>= 1``, ``u`` = the least solution of
-    ``u >= 1 + gamma M_a u`` (policy iteration), accepted only if it verifies ``kappa < 1``."""
-    kappa = float(gamma * M.sum(axis=2).max())
-    if kappa < 1.0:
-        return kappa
-    out = _least_element(M, np.ones(M.shape[:2]), gamma)
+    ``kappa``-contraction in the ``u``-weighted sup norm. ``u = 1`` first (``kappa = kappa1``,
+    gamma times the largest row sum of ``M_a``); if that is ``>= 1``, ``u`` = the least solution
+    of ``u >= 1 + gamma M_a u`` (policy iteration), accepted only if it verifies ``kappa < 1``."""
+    if kappa1 < 1.0:
+        return kappa1
+    out = _least_element(M, np.ones(M.shape[:2]), gamma, kappa1)
     if out is None:
         return math.inf
     u = out[0]
     if not (np.all(np.isfinite(u)) and u.min() > 0.0):
         return math.inf
-    return float(np.max(gamma * (M @ u) / u))
+    return float(np.max(gamma * _matvec(M, u) / u))
 
 
-def _least_element(M: np.ndarray, beta: np.ndarray, gamma: float, max_iter: int = 200
+def _matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``M @ x`` over the last axis with numpy's own loops (``einsum``), not a BLAS call: on a
+    shared machine multi-threaded BLAS waiting for busy cores made these products, and LAPACK
+    solves, 5-200x slower (measured: a 255 x 255 solve 0.7 ms single-threaded, 140 ms with the
+    default threads; core/search.py avoids BLAS for the same reason)."""
+    return np.einsum("...ij,j->...i", M, x)
+
+
+#: Value iteration (no dense solve) is used for the least element when ``gamma`` times the
+#: largest row sum of ``M_a`` is below this; policy iteration otherwise.
+VALUE_ITERATION_KAPPA = 0.5
+
+
+def _least_element(M: np.ndarray, beta: np.ndarray, gamma: float, kappa1: float, max_iter: int = 200
                    ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Least ``d`` with ``d >= beta_a + gamma M_a d`` for all ``a`` (``beta``: ``(A, S-1)``), by
-    policy iteration on ``T(d) = max_a (beta_a + gamma M_a d)``; ``(d, policy)`` or None.
-    (The caller certifies the result: a contraction factor, or an exact feasibility check.)"""
-    A, n = beta.shape
+    """Least ``d`` with ``d >= beta_a + gamma M_a d`` for all ``a`` (``beta``: ``(A, S-1)``), the
+    fixed point of ``T(d) = max_a (beta_a + gamma M_a d)``; ``(d, policy)`` or None.
+
+    With ``kappa_1 = gamma max_{a,i} sum_k M_a[i, k] < VALUE_ITERATION_KAPPA``, value iteration
+    (``T`` is a ``kappa_1``-contraction in the sup norm; stop when the a-posteriori error bound
+    ``kappa_1 / (1 - kappa_1) |d_{k+1} - d_k|`` is below ``1e-13 (1 + |d|)``); otherwise policy
+    iteration with dense solves. (The caller certifies the result: a contraction factor, or an
+    exact feasibility check.)"""
+    n = beta.shape[1]
     idx = np.arange(n)
-    Mflat = M.reshape(A * n, n)
-    pol = np.argmax(beta, axis=0)
+    d = beta.max(axis=0)  # T(0)
+    Q = beta + gamma * _matvec(M, d)
+    if kappa1 < VALUE_ITERATION_KAPPA:
+        for _ in range(10 * max_iter):
+            d_new = Q.max(axis=0)
+            step = float(np.max(np.abs(d_new - d)))
+            d = d_new
+            Q = beta + gamma * _matvec(M, d)
+            if kappa1 / (1.0 - kappa1) * step <= 1e-13 * (1.0 + float(np.max(np.abs(d)))):
+                return Q.max(axis=0), np.argmax(Q, axis=0)
+    pol = np.argmax(Q, axis=0)
     eye = np.eye(n)
     for _ in range(max_iter):
         try:
@@ -390,7 +424,7 @@ def _least_element(M: np.ndarray, beta: np.ndarray, gamma: float, max_iter: int 
             return None
         if not np.all(np.isfinite(d)):
             return None
-        Q = beta + gamma * (Mflat @ d).reshape(A, n)
+        Q = beta + gamma * _matvec(M, d)
         best = Q.max(axis=0)
         improve = best > Q[pol, idx] + 1e-12 * (1.0 + np.abs(best))
         if not improve.any():
@@ -405,7 +439,7 @@ def _least_vector(system: _System, st: _Structure) -> tuple[np.ndarray, np.ndarr
     model = system.model
     A, n = model.A, model.S - 1
     beta = system.rhs.reshape(A, n) + LP_MARGIN_RTOL * system.scale
-    out = _least_element(st.M, beta, model.gamma)
+    out = _least_element(st.M, beta, model.gamma, st.kappa1)
     if out is None:
         return None
     d, pol = out
@@ -559,7 +593,7 @@ def _solve_l1(system: _System, margin: float, accept: float, solver: str,
     backend = _BACKENDS[solver]
     return _cutting_planes(
         G, rhs, lambda rows: _l1_lp(G[rows], rhs[rows], margin, backend, hinge=hinge, l1_weight=l1_weight),
-        lambda x: rhs + margin - accept - G @ x[:S], by_pairs=solver != "clarabel", start=start)[0]
+        lambda x: rhs + margin - accept - _matvec(G, x[:S]), by_pairs=solver != "clarabel", start=start)[0]
 
 
 @dataclass
@@ -619,13 +653,13 @@ def _infeasible_report(system: _System, solver: str) -> _VectorResult:
     tol = FEAS_RTOL * system.scale
     backend = _BACKENDS[solver]
     p1, rows = _cutting_planes(G, rhs, lambda rows: _phase1(G[rows], rhs[rows], box, backend),
-                               lambda x: rhs - G @ x[:S] - x[S] - tol, by_pairs=solver != "clarabel")
+                               lambda x: rhs - _matvec(G, x[:S]) - x[S] - tol, by_pairs=solver != "clarabel")
     if p1.x is None:
         return _VectorResult(False, None, f"{which}: LP solver failed ({p1.status}); treated as infeasible",
                              {"vector": which, "solver_status": p1.status}, None)
     v = p1.x[:S].copy()
     v[0] = 0.0
-    viol = rhs - G @ v  # > 0 where violated
+    viol = rhs - _matvec(G, v)  # > 0 where violated
     t_star = float(viol.max())
     if t_star <= FEAS_RTOL * (system.scale + float(np.sum(np.abs(v)))):
         return _VectorResult(True, v, f"{which}: feasible only at the boundary (phase-1 vector)", None, -t_star)
