@@ -41,8 +41,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_model_argument(p)
     p.add_argument("--variant", choices=BOUND_VARIANTS, default=BOUND_VARIANTS[0],
-                   help="choice of g/h: 'tight' (default, maximises agreement of the bounds on sampled "
-                        "reachable beliefs) or 'feasible' (L1-minimal)")
+                   help="choice of g/h: 'tight' (default: the least g and greatest h where the transitions "
+                        "prove them the tightest at every belief, else maximises agreement of the bounds on "
+                        "sampled reachable beliefs) or 'feasible' (L1-minimal)")
     p.add_argument("--constant", choices=BOUND_CONSTANTS, default=DEFAULT_CONSTANT,
                    help="monotonicity the constraints guarantee: 'mlr' (default; steps >= 2|w_a| for Renyi "
                         "entropy, exact for what Corollary 1 needs) or 'fosd' (first-order dominance, the "
