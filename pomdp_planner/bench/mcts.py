@@ -58,6 +58,7 @@ from ..core.io.paths import shipped_model_path
 from ..core.model import POMDP
 from ..core.policies import MyopicPolicy
 from ..core.simulate import simulate
+from .experiments.peers import mean_ci
 
 DEFAULT_MODELS = ("tracking_s3_info", "tracking_s8_info")
 #: Configurations of the throughput table: (label, BeliefMCTS keyword arguments).
@@ -181,12 +182,9 @@ def tune_table(rows: Sequence[dict[str, Any]]) -> str:
 
 # ------------------------------------------------------------------ closed loop
 def _mean_ci(x: Sequence[float]) -> tuple[float, float]:
-    from scipy.stats import t as student_t
-
-    x = np.asarray(x, dtype=float)
-    if x.size < 2:
-        return float(x.mean()), 0.0
-    return float(x.mean()), float(student_t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
+    """Mean and half-width of its 95 % Student-t interval (:func:`.experiments.peers.mean_ci`)."""
+    m, (lo, hi) = mean_ci(np.asarray(x, dtype=float))
+    return m, (hi - lo) / 2.0
 
 
 def closed_loop(model_name: str = "tracking_s3_info", budgets: Sequence[float] = (0.01, 0.05, 0.2, 1.0),
