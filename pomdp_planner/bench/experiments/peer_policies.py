@@ -36,6 +36,7 @@ import numpy as np
 
 from ...core.gate import PlannerSetup, build_planner
 from ...core.model import POMDP
+from ...core.policies import POLICIES, make_policy
 from ...core.reference import ReferencePolicy, reference_policy
 from ...core.search import complete_tree_nodes
 from .pouct import POUCTPolicy, POUCTSettings
@@ -84,16 +85,8 @@ DESCRIPTIONS = {
 
 
 def mcts_available() -> bool:
-    """Whether the belief MCTS (``core/belief_mcts.py``, issue 12) is in this tree.
-
-    INTEGRATION POINT (branch i12p): until that branch is merged the module is missing and the
-    comparison runs without the ``mcts`` peer (the report says so).
-    """
-    try:
-        from ...core import belief_mcts  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Whether the belief MCTS is in the policy table (``core/policies.py``; issue 12)."""
+    return "mcts" in POLICIES
 
 
 class TimedPolicy:
@@ -283,9 +276,7 @@ def make_peer(name: str, model: POMDP, budget: float | None, *, max_depth: int, 
         setup = gate_setup(model, use_bounds=name == "bnb")
         return SearchPeer(name, setup, budget, max_depth, probes if name == "bnb" else None)
     if name == "mcts":
-        from ...core.belief_mcts import make_belief_mcts_policy  # INTEGRATION POINT (branch i12p)
-
-        pol = make_belief_mcts_policy(model, {"time_budget": budget, "seed": seed})
+        pol = make_policy("mcts", model, time_budget=budget, seed=seed)  # its default settings
         pol.planner.clock = BUDGET_CLOCK
 
         def mcts(b: np.ndarray) -> tuple[int, dict]:

@@ -91,8 +91,7 @@ def section_peers(d: dict, data: dict) -> list[str]:
         lines.append(f"- `{p}`: {DESCRIPTIONS.get(p, '')}.")
     lines.append("")
     if not d.get("mcts"):
-        lines += ["**The belief MCTS (`core/belief_mcts.py`) is not in this tree** (integration point: branch i12p), "
-                  "so it is missing below.", ""]
+        lines += ["**The belief MCTS (`core/belief_mcts.py`) is not in this tree**, so it is missing below.", ""]
     if d.get("pouct"):
         pc = plan["pouct"]
         lines += [f"**POUCT (pomdp-py), tuned** (`bench/experiments/pouct.py`): leaf value `{pc['leaf']}` (the exact "
@@ -108,7 +107,7 @@ def section_peers(d: dict, data: dict) -> list[str]:
                   "installed.**", ""]
     if d.get("missing"):
         lines += ["**Models not shipped in this tree, skipped:** " + ", ".join(f"`{m}`" for m in d["missing"])
-                  + " (integration point: branch i12m).", ""]
+                  + ".", ""]
     lines += _models_table(d, facts, plan)
     lines += _sanity_section(d)
     lines += _summary_table(d, ids)

@@ -70,9 +70,8 @@ class ExperimentConfig:
     seed: int = 0
 
 
-#: The models of the peer comparison: the paper's (old) ones and the ones where lookahead pays.
-#: INTEGRATION POINT (branch i12m): ``perimeter_s3`` / ``perimeter_s8`` are shipped by that
-#: branch; until it is merged they are missing and the comparison says so and skips them.
+#: The models of the peer comparison: the paper's (old) ones and the ones where lookahead pays
+#: (docs/MODEL_SEARCH.md). A model that is not shipped is skipped, and the report says so.
 PEER_MODELS = ("tracking_s3_info", "tracking_s8_info", "perimeter_s3", "perimeter_s8")
 #: Their optimal references (S = 3: grid policy iteration; S = 8: deep exhaustive search).
 PEER_REFERENCES = (("tracking_s3_info", "grid", 40), ("tracking_s8_info", "search", 4),
@@ -84,8 +83,11 @@ FULL = ExperimentConfig(
     table3_states=(4, 8, 16, 32, 64, 128, 256), table3_actions=(4, 8, 16, 32, 64), table3_beliefs=500,
     table3_variants=(("feasible", 256), ("tight", 64)), looseness_max_states=16,
     peers_models=PEER_MODELS, peers_budgets=(0.01, 0.05, 0.2, 1.0),
-    peers_cheap_episodes=100, peers_episodes=(100, 100, 100, 100), peers_steps=50, peers_max_depth=12,
+    peers_cheap_episodes=100, peers_episodes=(50, 50, 50, 20), peers_steps=50, peers_max_depth=12,
     peers_references=PEER_REFERENCES,
+    # The compute plan (README, "Results"): the 1 s cells are three quarters of the cost, so they
+    # run 20 episodes on the perimeter models and 10 on the paper's, where lookahead is worth nothing.
+    peers_model_episodes=(("tracking_s3_info", 1.0, 10), ("tracking_s8_info", 1.0, 10)),
 )
 
 QUICK = ExperimentConfig(
