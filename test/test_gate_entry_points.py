@@ -129,7 +129,7 @@ def test_search_bench_skips_a_failing_model_with_the_reason(capsys: pytest.Captu
 
 
 def test_experiments_use_the_gate() -> None:
-    from pomdp_planner.bench.experiments import peers
+    from pomdp_planner.bench.experiments import peer_policies, peers
     from pomdp_planner.bench.experiments.pruning import pruning_cell
     from pomdp_planner.bench.experiments.runner import valid_bounds
     from pomdp_planner.core.io.model_yaml import load_model
@@ -139,9 +139,11 @@ def test_experiments_use_the_gate() -> None:
     assert not cell.feasible and cell.pct is None and "Assumption 1 fails" in cell.message
     with pytest.raises(ValueError, match="Assumption 1 fails"):
         valid_bounds(model)
-    setup = peers._planner_for("failing", model)
+    setup = peer_policies.gate_setup(model)
     assert setup.mode == "exhaustive" and not setup.planner.has_bounds
     chunk = peers.PeerChunk("failing", "lower-bound", None, 0, 1)
     with pytest.raises(ValueError, match="no valid bounds: Assumption 1 fails"):
-        peers._policy(chunk, model, peers.PeerPlan(budgets=(0.01,), episodes_cheap=1, episodes_by_budget={0.01: 1},
-                                                   steps=1, max_depth=2, seed=0), 0)
+        peers.run_chunk(chunk, model, peers.PeerPlan(budgets=(0.01,), episodes_cheap=1, episodes_by_budget={0.01: 1},
+                                                     steps=1, max_depth=2, seed=0))
+    bnb = peer_policies.make_peer("bnb", model, 0.01, max_depth=2, seed=0)  # B&B falls back to exhaustive search
+    assert not bnb.use_bounds and not bnb.planner.has_bounds
