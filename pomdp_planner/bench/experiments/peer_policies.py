@@ -90,8 +90,9 @@ def mcts_available() -> bool:
 
 
 class TimedPolicy:
-    """Wraps a decision function: per decision the CPU time (budget clock), the wall time and,
-    when the planner reports them, its depth, simulations and whether it was certified."""
+    """Wraps a decision function: per decision the CPU time, the wall time and, when the planner
+    reports them, its depth, simulations and whether it was certified (an info value that is a
+    function is a measurement, evaluated after the decision's clock has stopped)."""
 
     def __init__(self, name: str, decide: Callable[[np.ndarray], tuple[int, dict]], certifies: bool = False):
         self.name = name
@@ -108,6 +109,7 @@ class TimedPolicy:
         action, info = self._decide(belief)
         self.cpu.append(DECISION_CLOCK() - c0)
         self.wall.append(time.perf_counter() - w0)
+        info = {k: v() if callable(v) else v for k, v in info.items()}  # measurements, after the clock
         if "depth" in info:
             self.depths.append(int(info["depth"]))
         if "sims" in info:
@@ -289,7 +291,7 @@ def make_peer(name: str, model: POMDP, budget: float | None, *, max_depth: int, 
 
         def plan_pouct(b: np.ndarray) -> tuple[int, dict]:
             a = pol.act(b)
-            return a, {"depth": pol.last_depth, "sims": pol.last_sims}
+            return a, {"depth": pol.last_depth, "sims": pol.last_sims}  # the depth is counted untimed
 
         return TimedPolicy(name, plan_pouct)
     raise ValueError(f"planner: unknown peer {name!r}")
