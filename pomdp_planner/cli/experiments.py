@@ -2,7 +2,7 @@
 
 Runs every experiment of the paper (Figs. 1, 3, 4, Tables II, III) and the peer comparison,
 writing ``DIR/RESULTS.md`` and ``DIR/img/*.png`` (default ``docs``). ``--quick`` runs toy
-sizes (CI smoke test, < 2 minutes). Plots need the ``experiments`` extra (matplotlib), the
+sizes (CI smoke test, about half a minute). Plots need the ``experiments`` extra (matplotlib), the
 POUCT peer the ``bench`` extra (pomdp-py); without pomdp-py POUCT is left out and the report
 says so.
 """
@@ -24,8 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report-only", action="store_true",
                         help="run nothing: rewrite RESULTS.md and the plots from DIR/.experiments-cache")
     parser.add_argument("--jobs", type=int, default=1, metavar="N",
-                        help="worker processes for the peer comparison (default 1; budgeted planners are timed, "
-                             "so use at most one per idle core)")
+                        help="worker processes for the peer comparison (default 1; budgets are CPU time, so load "
+                             "does not change the results, only the run time: use at most one per core)")
     parser.add_argument("--resume", action="store_true",
                         help="peer comparison: reuse the chunks of episodes an interrupted run left in "
                              "DIR/.experiments-cache/peers-chunks instead of starting afresh")
