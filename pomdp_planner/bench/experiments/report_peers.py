@@ -286,12 +286,13 @@ def when_to_use(d: dict, data: dict) -> list[str]:
                     if parts:
                         out.append(f"  - At {b:g} s per decision the share of greedy's regret closed is: "
                                    + "; ".join(parts) + f" (Table {tid}).")
-                first = next((b for b in budgets if rows.get(("bnb", b)) is not None
-                              and rows[("bnb", b)].regret_ci[0] <= 0 <= rows[("bnb", b)].regret_ci[1]), None)
-                if first is not None:
-                    out.append(f"  - B&B's regret is statistically indistinguishable from 0 from {first:g} s on "
-                               f"(CI {_ci(rows[('bnb', first)].regret, rows[('bnb', first)].regret_ci)}, "
-                               f"Table {tid}).")
+                for p in BUDGETED:
+                    cells = [(b, rows[(p, b)]) for b in budgets if (p, b) in rows and rows[(p, b)].regret is not None]
+                    zero = [b for b, r in cells if r.regret_ci[0] <= 0 <= r.regret_ci[1]]
+                    if cells:
+                        out.append(f"  - {p}'s regret CI contains 0 at " + (", ".join(f"{b:g}" for b in zero) + " s"
+                                   if zero else "no budget") + f" of {', '.join(f'{b:g}' for b, _ in cells)} s "
+                                   f"(Table {tid}).")
             else:
                 out.append(f"- **`{m}`: no measurable value of lookahead in this run.** Greedy's regret "
                            f"{_ci(g.regret, g.regret_ci)}{unit} has a 95 % CI that contains 0 (Table {tid}).")
@@ -355,13 +356,14 @@ def _pouct_lines(d: dict, m: str, rows: dict, budgets, tid: str, g) -> list[str]
         fl = _sanity_flag(d, r)
         parts.append(f"{b:g} s: return {_ci(r.mean, r.ci)}, state return {r.mean_state_return:.2f}"
                      + ("" if fl == "-" else f", sanity {fl}"))
+    checked = bool((d.get("sanity") or {}).get("results"))
     return ["  - POUCT (state reward only): " + "; ".join(parts) + f"; greedy: return {_ci(g.mean, g.ci)}, state "
-            f"return {g.mean_state_return:.2f} (Table {tid}" + (", Table S)." if d.get("sanity") else ").")]
+            f"return {g.mean_state_return:.2f} (Table {tid}" + (", Table S)." if checked else ").")]
 
 
 def _sanity_lines(d: dict) -> list[str]:
     s = d.get("sanity")
-    if not s:
+    if not s or not s["results"]:
         return []
     bad = [r for r in s["results"] if r.required and not r.passed]
     if not bad:
