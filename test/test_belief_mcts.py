@@ -8,6 +8,7 @@ rollout over all observation paths.
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 from pathlib import Path
@@ -431,3 +432,26 @@ def test_benchmark_rejects_bad_arguments():
     with pytest.raises(SystemExit) as exc:
         bench.main(["--simulations", "0"])
     assert exc.value.code == 2
+
+
+def test_policy_decides_with_the_cyclic_collector_paused_and_restores_it(s3):
+    """A generation-2 collection of the rest of the process must not land inside a decision
+    (core/gc_pause.py): the collector is off while the policy searches, and back on afterwards
+    (left off if the caller had turned it off)."""
+    seen: list[bool] = []
+
+    def clock() -> float:
+        seen.append(gc.isenabled())
+        return float(len(seen))
+
+    policy = BeliefMCTSPolicy(BeliefMCTS(s3, seed=0, clock=clock), simulations=50)
+    assert gc.isenabled()
+    policy.act(np.full(3, 1 / 3))
+    assert seen and not any(seen)
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        policy.act(np.full(3, 1 / 3))
+        assert not gc.isenabled()
+    finally:
+        gc.enable()

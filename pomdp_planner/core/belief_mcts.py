@@ -117,6 +117,7 @@ from typing import Any
 import numpy as np
 
 from .belief import ETA_MIN, check_belief
+from .gc_pause import paused_gc
 from .model import POMDP, priority_of
 
 #: Leaf evaluations accepted by :class:`BeliefMCTS` (see the module docstring).
@@ -630,10 +631,15 @@ class BeliefMCTSPolicy:
         self.last: MCTSResult | None = None
 
     def act(self, belief: np.ndarray) -> int:
-        last = self.last if self.reuse else None
-        self.last = None  # drop the old tree before building the new one
-        self.last = self.planner.search(belief, self.simulations, self.time_budget, previous=last,
-                                        action=None if last is None else last.action)
+        """One decision, with the cyclic garbage collector paused (:mod:`.gc_pause`: the tree is
+        acyclic, so reference counting frees the old one; a collection scanning the rest of the
+        process would otherwise land inside the decision)."""
+        with paused_gc():
+            last = self.last if self.reuse else None
+            self.last = None  # drop the old tree before building the new one
+            self.last = self.planner.search(belief, self.simulations, self.time_budget, previous=last,
+                                            action=None if last is None else last.action)
+            del last  # the rest of the old tree is freed here, inside the decision, not later
         return self.last.action
 
 
