@@ -36,8 +36,10 @@ from ..core.policies import SEED_RANGE, check_seed
 
 
 def one_line(text: str) -> str:
-    """``text`` on one line (line breaks shown as ``\\n``): every error is one line of stderr."""
-    return text.replace("\r", "\\r").replace("\n", "\\n")
+    """``text`` on one line: every character that is not printable (line breaks of any kind, including
+    the separators ``str.splitlines`` honours, and other control characters) is shown escaped, as in
+    ``repr``. Every error is one line of stderr, whatever a user typed."""
+    return "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
 
 
 class Parser(argparse.ArgumentParser):
@@ -66,13 +68,15 @@ def int_in(lo: int | None, hi: int | None) -> Callable[[str], int]:
 
 def float_in(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
     """An argparse ``type``: a finite number in ``lo..hi`` (NaN and infinity refused)."""
+    span = "..".join(f"{x:.0f}" if float(x).is_integer() else f"{x:g}" for x in (lo, hi))
+
     def parse(text: str) -> float:
         try:
             value = float(text) if text.isascii() else math.nan
         except ValueError:
             value = math.nan
         if not (math.isfinite(value) and lo <= value <= hi):
-            raise argparse.ArgumentTypeError(f"must be a number{unit} in {lo:g}..{hi:g}, got {short_repr(text)}")
+            raise argparse.ArgumentTypeError(f"must be a number{unit} in {span}, got {short_repr(text)}")
         return value
 
     parse.__name__ = "number"

@@ -19,7 +19,7 @@ import os
 import stat
 from pathlib import Path
 
-from ..model import ModelError, format_bytes
+from ..model import ModelError, format_bytes, short_repr
 
 #: Largest model file read (bytes): 16 MiB. The loaders bound their work by the number of values
 #: as well (``MAX_YAML_NODES``, ``MAX_TOKENS``); this bounds what a file of long strings or
@@ -54,6 +54,8 @@ def read_model_text(path: str | Path, what: str = "model file", limit: int | Non
     """The text of the model file ``path`` (module docstring); ``ModelError`` otherwise. ``what``
     and ``limit`` (named ``limit_name`` in messages) serve other files a user gives (a beliefs file)."""
     limit = MAX_MODEL_FILE_BYTES if limit is None else limit
+    if "\0" in str(path):  # no file has such a name (the OS refuses it with a ValueError)
+        raise ModelError(f"{short_repr(str(path))}: cannot read {what}: the name contains a NUL character")
     path = Path(path)
     try:
         st = os.stat(path)
