@@ -27,37 +27,41 @@ def _reason(exc: OSError) -> str:
     return exc.strerror or type(exc).__name__
 
 
-def check_output_file(path: str | os.PathLike, field: str) -> Path:
-    """``path`` as a :class:`~pathlib.Path` if a file can be created or replaced there (module docstring)."""
+def _as_path(path: str | os.PathLike, field: str, what: str) -> Path:
     text = str(path)
     if not text.strip() or "\0" in text:
-        raise ModelError(f"{field}: not a file name: {short_repr(text)}")
-    p = Path(text).expanduser()
-    if p.is_dir():
-        raise ModelError(f"{field}: {p} is a directory, not a file")
-    parent = p.parent
-    if not parent.exists():
-        raise ModelError(f"{field}: cannot write {p}: the folder {parent} does not exist")
-    if not parent.is_dir():
-        raise ModelError(f"{field}: cannot write {p}: {parent} is not a folder")
+        raise ModelError(f"{field}: not a {what} name: {short_repr(text)}")
+    return Path(text).expanduser()
+
+
+def check_output_file(path: str | os.PathLike, field: str) -> Path:
+    """``path`` as a :class:`~pathlib.Path` if a file can be created or replaced there (module docstring)."""
+    p = _as_path(path, field, "file")
+    try:
+        if p.is_dir():
+            raise ModelError(f"{field}: {p} is a directory, not a file")
+        if not p.parent.exists():
+            raise ModelError(f"{field}: cannot write {p}: the folder {p.parent} does not exist")
+        if not p.parent.is_dir():
+            raise ModelError(f"{field}: cannot write {p}: {p.parent} is not a folder")
+    except OSError as exc:  # e.g. a folder on the way that may not be searched
+        raise ModelError(f"{field}: cannot write {p}: {_reason(exc)}") from None
     return p
 
 
 def check_output_dir(path: str | os.PathLike, field: str) -> Path:
     """``path`` as a :class:`~pathlib.Path` if it is a folder or can be created (module docstring)."""
-    text = str(path)
-    if not text.strip() or "\0" in text:
-        raise ModelError(f"{field}: not a folder name: {short_repr(text)}")
-    p = Path(text).expanduser()
-    if p.exists():
-        if not p.is_dir():
-            raise ModelError(f"{field}: {p} exists and is not a folder")
-        return p
-    for above in p.parents:
-        if above.exists():
-            if not above.is_dir():
-                raise ModelError(f"{field}: cannot create {p}: {above} is not a folder")
-            break
+    p = _as_path(path, field, "folder")
+    try:
+        if p.exists():
+            if not p.is_dir():
+                raise ModelError(f"{field}: {p} exists and is not a folder")
+            return p
+        above = next((a for a in p.parents if a.exists()), None)
+        if above is not None and not above.is_dir():
+            raise ModelError(f"{field}: cannot create {p}: {above} is not a folder")
+    except OSError as exc:
+        raise ModelError(f"{field}: cannot use {p}: {_reason(exc)}") from None
     return p
 
 
