@@ -10,8 +10,9 @@ only if the structural checks pass and the bound LP is feasible.
 
 Assumption 1 is checked by ``core/structure.py`` and the bounds come from ``core/bounds.py``;
 :func:`minimal_bounds` is an independent plain feasibility LP for ``g``/``h`` (Theorem 2 with
-belief-independent constants, scipy's HiGHS instead of Clarabel) that the validation tests use
-where the LP alone, not its tightening, is the subject.
+belief-independent constants, MLR or first-order dominance; scipy's HiGHS) that the validation
+tests use where the LP alone, not its tightening, is the subject. The transition kernel is
+written here (:func:`tracking_kernel`), not taken from the package's generator.
 """
 
 from __future__ import annotations
@@ -22,7 +23,6 @@ import numpy as np
 from scipy.optimize import linprog, minimize_scalar
 
 from pomdp_planner.core.bounds import solve_bounds
-from pomdp_planner.core.domains.tracking import tracking_transitions
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.myopic import MyopicBounds
 from pomdp_planner.core.structure import check_assumptions
@@ -48,20 +48,22 @@ def renyi_constant(S: int) -> float:
     return float(max(-res.fun, -f(1.0)))
 
 
-def gradient_spread(model: POMDP) -> float:
-    """``sup_b (df/db_{i+1} - df/db_i)`` for the model's uncertainty function (on B_eps for Shannon)."""
+def gradient_spread(model: POMDP, constant: str = "mlr") -> float:
+    """The step every ``r_a + (I - gamma P_a) g`` needs, per unit ``|w_a|``: Renyi ``2`` for MLR
+    monotonicity (``constant="mlr"``, the package default) or ``sup_b (df/db_{i+1} - df/db_i)``
+    (first-order dominance, ``"fosd"``); Shannon (on B_eps) the latter for both."""
     name, S = model.uncertainty.name, model.S
     if name == "none":
         return 0.0
     if name == "renyi2":  # df/db = -2 b / ||b||^2
-        return 2.0 * renyi_constant(S)
+        return 2.0 if constant == "mlr" else 2.0 * renyi_constant(S)
     if name == "shannon":  # df/db = -(1 + log b): spread log(b_i / b_{i+1}) <= log((1-(S-1)eps)/eps)
         eps = model.epsilon
         return float(np.log((1.0 - (S - 1) * eps) / eps))
     raise ValueError(name)
 
 
-def minimal_bounds(model: POMDP) -> MyopicBounds | None:
+def minimal_bounds(model: POMDP, constant: str = "mlr") -> MyopicBounds | None:
     """Feasible ``g`` (lower) and ``h`` (upper) of Theorem 2, or None if either LP is infeasible.
 
     Lower: ``phi_a = r_a + (I - gamma P_a) g`` with ``phi_a[i+1] - phi_a[i] >= w_a * c`` and
@@ -69,7 +71,7 @@ def minimal_bounds(model: POMDP) -> MyopicBounds | None:
     ``g[0] = 0`` pins the free constant; among feasible vectors the L1-minimal one is taken.
     """
     S, A, gamma = model.S, model.A, model.gamma
-    c = gradient_spread(model)
+    c = gradient_spread(model, constant)
     if np.any(model.w < 0):
         raise ValueError("minimal_bounds assumes non-negative weights")
     D = np.diff(np.eye(S), axis=0)  # (S-1, S): row i = e_{i+1} - e_i
@@ -94,9 +96,9 @@ def minimal_bounds(model: POMDP) -> MyopicBounds | None:
     return MyopicBounds(model, vecs[0], vecs[1])
 
 
-def bounds_for(model: POMDP, variant: str = "tight") -> MyopicBounds | None:
-    """The bounds of ``core/bounds.py`` (``variant``), or None if the LP is infeasible."""
-    sol = solve_bounds(model, variant)
+def bounds_for(model: POMDP, variant: str = "tight", constant: str = "mlr") -> MyopicBounds | None:
+    """The bounds of ``core/bounds.py`` (``variant``, ``constant``), or None if the LP is infeasible."""
+    sol = solve_bounds(model, variant, constant=constant)
     return sol.myopic if sol.feasible else None
 
 
@@ -109,6 +111,14 @@ class ModelSpec:
     uncertainty: str
     gamma: float
     per_action_observations: bool = False  # one TP2 kernel per action (then (A2) is not trivial)
+
+
+def tracking_kernel(S: int, A: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``P[a, j, i] = exp(x_i y_{aS+j}) / sum_k exp(x_k y_{aS+j})`` (paper Sec. VI, written here so
+    the validation models do not come from the package's generator)."""
+    E = np.outer(y, x)  # (S*A, S): row aS+j, column i
+    E = np.exp(E - E.max(axis=1, keepdims=True))
+    return (E / E.sum(axis=1, keepdims=True)).reshape(A, S, S)
 
 
 def posterior_floor(model: POMDP) -> float:
@@ -145,7 +155,7 @@ def random_candidate(rng: np.random.Generator, spec: ModelSpec, epsilon: float |
     sharp = sharpness if sharpness is not None else (0.3 if spec.uncertainty == "shannon" else 1.0)
     x = np.cumsum(rng.uniform(0.3, 1.5, S)) * sharp
     y = (np.cumsum(rng.uniform(0.2, 1.5, S * A)) - rng.uniform(5.0, 12.0)) * sharp
-    P = tracking_transitions(S, A, x, y)
+    P = tracking_kernel(S, A, x, y)
     kernels = []
     for _ in range(A if spec.per_action_observations else 1):
         u = np.cumsum(rng.uniform(0.5, 2.0, S)) * sharp

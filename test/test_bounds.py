@@ -1,13 +1,16 @@
 """Tests of core/bounds.py: Theorem 2 constants, the LP for g/h, and what the bounds guarantee.
 
-Every check is against an independent computation: numerical maximisation for the constants,
-the model's own gradient (``rho_gradient``) on many beliefs for the constraints, finite
-differences along MLR-increasing pairs for monotonicity, scipy's HiGHS for the LP, a
-hand-derived Farkas certificate for infeasibility, and a 1-D grid value iteration for Eq. 8.
+Every check is against an independent computation: numerical maximisation for the FOSD
+constant, the model's own gradient (``rho_gradient``) on many beliefs for the FOSD constraints,
+finite differences along MLR-increasing pairs for monotonicity (both constants), scipy's HiGHS
+on constraints written here for the LP (both solvers; and one LP per component for the least
+element), a hand-derived Farkas certificate for infeasibility, and a 1-D grid value iteration
+for Eq. 8.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -20,6 +23,7 @@ from scipy.optimize import linprog, minimize
 
 from pomdp_planner.core import bounds as bd
 from pomdp_planner.core.belief import posterior_floor
+from pomdp_planner.core.domains.comparison import comparison_model
 from pomdp_planner.core.domains.tracking import comparison_reward, tracking_model
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
@@ -74,7 +78,9 @@ def test_renyi_constant_dense_grid_s3() -> None:
 
 def test_renyi_constant_closed_form_and_paper_value() -> None:
     assert bd.renyi_constant(1) == 0.0
-    assert bd.renyi_constant(2) == 1.0  # the paper's value is right only for S = 2
+    # the FOSD supremum equals the paper's 1 only for S = 2 (for MLR monotonicity 1 is exact for
+    # every S: constant="mlr", test_mlr_constant_is_the_papers_and_weaker_than_fosd)
+    assert bd.renyi_constant(2) == 1.0
     for S in (3, 4, 8, 64, 256):
         C = bd.renyi_constant(S)
         assert C == pytest.approx((1 + math.sqrt(S - 1)) / 2)
@@ -82,8 +88,8 @@ def test_renyi_constant_closed_form_and_paper_value() -> None:
             b = bd.renyi_maximiser(S, i)
             assert b.sum() == pytest.approx(1.0) and b.min() >= 0
             assert _renyi_ratio(b, i) == pytest.approx(C, rel=1e-12)
-        assert C > 1.0  # the paper's bound -1 on (b(i+1)-b(i))/sum b^2 fails for S >= 3
-    # the paper's Example 3 bound, violated by an explicit belief for S = 3
+        assert C > 1.0  # the paper's bound -1 on (b(i+1)-b(i))/sum b^2 fails for S >= 3 (the FOSD route)
+    # the paper's Example 3 bound on the gradient ratio, violated by an explicit belief for S = 3
     b = np.array([1 / math.sqrt(2), 0.0, 1 - 1 / math.sqrt(2)])
     assert (b[1] - b[0]) / np.sum(b * b) < -1.2
 
@@ -174,29 +180,80 @@ def s3() -> POMDP:
     return load_model(S3)
 
 
-def test_paper_s3_model_gives_feasible_g_and_h(s3: POMDP) -> None:
+def _check_guarantee(model: POMDP, sol: bd.BoundsSolution, B: np.ndarray, seed: int = 0) -> int:
+    """What the chosen constant promises: MLR monotone transformed rewards for both constants;
+    for ``fosd`` (and whenever the constants coincide) also a gradient that is monotone in the
+    index at every belief (first-order dominance). Returns the number of MLR pairs checked."""
+    if sol.constant == "fosd" or model.uncertainty.name != "renyi2":
+        _check_gradient_monotone(model, sol.g, sol.h, B)
+    return _check_mlr_monotone(model, sol.myopic, B, seed=seed)
+
+
+@pytest.mark.parametrize("constant", bd.BOUND_CONSTANTS)
+def test_paper_s3_model_gives_feasible_g_and_h(s3: POMDP, constant: str) -> None:
     for variant in bd.BOUND_VARIANTS:
-        sol = bd.solve_bounds(s3, variant)
+        sol = bd.solve_bounds(s3, variant, constant=constant)
         assert sol.feasible and sol.g_feasible and sol.h_feasible, sol.message
         assert sol.myopic is not None and sol.most_violated is None
-        assert sol.covers == "simplex"
-        assert sol.constants["C_S"] == pytest.approx((1 + math.sqrt(2)) / 2)
+        assert sol.covers == "simplex" and sol.constant == constant
+        c = sol.constants
+        assert c["constant"] == constant and constant in c["why"]
+        assert c["C_used"] == pytest.approx(1.0 if constant == "mlr" else (1 + math.sqrt(2)) / 2)
+        assert c["K_f"] == pytest.approx(2 * c["C_used"])
         assert sol.g[0] == 0.0 and sol.h[0] == 0.0  # the pinned free constant
-        assert bd.constraint_margins(s3, sol.g, "g").min() >= 0.0
-        assert bd.constraint_margins(s3, sol.h, "h").min() >= 0.0
-        B = _test_beliefs(s3)
-        _check_gradient_monotone(s3, sol.g, sol.h, B)
-        assert _check_mlr_monotone(s3, sol.myopic, B) > 1000
-        json.dumps(sol.to_dict())
+        assert bd.constraint_margins(s3, sol.g, "g", constant=constant).min() >= 0.0
+        assert bd.constraint_margins(s3, sol.h, "h", constant=constant).min() >= 0.0
+        assert _check_guarantee(s3, sol, _test_beliefs(s3)) > 1000
+        d = sol.to_dict()
+        json.dumps(d)
+        assert d["constant"] == constant and d["constants"]["why"] == c["why"]
 
 
+def test_mlr_constant_is_the_papers_and_weaker_than_fosd(s3: POMDP) -> None:
+    """Renyi: steps >= 2|w_a| (MLR) against 2 C_S |w_a| (FOSD). Every FOSD-feasible vector is
+    MLR-feasible, not conversely: the MLR vectors of the S = 3 problem violate the FOSD rows, and
+    their gradient steps are negative at the FOSD worst-case belief (so the MLR solution is not
+    first-order monotone there, as it need not be)."""
+    m = s3
+    assert bd.gradient_spread(m, "mlr") == 2.0
+    assert bd.gradient_spread(m, "fosd") == pytest.approx(1 + math.sqrt(2))
+    fosd = bd.solve_bounds(m, "feasible", constant="fosd")
+    mlr = bd.solve_bounds(m, "feasible", constant="mlr")
+    for which in ("g", "h"):
+        v_f, v_m = getattr(fosd, which), getattr(mlr, which)
+        assert bd.is_feasible(m, v_f, which, constant="mlr")
+        assert not bd.is_feasible(m, v_m, which, constant="fosd")
+    assert np.abs(mlr.g).sum() < np.abs(fosd.g).sum()  # a smaller constant needs a flatter g
+    W = np.array([bd.renyi_maximiser(3, i) for i in range(2)])
+    steps = np.diff(m.rho_gradient(np.vstack([W, W[:, ::-1]])) + transform_matrix(m, mlr.g), axis=-1)
+    assert steps.min() < -1e-3
+    with pytest.raises(ValueError, match="constant"):
+        bd.solve_bounds(m, constant="paper")
+    with pytest.raises(ValueError, match="constant"):
+        bd.gradient_spread(m, "C_S")
+
+
+@pytest.mark.parametrize("unc", ["none", "shannon"])
+def test_constants_coincide_without_renyi_entropy(unc: str) -> None:
+    rng = np.random.default_rng(3)
+    m = _random_model(rng, 4, 2, unc)
+    assert bd.gradient_spread(m, "mlr") == bd.gradient_spread(m, "fosd")
+    for constant in bd.BOUND_CONSTANTS:
+        why = bd.bound_constants(m, constant)["why"]
+        assert ("no closed form" in why) if unc == "shannon" else ("f = none" in why)
+    G1, r1 = bd.constraint_system(m, "g", constant="mlr")
+    G2, r2 = bd.constraint_system(m, "g", constant="fosd")
+    assert np.array_equal(G1, G2) and np.array_equal(r1, r2)
+
+
+@pytest.mark.parametrize("constant", bd.BOUND_CONSTANTS)
 @pytest.mark.parametrize("unc", ["none", "renyi2", "shannon"])
-def test_solution_satisfies_every_constraint_on_many_beliefs(unc: str) -> None:
+def test_solution_satisfies_every_constraint_on_many_beliefs(unc: str, constant: str) -> None:
     rng = np.random.default_rng(11)
     found = 0
     for _ in range(40):
         m = _random_model(rng, int(rng.integers(2, 6)), int(rng.integers(1, 4)), unc)
-        sol = bd.solve_bounds(m, "feasible", samples=60)
+        sol = bd.solve_bounds(m, "feasible", constant=constant, samples=60)
         if not sol.feasible:
             continue
         found += 1
@@ -206,9 +263,7 @@ def test_solution_satisfies_every_constraint_on_many_beliefs(unc: str) -> None:
             assert sol.covers == f"B_epsilon({m.epsilon:g})"
         else:  # posteriors can leave B_eps: rho_lower is still monotone on B_eps, no policy bound is claimed
             assert sol.covers.startswith("none") and "WARNING" in sol.message
-        B = _test_beliefs(m, n=900, seed=found)
-        _check_gradient_monotone(m, sol.g, sol.h, B)
-        _check_mlr_monotone(m, sol.myopic, B, seed=found)
+        _check_guarantee(m, sol, _test_beliefs(m, n=900, seed=found), seed=found)
         if found == 4:
             break
     assert found >= 2
@@ -216,27 +271,36 @@ def test_solution_satisfies_every_constraint_on_many_beliefs(unc: str) -> None:
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000), S=st.integers(2, 5), A=st.integers(1, 3),
-       unc=st.sampled_from(["none", "renyi2", "shannon"]), variant=st.sampled_from(bd.BOUND_VARIANTS))
-def test_property_feasible_means_monotone(seed: int, S: int, A: int, unc: str, variant: str) -> None:
+       unc=st.sampled_from(["none", "renyi2", "shannon"]), variant=st.sampled_from(bd.BOUND_VARIANTS),
+       constant=st.sampled_from(bd.BOUND_CONSTANTS))
+def test_property_feasible_means_monotone(seed: int, S: int, A: int, unc: str, variant: str, constant: str) -> None:
     m = _random_model(np.random.default_rng(seed), S, A, unc)
-    sol = bd.solve_bounds(m, variant, samples=40, seed=seed)
+    sol = bd.solve_bounds(m, variant, constant=constant, samples=40, seed=seed)
     if sol.g_feasible:
-        assert bd.is_feasible(m, sol.g, "g")
+        assert bd.is_feasible(m, sol.g, "g", constant=constant)
     if sol.h_feasible:
-        assert bd.is_feasible(m, sol.h, "h")
+        assert bd.is_feasible(m, sol.h, "h", constant=constant)
     if sol.feasible:
-        B = _test_beliefs(m, n=300, seed=seed)
-        _check_gradient_monotone(m, sol.g, sol.h, B)
-        _check_mlr_monotone(m, sol.myopic, B, seed=seed)
+        _check_guarantee(m, sol, _test_beliefs(m, n=300, seed=seed), seed=seed)
     else:
         assert sol.myopic is None and sol.most_violated
 
 
 # ------------------------------------------------------------------ LP cross-check
-def _highs_l1(model: POMDP, which: str) -> tuple[int, float]:
-    """L1-minimal feasible vector by scipy HiGHS, written from the constraints directly."""
+def _k_f(model: POMDP, constant: str) -> float:
+    """The constant written out here (not the module's): steps >= |w_a| K_f."""
+    name, S = model.uncertainty.name, model.S
+    if name == "renyi2":
+        return 2.0 if constant == "mlr" else 1.0 + math.sqrt(S - 1)
+    if name == "shannon":
+        return math.log((1 - (S - 1) * model.epsilon) / model.epsilon)
+    return 0.0
+
+
+def _written_rows(model: POMDP, which: str, constant: str = "mlr") -> tuple[np.ndarray, np.ndarray]:
+    """The constraints as ``A_ub v <= b_ub``, written from their definition (not the module's)."""
     S, A = model.S, model.A
-    K = bd.gradient_spread(model)
+    K = _k_f(model, constant)
     rows, rhs = [], []
     sign = 1.0 if which == "g" else -1.0
     for a in range(A):
@@ -245,7 +309,13 @@ def _highs_l1(model: POMDP, which: str) -> tuple[int, float]:
             # sign * ((C v)[i+1] - (C v)[i] + r[i+1,a] - r[i,a]) >= |w_a| K
             rows.append(-sign * (C[i + 1] - C[i]))
             rhs.append(sign * (model.r[i + 1, a] - model.r[i, a]) - abs(model.w[a]) * K)
-    G = np.array(rows)
+    return np.array(rows), np.array(rhs)
+
+
+def _highs_l1(model: POMDP, which: str, constant: str = "mlr") -> tuple[int, float]:
+    """L1-minimal feasible vector by scipy HiGHS, written from the constraints directly."""
+    S = model.S
+    G, rhs = _written_rows(model, which, constant)
     A_ub = np.vstack([np.hstack([G, np.zeros_like(G)]), np.hstack([np.eye(S), -np.eye(S)]),
                       np.hstack([-np.eye(S), -np.eye(S)])])
     b_ub = np.concatenate([rhs, np.zeros(2 * S)])
@@ -254,16 +324,21 @@ def _highs_l1(model: POMDP, which: str) -> tuple[int, float]:
     return res.status, (res.fun if res.status == 0 else math.nan)
 
 
-def test_clarabel_and_highs_agree(s3: POMDP) -> None:
+@pytest.mark.parametrize("solver", bd.BOUND_SOLVERS)
+@pytest.mark.parametrize("constant", bd.BOUND_CONSTANTS)
+def test_both_solvers_agree_with_an_independent_highs_lp(s3: POMDP, constant: str, solver: str) -> None:
+    """The ``feasible`` variant's ||v||_1 (least element or HiGHS dual simplex for ``structured``,
+    Clarabel's interior point for ``clarabel``) against HiGHS on constraints written here."""
     rng = np.random.default_rng(5)
-    models = [s3, load_model(S8), _infeasible_model()]
+    models = [s3, load_model(S8), _infeasible_model(), comparison_model(6, 4), comparison_model(5, 3, natural=True)]
     models += [_random_model(rng, int(rng.integers(2, 7)), int(rng.integers(1, 4)), u)
                for u in ("none", "renyi2", "shannon") for _ in range(4)]
     n_feasible = n_infeasible = 0
     for m in models:
-        sol = bd.solve_bounds(m, "feasible", samples=20)
+        sol = bd.solve_bounds(m, "feasible", constant=constant, samples=20, solver=solver)
+        assert sol.solver == solver
         for which, ok, v in (("g", sol.g_feasible, sol.g), ("h", sol.h_feasible, sol.h)):
-            status, obj = _highs_l1(m, which)
+            status, obj = _highs_l1(m, which, constant)
             assert (status == 0) == ok, (m.name, which, status, sol.message)
             if ok:
                 n_feasible += 1
@@ -271,6 +346,91 @@ def test_clarabel_and_highs_agree(s3: POMDP) -> None:
             else:
                 n_infeasible += 1
     assert n_feasible >= 6 and n_infeasible >= 1  # both outcomes exercised
+
+
+# ------------------------------------------------------------------ the least element
+def _structured_models() -> list[POMDP]:
+    """Models with monotone, action-ordered transitions (the least-element certificate applies)."""
+    rng = np.random.default_rng(17)
+    out = [load_model(S3), load_model(S8), comparison_model(8, 4), comparison_model(16, 8)]
+    for S, A in ((3, 3), (4, 2), (5, 3)):
+        x = np.cumsum(rng.uniform(0.3, 1.2, S))
+        y = np.cumsum(rng.uniform(0.2, 1.0, S * A)) - 6.0
+        out.append(tracking_model(S, A, 0.75, rng.uniform(0, 2, (S, A)), gamma=0.95, x=x, y=y,
+                                  uncertainty="renyi2", w=rng.uniform(0.2, 1.5, A), name=f"rand_s{S}"))
+    return out
+
+
+@pytest.mark.parametrize("constant", bd.BOUND_CONSTANTS)
+def test_least_element_is_the_componentwise_extreme_feasible_vector(constant: str) -> None:
+    """``tight`` on structured models returns the least feasible g and the greatest feasible h:
+    each component equals the LP minimum of g_k (maximum of h_k) over the constraints written in
+    this file, solved by HiGHS one component at a time."""
+    checked = 0
+    for m in _structured_models():
+        sol = bd.solve_bounds(m, "tight", constant=constant, samples=50)
+        assert sol.feasible and sol.tightening["method"].startswith("least elements"), (m.name, sol.tightening)
+        for which, v, sign in (("g", sol.g, 1.0), ("h", sol.h, -1.0)):
+            G, rhs = _written_rows(m, which, constant)
+            for k in sorted({1, m.S // 2, m.S - 1}):
+                c = np.zeros(m.S)
+                c[k] = sign  # min g_k, or max h_k
+                res = linprog(c, A_ub=G, b_ub=rhs, bounds=[(0, 0)] + [(None, None)] * (m.S - 1), method="highs")
+                assert res.status == 0
+                assert v[k] == pytest.approx(res.x[k], rel=1e-5, abs=1e-5), (m.name, which, k)
+                checked += 1
+    assert checked >= 30
+
+
+def test_value_and_policy_iteration_find_the_same_least_element(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fixed point is computed by value iteration when the contraction is strong and by
+    policy iteration (dense solves) otherwise: forcing either path gives the same vectors."""
+    results = {}
+    for kappa in (0.0, 1.0):  # 0: always policy iteration; 1: value iteration wherever kappa_1 < 1
+        monkeypatch.setattr(bd, "VALUE_ITERATION_KAPPA", kappa)
+        results[kappa] = [bd.solve_bounds(m, "tight", samples=20) for m in _structured_models()]
+    for pi, vi in zip(results[0.0], results[1.0], strict=True):
+        for which in ("g", "h"):
+            a, b = getattr(pi, which), getattr(vi, which)
+            assert np.allclose(a, b, rtol=1e-9, atol=1e-9 * (1 + np.abs(a).max()))
+
+
+def test_least_elements_give_the_tightest_bounds_at_every_belief() -> None:
+    """No feasible g gives a higher lower bound, no feasible h a lower upper bound, at any belief:
+    compared with the L1-minimal vectors, the hinge-LP vectors of the Clarabel path, and vectors
+    moved along a feasible ray and mixed with them (the feasible set is convex), at Dirichlet
+    beliefs, vertices and reachable beliefs. On the comparison model the least element is
+    strictly tighter than the L1-minimal g somewhere."""
+    strictly = 0
+    for m in _structured_models():
+        best = bd.solve_bounds(m, "tight", samples=50)
+        B = np.vstack([_test_beliefs(m, n=600), bd.sample_beliefs(m, 300, seed=7)])
+        lo, up = best.myopic.actions(B)
+        others = [bd.solve_bounds(m, "feasible", samples=50, solver=s) for s in bd.BOUND_SOLVERS]
+        others.append(bd.solve_bounds(m, "tight", samples=50, solver="clarabel"))
+        G, _ = _written_rows(m, "g")  # a ray: every row of G r <= -1, i.e. Delta (I - gamma P[a]) r >= 1
+        res = linprog(np.zeros(m.S), A_ub=G, b_ub=-np.ones(G.shape[0]),
+                      bounds=[(0, 0)] + [(None, None)] * (m.S - 1), method="highs")
+        assert res.status == 0
+        ray = res.x / np.abs(res.x).max()
+        pairs = [(o.g, o.h) for o in others]
+        pairs += [(0.5 * (best.g + o.g) + t * ray, 0.5 * (best.h + o.h) - t * ray)
+                  for o in others for t in (1e-3, 0.1, 10.0)]
+        for g, h in pairs:
+            assert bd.is_feasible(m, g, "g") and bd.is_feasible(m, h, "h")
+            lo_o, up_o = MyopicBounds(m, g, h).actions(B)
+            assert np.all(lo >= lo_o) and np.all(up <= up_o), m.name
+            strictly += int(np.any(lo > lo_o) or np.any(up < up_o))
+    assert strictly >= 3
+
+
+def test_unstructured_models_fall_back_to_the_lp_and_hinge_search() -> None:
+    rng = np.random.default_rng(2)
+    m = _random_model(rng, 4, 3, "renyi2")
+    sol = bd.solve_bounds(m, "tight", samples=50)
+    assert sol.feasible and sol.tightening["method"].startswith("hinge")
+    with pytest.raises(ValueError, match="solver"):
+        bd.solve_bounds(m, solver="cplex")
 
 
 # ------------------------------------------------------------------ infeasibility
@@ -302,16 +462,22 @@ def test_constructed_infeasible_case_is_reported_with_most_violated_constraint()
     assert np.allclose(G[:, 1:], hand) and np.allclose(rhs, 1.0)
     y = np.array([1, 2 * gamma - 1, 2 * gamma - 1, 1])
     assert np.allclose(y @ hand, 0) and y @ rhs > 0  # Farkas certificate, independent of any solver
-    for variant in bd.BOUND_VARIANTS:
-        sol = bd.solve_bounds(m, variant)
+    for variant, solver in itertools.product(bd.BOUND_VARIANTS, bd.BOUND_SOLVERS):
+        sol = bd.solve_bounds(m, variant, solver=solver)
         assert not sol.feasible and not sol.g_feasible and sol.h_feasible
         assert sol.myopic is None and sol.g is None
         assert "infeasible" in sol.message
         mv = sol.most_violated["g"]
         assert mv["violation"] == pytest.approx(1.0, abs=1e-6)
         assert mv["vector"] == "g" and 1 <= mv["priority"] <= 2 and mv["state_pair"][1] == mv["state_pair"][0] + 1
-        weights = {(c["action"], c["state_pair"][0]): c["weight"] for c in mv["conflicting"]}
-        assert set(weights) == {(0, 0), (0, 1), (1, 0), (1, 1)}  # all four rows are needed
+        # the reported multipliers are a Farkas certificate of the hand-written rows (Clarabel's
+        # interior point returns the four-row one above, HiGHS a vertex: rows (0,0), (1,0), (1,1)
+        # with weights proportional to (1, (2 gamma - 1)/(1 - gamma), gamma/(1 - gamma)) also work)
+        y = np.zeros(4)
+        for c in mv["conflicting"]:
+            y[2 * c["action"] + c["state_pair"][0]] = c["weight"]
+        assert y.min() >= 0 and np.count_nonzero(y) >= 3
+        assert np.allclose(y @ hand, 0, atol=1e-6 * y.sum()) and y @ rhs > 0.5 * y.sum()
         d = sol.to_dict()
         json.dumps(d)
         assert d["feasible"] is False and d["g"] is None
@@ -357,7 +523,7 @@ def test_tight_variant_improves_agreement_where_it_can() -> None:
     assert rounds[-1]["agreement"] == pytest.approx(t.sample_agreement)
     B = bd.sample_beliefs(m, 500, seed=99)
     assert np.mean(np.equal(*t.myopic.actions(B))) > np.mean(np.equal(*f.myopic.actions(B))) + 0.2
-    _check_gradient_monotone(m, t.g, t.h, _test_beliefs(m, n=600))
+    _check_guarantee(m, t, _test_beliefs(m, n=600))
 
 
 def test_bad_arguments() -> None:
@@ -431,7 +597,8 @@ def test_transformed_rewards_leave_policy_unchanged_and_shift_value(unc: str) ->
 
 # ------------------------------------------------------------------ the paper's S = 256, A = 64 case
 def test_comparison_s256_a64_lp_is_solved_and_verified() -> None:
-    """The paper's largest comparison case (16 320 rows per vector; ~6 s here)."""
+    """The paper's largest comparison case (16 320 rows per vector; the L1-minimal g needs the
+    LP, h is the least element)."""
     m = tracking_model(256, 64, 0.8, comparison_reward(256, 64), gamma=0.99)
     sol = bd.solve_bounds(m, "feasible", samples=50)
     # feasible, unlike the paper's report: see the certificate in the next test and THEORY.md
@@ -458,22 +625,26 @@ def test_comparison_s256_a64_has_a_strictly_feasible_ray() -> None:
         assert bd.is_feasible(m, sign * t * g0, which)
 
 
-def test_row_generation_gives_the_direct_solution(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Large systems are solved by adding the rows of whole actions; forcing that path on
-    small models must give the same L1 optimum (vs HiGHS) and the same infeasibility report."""
+@pytest.mark.parametrize("solver", bd.BOUND_SOLVERS)
+def test_row_generation_gives_the_direct_solution(monkeypatch: pytest.MonkeyPatch, solver: str) -> None:
+    """Large systems are solved by row generation (one row per state pair then the worst row
+    of each violated pair for ``structured``, whole actions for ``clarabel``); forcing that
+    path on small models must give the same L1 optimum (vs HiGHS) and the same infeasibility
+    report."""
     monkeypatch.setattr(bd, "DIRECT_ROWS", 0)
     rng = np.random.default_rng(21)
-    models = [tracking_model(12, 9, 0.8, comparison_reward(12, 9), gamma=0.99), _infeasible_model()]
+    models = [tracking_model(12, 9, 0.8, comparison_reward(12, 9), gamma=0.99), _infeasible_model(),
+              comparison_model(12, 9)]
     models += [_random_model(rng, 4, 6, u) for u in ("none", "renyi2", "shannon")]
     for m in models:
-        sol = bd.solve_bounds(m, "feasible", samples=20)
+        sol = bd.solve_bounds(m, "feasible", samples=20, solver=solver)
         for which, ok, v in (("g", sol.g_feasible, sol.g), ("h", sol.h_feasible, sol.h)):
             status, obj = _highs_l1(m, which)
             assert (status == 0) == ok
             if ok:
                 assert bd.is_feasible(m, v, which)
                 assert np.abs(v).sum() == pytest.approx(obj, rel=1e-5, abs=1e-6)
-    sol = bd.solve_bounds(_infeasible_model(), "feasible")
+    sol = bd.solve_bounds(_infeasible_model(), "feasible", solver=solver)
     assert sol.most_violated["g"]["violation"] == pytest.approx(1.0, abs=1e-6)
 
 

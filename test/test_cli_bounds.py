@@ -51,7 +51,8 @@ def test_text_output_and_belief_file(capsys: pytest.CaptureFixture, tmp_path: Pa
     code, out, _ = _run(capsys, "bounds", str(S3), "--beliefs", str(f), "--variant", "feasible")
     assert code == 0
     assert "feasible: yes" in out and "g = [0," in out and "h = [0," in out and "solve time:" in out
-    assert "C_S = 1.20711" in out and "agreement rate:" in out
+    assert "constant: mlr, K_f = 2 " in out and "FOSD C_S = 1.20711" in out and "agreement rate:" in out
+    assert "why: mlr: steps >= 2|w_a| is exact for the MLR monotonicity Corollary 1 needs" in out
     table = [ln for ln in out.splitlines() if ln[:1].isdigit()]
     assert len(table) == 3
     code, out, _ = _run(capsys, "bounds", str(S3), "--beliefs", str(f), "--json")
@@ -96,3 +97,37 @@ def test_infeasible_model_exit_code_and_report(capsys: pytest.CaptureFixture, tm
     d = json.loads(out)
     assert code == 1 and d["feasible"] is False and d["g"] is None and d["agreement_rate"] is None
     assert d["most_violated"]["g"]["violation"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_json_reports_the_mlr_constant_by_default(capsys: pytest.CaptureFixture) -> None:
+    """The issue's acceptance check: ``bounds tracking_s3_info.yaml --json`` reports the MLR constant."""
+    code, out, _ = _run(capsys, "bounds", str(S3), "--json", "--samples", "2")
+    d = json.loads(out)
+    assert code == 0 and d["constant"] == "mlr"
+    c = d["constants"]
+    assert c["constant"] == "mlr" and c["K_f"] == 2.0 and c["C_used"] == 1.0
+    assert c["why"].startswith("mlr: steps >= 2|w_a| is exact for the MLR monotonicity")
+    assert c["C_fosd"] == pytest.approx((1 + np.sqrt(2)) / 2)
+
+
+@pytest.mark.parametrize("constant", ["mlr", "fosd"])
+def test_constant_option_changes_the_vectors_as_the_library_does(capsys: pytest.CaptureFixture,
+                                                                 constant: str) -> None:
+    code, out, _ = _run(capsys, "bounds", str(S3), "--json", "--samples", "2", "--constant", constant,
+                        "--variant", "feasible")
+    d = json.loads(out)
+    assert code == 0 and d["constant"] == constant and d["constants"]["why"].startswith(constant + ":")
+    sol = solve_bounds(load_model(S3), "feasible", constant=constant, samples=400, seed=0)
+    assert np.allclose(d["g"], sol.g) and np.allclose(d["h"], sol.h)
+    # the FOSD constant is larger, so its g must rise faster: the two answers differ
+    other = solve_bounds(load_model(S3), "feasible", constant="fosd" if constant == "mlr" else "mlr")
+    assert not np.allclose(d["g"], other.g)
+    code, out, _ = _run(capsys, "bounds", str(S3), "--samples", "2", "--constant", constant)
+    assert f"constant: {constant}, K_f = " in out and f"why: {constant}:" in out
+
+
+def test_bad_constant_is_a_usage_error(capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["bounds", str(S3), "--constant", "paper"])
+    assert exc.value.code == 2
+    assert "--constant" in capsys.readouterr().err

@@ -33,10 +33,11 @@ def test_constants_differ_only_in_k_f(s3):
     fosd, mlr = lm.bounds_for(s3, "fosd", samples=20), lm.bounds_for(s3, "mlr", samples=20)
     assert fosd.constants["K_f"] == pytest.approx(2 * renyi_constant(3))
     assert mlr.constants["K_f"] == pytest.approx(2.0)
-    # the mlr vectors satisfy the K_f = 2 constraints (margins recomputed under that constant)
-    with lm._constant("mlr"):
-        assert constraint_margins(s3, mlr.g, "g").min() >= -1e-9
-        assert constraint_margins(s3, mlr.h, "h").min() >= -1e-9
+    # the mlr vectors satisfy the K_f = 2 constraints; the fosd ones the stricter K_f = 2 C_S ones
+    assert constraint_margins(s3, mlr.g, "g", constant="mlr").min() >= -1e-9
+    assert constraint_margins(s3, mlr.h, "h", constant="mlr").min() >= -1e-9
+    assert constraint_margins(s3, fosd.g, "g", constant="fosd").min() >= -1e-9
+    assert constraint_margins(s3, fosd.h, "h", constant="fosd").min() >= -1e-9
     with pytest.raises(ValueError, match="constant"):
         lm.bounds_for(s3, "paper")
 

@@ -18,7 +18,7 @@ from pomdp_planner.core.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[1]
 S3 = str(REPO / "config" / "models" / "tracking_s3_info.yaml")
-PLANNERS = {"random", "myopic", "bnb", "exhaustive", "lower", "upper"}
+PLANNERS = {"random", "myopic", "bnb", "exhaustive", "lower", "upper", "mcts"}
 
 
 def test_the_table_holds_every_planner() -> None:
@@ -88,3 +88,16 @@ def test_planner_policies_act_like_their_planner() -> None:
     lo, up = planner.root_bounds(b)
     assert make_policy("lower", model).act(b) == lo and make_policy("upper", model).act(b) == up
     assert 0 <= make_policy("bnb", model, time_budget=0.01).act(b) < 3
+
+
+def test_mcts_by_name_is_the_core_planner_and_its_option_errors_name_the_option() -> None:
+    model = load_model(S3)
+    policy = make_policy("mcts", model, simulations=200, seed=3)
+    run = simulate(model, policy, 5, seed=2)
+    again = simulate(model, make_policy("mcts", model, simulations=200, seed=3), 5, seed=2)
+    assert list(run.actions) == list(again.actions)  # seeded: the same decisions
+    assert policy.last.simulations == 200
+    with pytest.raises(ModelError, match=r"^policy mcts: option max_depth: "):
+        make_policy("mcts", model, max_depth=0)
+    with pytest.raises(ModelError, match=r"^policy mcts: unknown option 'depth'"):
+        make_policy("mcts", model, depth=3)

@@ -52,10 +52,28 @@ def test_gradients_against_finite_differences(b):
 @settings(max_examples=40, deadline=None)
 @given(beliefs(min_size=3, max_size=3), beliefs(min_size=3, max_size=3), st.floats(0, 1))
 def test_concave_on_the_simplex(b1, b2, lam):
-    """An uncertainty function is concave (paper Definition 1)."""
+    """Shannon entropy is concave (paper Definition 1). Renyi quadratic entropy is only
+    quasi-concave for S >= 3 (``sum b^2`` is convex, so ``-log sum b^2`` of a mixture is at
+    least the smaller of the two values); see the next test for a concavity counterexample."""
     mix = lam * b1 + (1 - lam) * b2
-    for f in (SHANNON, RENYI2):
-        assert float(f(mix)) >= lam * float(f(b1)) + (1 - lam) * float(f(b2)) - 1e-12
+    assert float(SHANNON(mix)) >= lam * float(SHANNON(b1)) + (1 - lam) * float(SHANNON(b2)) - 1e-12
+    assert float(RENYI2(mix)) >= min(float(RENYI2(b1)), float(RENYI2(b2))) - 1e-12
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0, 1), st.floats(0, 1), st.floats(0, 1))
+def test_renyi2_is_concave_for_two_states(p1, p2, lam):
+    b1, b2 = np.array([p1, 1 - p1]), np.array([p2, 1 - p2])
+    mix = lam * b1 + (1 - lam) * b2
+    assert float(RENYI2(mix)) >= lam * float(RENYI2(b1)) + (1 - lam) * float(RENYI2(b2)) - 1e-12
+
+
+def test_renyi2_is_not_concave_for_three_states():
+    """The paper calls every uncertainty function concave (Definition 1) and uses Renyi quadratic
+    entropy (Example 3); for S = 3 it is not concave: midpoint of e_2 and (1/6, 2/3, 1/6)."""
+    b1, b2 = np.array([0.0, 1.0, 0.0]), np.array([1 / 6, 2 / 3, 1 / 6])
+    mix = 0.5 * (b1 + b2)
+    assert float(RENYI2(mix)) < 0.5 * (float(RENYI2(b1)) + float(RENYI2(b2))) - 1e-3
 
 
 def test_vertices_uniform_and_zero_entries():

@@ -4,6 +4,12 @@
   ``pomdp-planner bench search`` or ``python -m pomdp_planner.bench.search``.
 * :mod:`.experiments`: every experiment of the paper and the peer comparison, writing
   docs/RESULTS.md (``pomdp-planner bench all``, ``make experiments``).
+* :mod:`.lp`: the bound LPs of Theorem 2 (``core/bounds.py``), the default solver against the
+  previous Clarabel path: ``python -m pomdp_planner.bench.lp``.
+* :mod:`.mcts`: the belief-space MCTS (simulations/s, tuning, closed loop): ``python -m pomdp_planner.bench.mcts``.
+* :mod:`.lookahead_models`: the search for models where lookahead pays (issue 12):
+  ``python -m pomdp_planner.bench.lookahead_models``.
+* :mod:`.fuzz_models`: the mutation corpus of malformed model files and its runner.
 * :mod:`.paper`: the paper's published numbers, shown beside ours.
 * ``ros/``: benchmarks of the ROS 2 nodes (they import rclpy; the only part of ``bench`` that may
   import ``pomdp_planner.nodes``).

@@ -41,24 +41,20 @@ the grid reference. ``--write-models`` regenerates the shipped YAML files from
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import math
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from unittest import mock
 
 import numpy as np
 import yaml
 
-from ..core import bounds as bounds_module
-from ..core.bounds import solve_bounds
+from ..core.bounds import BOUND_CONSTANTS, solve_bounds
 from ..core.domains.perimeter import PRESETS, perimeter_model, preset_model
 from ..core.io.model_yaml import load_model, model_to_dict
 from ..core.io.paths import shipped_model_path
@@ -83,37 +79,11 @@ def episode_steps(gamma: float, tail: float = TAIL) -> int:
 
 
 # ------------------------------------------------------------------ bound constants
-_ORIGINAL_SPREAD = bounds_module.gradient_spread
-
-
-def _mlr_spread(model: POMDP) -> float:
-    """``K_f`` of the MLR-exact constant (Renyi: 2, i.e. steps >= 2 |w_a|; issue 10)."""
-    if model.uncertainty.name == "renyi2":
-        return 2.0
-    return _ORIGINAL_SPREAD(model)
-
-
-@contextmanager
-def _constant(constant: str) -> Iterator[None]:
-    if constant == "mlr":
-        with mock.patch.object(bounds_module, "gradient_spread", _mlr_spread):
-            yield
-    else:
-        yield
-
-
 def bounds_for(model: POMDP, constant: str, samples: int = 400, seed: int = 0):
-    """``solve_bounds`` with the Renyi constant ``"fosd"`` (2 C_S) or ``"mlr"`` (2).
-
-    Uses ``solve_bounds(..., constant=...)`` once issue 10 has added it; until then the
-    ``mlr`` constant is evaluated by substituting ``core.bounds.gradient_spread``.
-    """
-    if constant not in ("fosd", "mlr"):
-        raise ValueError(f"constant: expected 'fosd' or 'mlr', got {constant!r}")
-    if "constant" in inspect.signature(solve_bounds).parameters:
-        return solve_bounds(model, "tight", constant=constant, samples=samples, seed=seed)
-    with _constant(constant):
-        return solve_bounds(model, "tight", samples=samples, seed=seed)
+    """``solve_bounds`` (``tight``) with the Renyi constant ``"fosd"`` (2 C_S) or ``"mlr"`` (2)."""
+    if constant not in BOUND_CONSTANTS:
+        raise ValueError(f"constant: expected one of {', '.join(BOUND_CONSTANTS)}, got {constant!r}")
+    return solve_bounds(model, "tight", constant=constant, samples=samples, seed=seed)
 
 
 # ------------------------------------------------------------------------ policies

@@ -1,6 +1,9 @@
 """``pomdp-planner bounds MODEL``: the vectors g, h of Theorem 2 and the myopic bound policies.
 
-Prints g, h, feasibility, the belief-independent constants, the LP solve time and, for each
+Prints g, h, feasibility, the belief-independent constant (which one, its value and why:
+``--constant mlr``, the default, is exact for the MLR monotonicity Corollary 1 needs;
+``--constant fosd`` asks for first-order dominance, Theorem 2's stronger route), the LP solve
+time and, for each
 belief (from ``--beliefs FILE.csv`` or ``--samples N`` reachable beliefs drawn with
 ``--seed K``), the lower and upper bound actions as tracking priorities 1..A and whether they
 agree (then the optimal action is known), plus the agreement rate. Exit code 0 when g and h
@@ -17,7 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.bounds import BOUND_VARIANTS, BoundsSolution, sample_beliefs, solve_bounds
+from ..core.bounds import (
+    BOUND_CONSTANTS,
+    BOUND_VARIANTS,
+    DEFAULT_CONSTANT,
+    BoundsSolution,
+    sample_beliefs,
+    solve_bounds,
+)
 from ..core.io.file_text import read_model_text
 from ..core.model import POMDP, ModelError, priority_of, short_repr
 from ._common import (
@@ -45,8 +55,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_model_argument(p)
     p.add_argument("--variant", choices=BOUND_VARIANTS, default=BOUND_VARIANTS[0],
-                   help="choice of g/h: 'tight' (default, maximises agreement of the bounds on sampled "
-                        "reachable beliefs) or 'feasible' (L1-minimal)")
+                   help="choice of g/h: 'tight' (default: the least g and greatest h where the transitions "
+                        "prove them the tightest at every belief, else maximises agreement of the bounds on "
+                        "sampled reachable beliefs) or 'feasible' (L1-minimal)")
+    p.add_argument("--constant", choices=BOUND_CONSTANTS, default=DEFAULT_CONSTANT,
+                   help="monotonicity the constraints guarantee: 'mlr' (default; steps >= 2|w_a| for Renyi "
+                        "entropy, exact for what Corollary 1 needs) or 'fosd' (first-order dominance, the "
+                        "stronger constant 2 C_S, C_S = (1 + sqrt(S-1))/2); Shannon and f = none: the same")
     p.add_argument("--beliefs", metavar="FILE.csv",
                    help="beliefs to evaluate, one per line, S comma-separated probabilities ('#' comments "
                         "and a non-numeric header line are skipped)")
@@ -132,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         # displayed beliefs come from a different stream than the tight variant's fitting samples
         B = sample_beliefs(model, args.samples, seed=args.seed + 1)
         source = f"{args.samples} sampled reachable beliefs (seed {args.seed})"
-    sol = solve_bounds(model, args.variant, samples=FIT_SAMPLES, seed=args.seed)
+    sol = solve_bounds(model, args.variant, constant=args.constant, samples=FIT_SAMPLES, seed=args.seed)
     ev = evaluate(sol, B)
     if args.json:
         out = sol.to_dict()
@@ -149,9 +164,10 @@ def _vec(v: np.ndarray | None) -> str:
 
 def _text(model: POMDP, sol: BoundsSolution, ev: dict, source: str) -> str:
     c = sol.constants
-    const = f"K_f = {c['K_f']:.6g}"
-    if "C_S" in c:
-        const += f" (Renyi: C_S = {c['C_S']:.6g}; the paper uses {c['C_S_paper']:g})"
+    const = f"{c['constant']}, K_f = {c['K_f']:.6g}"
+    if "C_used" in c:
+        const += (f" (Renyi: steps >= 2 C |w_a| with C = {c['C_used']:.6g}; MLR-exact C = {c['C_mlr']:g}, "
+                  f"FOSD C_S = {c['C_fosd']:.6g})")
     if "epsilon" in c:
         const += f" (Shannon on B_epsilon, epsilon = {c['epsilon']:g}; the paper uses -log eps = " \
                  f"{c['log_ratio_bound_paper']:.6g})"
@@ -160,7 +176,8 @@ def _text(model: POMDP, sol: BoundsSolution, ev: dict, source: str) -> str:
         f"variant: {sol.variant}   feasible: {'yes' if sol.feasible else 'NO'} "
         f"(g: {'yes' if sol.g_feasible else 'no'}, h: {'yes' if sol.h_feasible else 'no'})   "
         f"solve time: {sol.solve_time:.3f} s",
-        f"constants: {const}",
+        f"constant: {const}",
+        f"  why: {c['why']}",
         f"guarantee covers: {sol.covers}",
         f"g = {_vec(sol.g)}",
         f"h = {_vec(sol.h)}",

@@ -3,28 +3,32 @@
 The transformed rewards (Eq. 8, in our row-stochastic convention, :mod:`.myopic`) are
 ``rho_lower(b, a) = rho(b, a) + b @ (I - gamma P[a]) @ g`` and the same with ``h``.
 
-Constraint derivation (paper Theorem 2 and its proof, in our convention; docs/THEORY.md):
+Constraints (paper Theorem 2 and Corollary 1, in our convention; docs/THEORY.md):
 
 * Write ``phi_a(b) = grad_b rho(b, a) + (I - gamma P[a]) g`` (the gradient of
-  ``rho_lower(., a)``). With ``delta = K^{-1} b`` (tail sums, ``delta_1 = 1`` fixed) the
-  derivative is ``phi_a(b)^T K``, whose component ``j >= 2`` is ``phi_a[j] - phi_a[j-1]``; the
-  first component multiplies the fixed ``delta_1`` and plays no role. So Theorem 2's
-  ``[.]^T K >= 0`` is: ``phi_a(b)[i+1] - phi_a(b)[i] >= 0`` for ``i = 0..S-2``.
-* Sufficiency: for ``b1 <=_s b2`` in a convex domain, along ``b(t) = b1 + t (b2 - b1)``,
-  ``d/dt rho_lower = sum_i (phi[i+1] - phi[i]) (tail_{i+1}(b2) - tail_{i+1}(b1)) >= 0``
-  (Abel summation, ``sum(b2 - b1) = 0``). So ``rho_lower`` is first-order increasing, hence MLR
-  increasing. For ``h`` the differences must be ``<= 0`` (MLR decreasing).
-* The constraint must hold for ALL beliefs of the domain. With ``grad rho = r_a - w_a grad f``:
-  ``Delta_i phi_a(b) = Delta_i r_a + Delta_i c_a - w_a Delta_i grad f(b)``, ``c_a = (I - gamma P[a]) g``.
-  For every uncertainty function here, ``{Delta_i grad f(b)}`` over the domain is a symmetric
-  interval ``[-K_f, K_f]`` (the same for every ``i``), so the exact belief-independent form is
+  ``rho_lower(., a)``) and ``c_a = (I - gamma P[a]) g``. Corollary 1 needs ``rho_lower(., a)``
+  MLR increasing on the domain (``rho_upper`` MLR decreasing). With
+  ``grad rho = r_a - w_a grad f`` every constraint is belief-independent and has the form
 
       g:  Delta_i c_a(g) >= -Delta_i r_a + |w_a| K_f        (A (S-1) constraints)
       h:  Delta_i c_a(h) <= -Delta_i r_a - |w_a| K_f        (A (S-1) constraints)
 
-  ``K_f = 0`` (f = none), ``K_f = 2 C_S`` (Renyi, :func:`renyi_constant`; the paper's value
-  ``C_S = 1`` is wrong for S >= 3) and ``K_f = log((1 - (S-1) eps) / eps)`` (Shannon, on
-  ``B_eps`` only, :func:`shannon_constant`).
+  (``Delta_i x = x[i+1] - x[i]``), i.e. the steps of ``r_a + c_a`` are at least ``|w_a| K_f``.
+* ``K_f`` depends on the monotonicity asked for (:data:`BOUND_CONSTANTS`):
+
+  - ``"mlr"`` (default): exactly what Corollary 1 needs. For Renyi quadratic entropy
+    ``b -> phi.b + w log sum b^2`` is MLR increasing on the whole simplex iff every step of
+    ``phi`` is ``>= 2 |w|`` (docs/THEORY.md, the proof and its tightness), so ``K_f = 2``:
+    the paper's constant 1 (Example 3), right for MLR although the paper derives it through
+    first-order dominance, where it is not a bound.
+  - ``"fosd"``: monotone in first-order stochastic dominance, the stronger property Theorem 2's
+    proof establishes (gradient non-decreasing in the index at every belief). Its exact
+    constant is ``K_f = 2 C_S``, ``C_S = (1 + sqrt(S-1)) / 2`` (:func:`renyi_constant`); the
+    paper's 1 is wrong *for this property* when S >= 3.
+  - Shannon entropy (on ``B_eps``): both names use the FOSD value
+    ``K_f = log((1 - (S-1) eps) / eps)`` (:func:`shannon_constant`): the exact MLR threshold
+    is smaller for S >= 3 but has no known closed form, and the FOSD value is sound for MLR.
+    ``f = none``: ``K_f = 0``.
 
 The feasible set is invariant under ``g -> g + t 1`` (``(I - gamma P) 1 = (1 - gamma) 1``;
 adding a constant changes every ``rho_lower(b, .)`` by the same amount), so ``g[0] = 0`` is
@@ -33,29 +37,55 @@ unique answer. Two documented choices (:data:`BOUND_VARIANTS`):
 
 * ``"feasible"``: the L1-minimal feasible vector (``min ||g||_1``, ``g[0] = 0``).
 * ``"tight"``: a tightness-seeking choice (Krishnamurthy & Pareek 2015 pick g/h to make the
-  bounds coincide on as much of the belief space as possible). On sampled reachable beliefs,
-  hinge-loss LPs push the lower-bound policy up (towards the current upper action) and the
-  upper-bound policy down (towards the current lower action), alternating; every candidate
-  (including the L1-minimal one) is scored by the mean lower action (for ``g``, larger is
-  better) and the mean upper action (for ``h``, smaller is better) on the samples -- these are
-  separable because ``E[upper - lower] = E[upper] - E[lower]`` -- and the best is kept.
+  bounds coincide on as much of the belief space as possible). Where the model has the
+  structure below, the least element (next paragraph) is provably the tightest choice at
+  every belief and is returned. Otherwise, on sampled reachable beliefs, hinge-loss LPs push
+  the lower-bound policy up and the upper-bound policy down, alternating; every candidate
+  (including the L1-minimal one) is scored on the samples (agreement, then mean distance of
+  the bounds) and the best is kept.
 
-Every returned vector is re-checked against the exact constraints; a vector is reported
-feasible only if its worst margin is ``>= -tol`` (:func:`constraint_margins`). Infeasibility
-is quantified by a phase-1 LP (minimise the largest violation), whose dual multipliers name
-the conflicting constraints.
+**Least element (no LP).** In difference coordinates ``d = Delta g`` (``g = cumsum``, ``g[0] = 0``)
+the ``g`` constraints read ``d >= beta_a + gamma M_a d`` for every action, with
+``M_a[i, k] = sum_{j > k} (P[a, i+1, j] - P[a, i, j])`` (``e = -Delta h`` gives the same form for
+``h``). If every ``P[a]`` is stochastically monotone (``M_a >= 0``; TP2 transitions, (A1),
+imply it) and ``kappa = gamma max_{a,i} sum_k M_a[i, k] < 1``, the map
+``T(d) = max_a (beta_a + gamma M_a d)`` is a monotone sup-norm contraction, and any feasible
+``d`` satisfies ``d >= T(d) >= T^2(d) -> d*``: the fixed point ``d*`` (policy iteration, one
+dense solve per step) is the componentwise least feasible ``d``, so ``g* = cumsum d*`` is the
+least feasible ``g`` (and ``h*`` the greatest ``h``). Consequences: (i) if ``g* >= 0`` it is
+L1-minimal (any feasible ``g >= g* >= 0``), so the ``feasible`` variant needs no LP; (ii) if
+moreover the actions are ordered in first-order dominance (``P[a+1, i] >=_s P[a, i]`` for
+every ``i``), lowering ``d`` raises ``rho_lower(b, a') - rho_lower(b, a)`` for every ``a' > a``
+(the action-dependent part is ``-gamma sum_k tail_{k+1}(b P[a]) d_k``), so ``g*`` gives the
+highest lower-bound action at *every* belief among all feasible ``g`` (and ``h*`` the lowest
+upper bound): the ``tight`` variant returns them.
+
+**Solvers** (:data:`BOUND_SOLVERS`). ``"structured"`` (default): the least element wherever
+its conditions hold and it answers the question; otherwise HiGHS dual simplex
+(``scipy.optimize.linprog``), with row generation on large systems (start with one row per
+state pair, add the most violated action of each pair per round). ``"clarabel"``: the
+previous path, kept for cross-checks and the LP benchmark (``pomdp_planner.bench.lp``):
+Clarabel's interior point for every LP, row generation over whole actions, hinge-LP
+tightening whatever the structure.
+
+Every returned vector is re-checked against the exact constraints of the chosen constant; a
+vector is reported feasible only if its worst margin is ``>= -tol``
+(:func:`constraint_margins`). Infeasibility is quantified by a phase-1 LP (minimise the
+largest violation), whose dual multipliers name the conflicting constraints.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import clarabel
 import numpy as np
 from scipy import sparse
+from scipy.optimize import linprog
 
 from .belief import posterior_floor, update_batch
 from .model import POMDP
@@ -64,24 +94,36 @@ from .myopic import MyopicBounds
 #: Choices of ``g``/``h``; the first is the default of :func:`solve_bounds`.
 BOUND_VARIANTS = ("tight", "feasible")
 
+#: Monotonicity the constraints guarantee (module docstring); the first is the default.
+BOUND_CONSTANTS = ("mlr", "fosd")
+DEFAULT_CONSTANT = BOUND_CONSTANTS[0]
+
+#: How the vectors are computed (module docstring); the first is the default.
+BOUND_SOLVERS = ("structured", "clarabel")
+
 #: A vector counts as feasible when every constraint margin is >= -FEAS_RTOL * scale.
 FEAS_RTOL = 1e-9
-#: LPs are solved with constraints tightened by LP_MARGIN_RTOL * scale, so that the
-#: interior-point solution satisfies the exact constraints (checked afterwards).
+#: LPs (and the least element) are solved with constraints tightened by LP_MARGIN_RTOL * scale,
+#: so that the solution satisfies the exact constraints (checked afterwards).
 LP_MARGIN_RTOL = 1e-7
+#: Entries of ``M_a`` and action-order differences above ``-STRUCTURE_TOL`` count as ``>= 0``.
+STRUCTURE_TOL = 1e-12
 
 
 # ---------------------------------------------------------------- constants
 def renyi_constant(S: int) -> float:
     """``C_S = sup_{b in simplex} (b_i - b_{i+1}) / ||b||^2 = (1 + sqrt(S - 1)) / 2``.
 
+    The exact constant of the *first-order dominance* route (``constant="fosd"``): the
+    gradient of ``w log sum b^2`` changes by at most ``2 C_S |w|`` between neighbouring states.
     Proof sketch (docs/THEORY.md): write ``x = b_i``, ``y = b_{i+1}``, ``u = 1 - x - y``. By
     QM-AM, ``||b||^2 >= x^2 + y^2 + u^2 / (S-2)``. With ``x - y = (x - y)(x + y + u)``,
     ``C ||b||^2 - (x - y) >= (C-1) x^2 - x u + C u^2/(S-2) + [(C+1) y^2 + y u]``, and the
     quadratic form in ``(x, u)`` is PSD iff ``4 C (C-1) >= S-2``, i.e. ``C >= (1 + sqrt(S-1))/2``.
     Equality at ``b_{i+1} = 0``, ``b_i = 1/sqrt(S-1)``, the rest spread evenly. S = 2: ``C = 1``
-    (at ``b = e_i``). The paper (Example 3) uses 1 for every S, which is false for S >= 3.
-    S = 1 has no constraints; returns 0.
+    (at ``b = e_i``). The paper (Example 3) uses 1 for every S: not a bound on this supremum
+    for S >= 3, but the exact constant for the MLR monotonicity Corollary 1 needs
+    (``constant="mlr"``). S = 1 has no constraints; returns 0.
     """
     if S < 1:
         raise ValueError(f"S must be >= 1, got {S}")
@@ -118,25 +160,55 @@ def shannon_constant(S: int, epsilon: float) -> float:
     return float(math.log((1.0 - (S - 1) * epsilon) / epsilon))
 
 
-def gradient_spread(model: POMDP) -> float:
-    """``K_f = sup_b |d f / d b_{i+1} - d f / d b_i|`` over the domain of the guarantee."""
+def check_constant(constant: str) -> str:
+    """``constant`` if it is one of :data:`BOUND_CONSTANTS`, else a ValueError naming the choices."""
+    if constant not in BOUND_CONSTANTS:
+        raise ValueError(f"constant: expected one of {', '.join(BOUND_CONSTANTS)}, got {constant!r}")
+    return constant
+
+
+def gradient_spread(model: POMDP, constant: str = DEFAULT_CONSTANT) -> float:
+    """``K_f``: every step of ``r_a + (I - gamma P[a]) g`` must be ``>= |w_a| K_f`` (module docstring).
+
+    Renyi: ``2`` for ``"mlr"`` (exact for MLR monotonicity), ``2 C_S`` for ``"fosd"``;
+    Shannon: the FOSD value for both; ``f = none``: 0.
+    """
+    check_constant(constant)
     name = model.uncertainty.name
     if name == "none":
         return 0.0
     if name == "renyi2":  # grad f = -2 b / ||b||^2
-        return 2.0 * renyi_constant(model.S)
+        if model.S < 2:
+            return 0.0
+        return 2.0 if constant == "mlr" else 2.0 * renyi_constant(model.S)
     if name == "shannon":  # grad f = -(1 + log b)
         return shannon_constant(model.S, model.epsilon)
     raise ValueError(f"uncertainty.function: no belief-independent constant for {name!r}")
 
 
-def bound_constants(model: POMDP) -> dict[str, Any]:
-    """The belief-independent constants used for ``model`` (JSON-ready)."""
-    name = model.uncertainty.name
-    out: dict[str, Any] = {"uncertainty": name, "K_f": gradient_spread(model)}
+def _constant_reason(name: str, constant: str) -> str:
+    if name == "renyi2" and constant == "mlr":
+        return ("mlr: steps >= 2|w_a| is exact for the MLR monotonicity Corollary 1 needs "
+                "(docs/THEORY.md); the paper's constant 1")
     if name == "renyi2":
-        out["C_S"] = renyi_constant(model.S)
-        out["C_S_paper"] = 1.0
+        return ("fosd: steps >= 2 C_S |w_a|, C_S = (1 + sqrt(S-1))/2, is exact for first-order dominance "
+                "monotonicity (Theorem 2's route), stronger than Corollary 1 needs")
+    if name == "shannon":
+        return (f"{constant}: Shannon uses the FOSD value log((1-(S-1)eps)/eps) for both constants; the exact "
+                "MLR threshold on B_eps is smaller but has no closed form, and the FOSD value is sound")
+    return f"{constant}: no uncertainty term (f = none), K_f = 0 for both constants"
+
+
+def bound_constants(model: POMDP, constant: str = DEFAULT_CONSTANT) -> dict[str, Any]:
+    """The belief-independent constant used for ``model``: which, its value, and why (JSON-ready)."""
+    check_constant(constant)
+    name = model.uncertainty.name
+    out: dict[str, Any] = {"constant": constant, "uncertainty": name,
+                           "K_f": gradient_spread(model, constant), "why": _constant_reason(name, constant)}
+    if name == "renyi2":
+        out["C_used"] = out["K_f"] / 2.0
+        out["C_mlr"] = 1.0
+        out["C_fosd"] = renyi_constant(model.S)
     if name == "shannon":
         out["epsilon"] = model.epsilon
         out["log_ratio_bound"] = out["K_f"]
@@ -163,140 +235,323 @@ def covered_domain(model: POMDP) -> str:
 
 
 # ---------------------------------------------------------------- constraints
-def constraint_system(model: POMDP, which: str) -> tuple[np.ndarray, np.ndarray]:
+def _check_which(which: str) -> None:
+    if which not in ("g", "h"):
+        raise ValueError(f"which must be 'g' or 'h', got {which!r}")
+
+
+def constraint_rhs(model: POMDP, which: str, *, constant: str = DEFAULT_CONSTANT) -> np.ndarray:
+    """Right-hand sides ``(A, S-1)`` of :func:`constraint_system` (row ``(a, i)``)."""
+    _check_which(which)
+    dr = np.diff(model.r, axis=0).T  # (A, S-1): r[i+1, a] - r[i, a]
+    kw = (np.abs(model.w) * gradient_spread(model, constant))[:, None]  # (A, 1)
+    return (-dr + kw) if which == "g" else (dr + kw)
+
+
+def constraint_system(model: POMDP, which: str, *, constant: str = DEFAULT_CONSTANT
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """``(G, rhs)`` with the constraints written ``G v >= rhs``, rows ordered ``(a, i)``.
 
     ``which="g"``: ``Delta_i (I - gamma P[a]) g >= -Delta_i r_a + |w_a| K_f``;
-    ``which="h"``: ``-Delta_i (I - gamma P[a]) h >= Delta_i r_a + |w_a| K_f``.
+    ``which="h"``: ``-Delta_i (I - gamma P[a]) h >= Delta_i r_a + |w_a| K_f``;
+    ``K_f = gradient_spread(model, constant)``.
     Row ``a * (S-1) + i`` belongs to action ``a`` and the state pair ``(i, i+1)``.
     """
-    if which not in ("g", "h"):
-        raise ValueError(f"which must be 'g' or 'h', got {which!r}")
+    _check_which(which)
     S, A = model.S, model.A
+    rhs = constraint_rhs(model, which, constant=constant)
     M = np.diff(np.eye(S)[None, :, :] - model.gamma * model.P, axis=1)  # (A, S-1, S)
-    dr = np.diff(model.r, axis=0).T  # (A, S-1): r[i+1, a] - r[i, a]
-    kw = (np.abs(model.w) * gradient_spread(model))[:, None]  # (A, 1)
-    if which == "g":
-        G, rhs = M, -dr + kw
-    else:
-        G, rhs = -M, dr + kw
-    return G.reshape(A * (S - 1), S), np.broadcast_to(rhs, (A, S - 1)).reshape(-1).copy()
+    G = M if which == "g" else -M
+    return G.reshape(A * (S - 1), S), rhs.reshape(-1).copy()
 
 
-def constraint_margins(model: POMDP, v: np.ndarray, which: str) -> np.ndarray:
+def _margins(model: POMDP, v: np.ndarray, which: str, rhs: np.ndarray) -> np.ndarray:
+    """``(A, S-1)`` margins from the definition ``Delta_i (v - gamma P[a] v)``, without forming ``G``."""
+    v = np.asarray(v, dtype=float)
+    steps = np.diff(v[None, :] - model.gamma * _matvec(model.P, v), axis=1)  # (A, S-1)
+    return (steps if which == "g" else -steps) - rhs
+
+
+def constraint_margins(model: POMDP, v: np.ndarray, which: str, *, constant: str = DEFAULT_CONSTANT
+                       ) -> np.ndarray:
     """``G v - rhs`` reshaped ``(A, S-1)``: all ``>= 0`` iff ``v`` satisfies the constraints."""
-    G, rhs = constraint_system(model, which)
-    return (G @ np.asarray(v, dtype=float) - rhs).reshape(model.A, model.S - 1)
+    return _margins(model, v, which, constraint_rhs(model, which, constant=constant))
 
 
-def _scale(model: POMDP, which: str) -> float:
-    _, rhs = constraint_system(model, which)
+def _scale_of(rhs: np.ndarray) -> float:
     return 1.0 + (float(np.max(np.abs(rhs))) if rhs.size else 0.0)
 
 
-def feasibility_tolerance(model: POMDP, v: np.ndarray, which: str) -> float:
+def feasibility_tolerance(model: POMDP, v: np.ndarray, which: str, *, constant: str = DEFAULT_CONSTANT) -> float:
     """Absolute tolerance on constraint margins for ``v`` (rounding in ``G v``)."""
-    return FEAS_RTOL * (_scale(model, which) + float(np.sum(np.abs(v))))
+    return FEAS_RTOL * (_scale_of(constraint_rhs(model, which, constant=constant)) + float(np.sum(np.abs(v))))
 
 
-def is_feasible(model: POMDP, v: np.ndarray, which: str) -> bool:
-    """Exact post-check: every constraint margin ``>= -tol``."""
+def is_feasible(model: POMDP, v: np.ndarray, which: str, *, constant: str = DEFAULT_CONSTANT) -> bool:
+    """Exact post-check: every constraint margin (for ``constant``) is ``>= -tol``."""
     if model.S < 2:
         return True
-    return bool(constraint_margins(model, v, which).min() >= -feasibility_tolerance(model, v, which))
+    rhs = constraint_rhs(model, which, constant=constant)
+    tol = FEAS_RTOL * (_scale_of(rhs) + float(np.sum(np.abs(v))))
+    return bool(_margins(model, v, which, rhs).min() >= -tol)
 
 
-# ---------------------------------------------------------------- LPs (Clarabel)
+@dataclass
+class _System:
+    """One vector's constraints, built once per solve (``G`` only when an LP needs it)."""
+
+    model: POMDP
+    which: str
+    constant: str
+    rhs: np.ndarray  # (A * (S-1),)
+    scale: float
+    _G: np.ndarray | None = None
+
+    @classmethod
+    def build(cls, model: POMDP, which: str, constant: str) -> _System:
+        rhs = constraint_rhs(model, which, constant=constant).reshape(-1)
+        return cls(model, which, constant, rhs, _scale_of(rhs))
+
+    @property
+    def G(self) -> np.ndarray:  # noqa: N802 - the constraint matrix of the docs
+        if self._G is None:
+            self._G = constraint_system(self.model, self.which, constant=self.constant)[0]
+        return self._G
+
+    def margins(self, v: np.ndarray) -> np.ndarray:
+        return _margins(self.model, v, self.which, self.rhs.reshape(self.model.A, -1))
+
+    def feasible(self, v: np.ndarray) -> bool:
+        if self.model.S < 2:
+            return True
+        tol = FEAS_RTOL * (self.scale + float(np.sum(np.abs(v))))
+        return bool(self.margins(v).min() >= -tol)
+
+
+# ---------------------------------------------------------------- structure: the least element
+@dataclass(frozen=True)
+class _Structure:
+    """``M_a`` (tail differences) and the conditions of the least-element argument."""
+
+    M: np.ndarray  # (A, S-1, S-1): M[a, i, k] = sum_{j>k} (P[a, i+1, j] - P[a, i, j])
+    monotone: bool  # every M_a >= 0: each P[a] is stochastically monotone
+    kappa: float  # contraction factor of T in a weighted sup norm (inf if none was found)
+    ordered: bool  # P[a+1, i] >=_s P[a, i] for every a, i (actions ordered in first-order dominance)
+    kappa1: float  # gamma max_{a,i} sum_k M[a, i, k]: the factor in the plain sup norm
+
+    @property
+    def contraction(self) -> bool:
+        return self.monotone and self.kappa < 1.0
+
+    @property
+    def certifies_tightest(self) -> bool:
+        return self.contraction and self.ordered
+
+
+def _structure(model: POMDP) -> _Structure:
+    S = model.S
+    # tails[a, i, k] = sum_{j > k} P[a, i, j], k = 0..S-2
+    tails = np.ascontiguousarray(model.P[:, :, :0:-1]).cumsum(axis=2)[:, :, ::-1]
+    M = np.diff(tails, axis=1)
+    monotone = bool(M.min() >= -STRUCTURE_TOL) if M.size else True
+    ordered = bool(np.all(np.diff(tails, axis=0) >= -STRUCTURE_TOL)) if tails.size else True
+    # row sums of M_a: E[next | i+1, a] - E[next | i, a] in units of states
+    kappa1 = float(model.gamma * np.diff(_matvec(model.P, np.arange(S, dtype=float)), axis=1).max()) if M.size else 0.0
+    if not M.size:
+        kappa = 0.0
+    else:
+        kappa = _contraction_factor(M, model.gamma, kappa1) if monotone else math.inf
+    return _Structure(M, monotone, kappa, ordered, kappa1)
+
+
+def _contraction_factor(M: np.ndarray, gamma: float, kappa1: float) -> float:
+    """``kappa = max_{a,i} gamma (M_a u)_i / u_i`` for weights ``u > 0`` (``M >= 0``): ``T`` is a
+    ``kappa``-contraction in the ``u``-weighted sup norm. ``u = 1`` first (``kappa = kappa1``,
+    gamma times the largest row sum of ``M_a``); if that is ``>= 1``, ``u`` = the least solution
+    of ``u >= 1 + gamma M_a u`` (policy iteration), accepted only if it verifies ``kappa < 1``."""
+    if kappa1 < 1.0:
+        return kappa1
+    out = _least_element(M, np.ones(M.shape[:2]), gamma, kappa1)
+    if out is None:
+        return math.inf
+    u = out[0]
+    if not (np.all(np.isfinite(u)) and u.min() > 0.0):
+        return math.inf
+    return float(np.max(gamma * _matvec(M, u) / u))
+
+
+def _matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``M @ x`` over the last axis with numpy's own loops (``einsum``), not a BLAS call: on a
+    shared machine multi-threaded BLAS waiting for busy cores made these products, and LAPACK
+    solves, 5-200x slower (measured: a 255 x 255 solve 0.7 ms single-threaded, 140 ms with the
+    default threads; core/search.py avoids BLAS for the same reason)."""
+    return np.einsum("...ij,j->...i", M, x)
+
+
+#: Value iteration (no dense solve) is used for the least element when ``gamma`` times the
+#: largest row sum of ``M_a`` is below this; policy iteration otherwise.
+VALUE_ITERATION_KAPPA = 0.5
+
+
+def _least_element(M: np.ndarray, beta: np.ndarray, gamma: float, kappa1: float, max_iter: int = 200
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Least ``d`` with ``d >= beta_a + gamma M_a d`` for all ``a`` (``beta``: ``(A, S-1)``), the
+    fixed point of ``T(d) = max_a (beta_a + gamma M_a d)``; ``(d, policy)`` or None.
+
+    With ``kappa_1 = gamma max_{a,i} sum_k M_a[i, k] < VALUE_ITERATION_KAPPA``, value iteration
+    (``T`` is a ``kappa_1``-contraction in the sup norm; stop when the a-posteriori error bound
+    ``kappa_1 / (1 - kappa_1) |d_{k+1} - d_k|`` is below ``1e-13 (1 + |d|)``); otherwise policy
+    iteration with dense solves. (The caller certifies the result: a contraction factor, or an
+    exact feasibility check.)"""
+    n = beta.shape[1]
+    idx = np.arange(n)
+    d = beta.max(axis=0)  # T(0)
+    Q = beta + gamma * _matvec(M, d)
+    if kappa1 < VALUE_ITERATION_KAPPA:
+        for _ in range(10 * max_iter):
+            d_new = Q.max(axis=0)
+            step = float(np.max(np.abs(d_new - d)))
+            d = d_new
+            Q = beta + gamma * _matvec(M, d)
+            if kappa1 / (1.0 - kappa1) * step <= 1e-13 * (1.0 + float(np.max(np.abs(d)))):
+                return Q.max(axis=0), np.argmax(Q, axis=0)
+    pol = np.argmax(Q, axis=0)
+    eye = np.eye(n)
+    for _ in range(max_iter):
+        try:
+            d = np.linalg.solve(eye - gamma * M[pol, idx], beta[pol, idx])
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(d)):
+            return None
+        Q = beta + gamma * _matvec(M, d)
+        best = Q.max(axis=0)
+        improve = best > Q[pol, idx] + 1e-12 * (1.0 + np.abs(best))
+        if not improve.any():
+            return d, pol
+        pol = np.where(improve, np.argmax(Q, axis=0), pol)
+    return None
+
+
+def _least_vector(system: _System, st: _Structure) -> tuple[np.ndarray, np.ndarray] | None:
+    """The least feasible ``g`` (greatest ``h``) of the tightened system, post-checked; with the
+    row of each state pair that is active there (the LP's warm rows)."""
+    model = system.model
+    A, n = model.A, model.S - 1
+    beta = system.rhs.reshape(A, n) + LP_MARGIN_RTOL * system.scale
+    out = _least_element(st.M, beta, model.gamma, st.kappa1)
+    if out is None:
+        return None
+    d, pol = out
+    steps = np.cumsum(d)
+    v = np.concatenate([[0.0], steps if system.which == "g" else -steps])
+    if not system.feasible(v):
+        return None
+    return v, pol * n + np.arange(n)
+
+
+# ---------------------------------------------------------------- LPs
 @dataclass
 class _LPResult:
     status: str
     x: np.ndarray | None
-    z: np.ndarray | None
+    z: np.ndarray | None  # multipliers (>= 0) of the A_ub rows
     obj: float
 
 
-def _clarabel_lp(c: np.ndarray, A_eq: sparse.spmatrix | None, b_eq: np.ndarray | None,
-                 A_ub: sparse.spmatrix, b_ub: np.ndarray) -> _LPResult:
-    """``min c.x`` s.t. ``A_eq x = b_eq``, ``A_ub x <= b_ub`` with Clarabel."""
+def _highs_lp(c: np.ndarray, A_ub: np.ndarray, b_ub: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> _LPResult:
+    """``min c.x`` s.t. ``A_ub x <= b_ub``, ``lb <= x <= ub`` by HiGHS dual simplex."""
+    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=np.column_stack([lb, ub]), method="highs-ds")
+    if res.status == 0:
+        return _LPResult("Solved", np.asarray(res.x), -np.asarray(res.ineqlin.marginals), float(res.fun))
+    return _LPResult({2: "PrimalInfeasible", 3: "Unbounded"}.get(res.status, f"HiGHS status {res.status}"),
+                     None, None, math.nan)
+
+
+def _clarabel_lp(c: np.ndarray, A_ub: np.ndarray, b_ub: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> _LPResult:
+    """The same LP with Clarabel (interior point); bounds become rows (``lb == ub``: equalities)."""
     n = c.size
-    blocks, rhs, cones = [], [], []
-    if A_eq is not None and A_eq.shape[0]:
-        blocks.append(sparse.csc_matrix(A_eq))
-        rhs.append(b_eq)
-        cones.append(clarabel.ZeroConeT(A_eq.shape[0]))
-    blocks.append(sparse.csc_matrix(A_ub))
-    rhs.append(b_ub)
-    cones.append(clarabel.NonnegativeConeT(A_ub.shape[0]))
+    eq = np.flatnonzero(lb == ub)
+    lo = np.flatnonzero(np.isfinite(lb) & (lb != ub))
+    hi = np.flatnonzero(np.isfinite(ub) & (lb != ub))
+    E = sparse.csc_matrix((np.ones(eq.size), (np.arange(eq.size), eq)), shape=(eq.size, n))
+    Lo = sparse.csc_matrix((-np.ones(lo.size), (np.arange(lo.size), lo)), shape=(lo.size, n))
+    Hi = sparse.csc_matrix((np.ones(hi.size), (np.arange(hi.size), hi)), shape=(hi.size, n))
+    Amat = sparse.vstack([E, sparse.csc_matrix(A_ub), Lo, Hi], format="csc")
+    bvec = np.concatenate([lb[eq], b_ub, -lb[lo], ub[hi]])
+    cones = [clarabel.NonnegativeConeT(A_ub.shape[0] + lo.size + hi.size)]
+    if eq.size:
+        cones.insert(0, clarabel.ZeroConeT(eq.size))
     settings = clarabel.DefaultSettings()
     settings.verbose = False
-    solver = clarabel.DefaultSolver(sparse.csc_matrix((n, n)), np.asarray(c, float),
-                                    sparse.vstack(blocks, format="csc"), np.concatenate(rhs), cones, settings)
-    sol = solver.solve()
+    sol = clarabel.DefaultSolver(sparse.csc_matrix((n, n)), np.asarray(c, float), Amat, bvec, cones,
+                                 settings).solve()
     status = str(sol.status).split(".")[-1]
     if status in ("Solved", "AlmostSolved"):
-        return _LPResult(status, np.array(sol.x), np.array(sol.z), float(sol.obj_val))
+        z = np.array(sol.z)[eq.size:eq.size + A_ub.shape[0]]
+        return _LPResult(status, np.array(sol.x), z, float(sol.obj_val))
     return _LPResult(status, None, None, math.nan)
 
 
-def _l1_lp(G: np.ndarray, rhs: np.ndarray, margin: float, extra_obj: np.ndarray | None = None,
-           hinge: tuple[np.ndarray, np.ndarray] | None = None, l1_weight: float = 1.0) -> _LPResult:
-    """``min l1_weight ||v||_1 + extra_obj.v + sum(s)`` s.t. ``G v >= rhs + margin``, ``v[0] = 0``,
-    and optional hinge rows ``H v + s >= d``, ``s >= 0`` (``hinge = (H, d)``).
+_BACKENDS = {"structured": _highs_lp, "clarabel": _clarabel_lp}
 
-    Variables ``(v, t, s)``; ``|v| <= t``.
+
+def _l1_lp(G: np.ndarray, rhs: np.ndarray, margin: float, backend: Callable[..., _LPResult],
+           hinge: tuple[np.ndarray, np.ndarray] | None = None, l1_weight: float = 1.0) -> _LPResult:
+    """``min l1_weight ||v||_1 + sum(s)`` s.t. ``G v >= rhs + margin``, ``v[0] = 0``, and optional
+    hinge rows ``H v + s >= d``, ``s >= 0`` (``hinge = (H, d)``).
+
+    Variables ``(p, n, s)`` with ``v = p - n``, ``p, n >= 0``; the solution's ``x[:S]`` is ``v``.
     """
     m, S = G.shape
     k = 0 if hinge is None else hinge[0].shape[0]
-    n = 2 * S + k
-    c = np.concatenate([np.zeros(S) if extra_obj is None else extra_obj, np.full(S, l1_weight), np.ones(k)])
-    I = sparse.identity(S, format="csc")
-    Zsk = sparse.csc_matrix((S, k))
-    rows = [sparse.hstack([-sparse.csc_matrix(G), sparse.csc_matrix((m, S + k))]),
-            sparse.hstack([I, -I, Zsk]), sparse.hstack([-I, -I, Zsk])]
-    b = [-(rhs + margin), np.zeros(S), np.zeros(S)]
+    c = np.concatenate([np.full(2 * S, l1_weight), np.ones(k)])
+    rows = [np.hstack([-G, G, np.zeros((m, k))])]
+    b = [-(rhs + margin)]
     if k:
         H, d = hinge
-        Ik = sparse.identity(k, format="csc")
-        rows += [sparse.hstack([-sparse.csc_matrix(H), sparse.csc_matrix((k, S)), -Ik]),
-                 sparse.hstack([sparse.csc_matrix((k, 2 * S)), -Ik])]
-        b += [-d, np.zeros(k)]
-    A_eq = sparse.csc_matrix(([1.0], ([0], [0])), shape=(1, n))
-    return _clarabel_lp(c, A_eq, np.zeros(1), sparse.vstack(rows, format="csc"), np.concatenate(b))
+        rows.append(np.hstack([-H, H, -np.eye(k)]))
+        b.append(-d)
+    lb = np.zeros(2 * S + k)
+    ub = np.full(2 * S + k, np.inf)
+    ub[[0, S]] = 0.0  # v[0] = 0
+    res = backend(c, np.vstack(rows), np.concatenate(b), lb, ub)
+    if res.x is not None:
+        res.x = np.concatenate([res.x[:S] - res.x[S:2 * S], res.x[2 * S:]])
+    return res
 
 
-def _phase1(G: np.ndarray, rhs: np.ndarray, box: float) -> _LPResult:
+def _phase1(G: np.ndarray, rhs: np.ndarray, box: float, backend: Callable[..., _LPResult]) -> _LPResult:
     """``min t`` s.t. ``G v + t >= rhs``, ``v[0] = 0``, ``|v| <= box``, ``t >= -1``: the smallest
     achievable largest violation ``t*`` (``> 0`` means infeasible). Variables ``(v, t)``."""
     m, S = G.shape
     c = np.zeros(S + 1)
     c[-1] = 1.0
-    Gs = sparse.csc_matrix(G)
-    I = sparse.identity(S, format="csc")
-    rows = [sparse.hstack([-Gs, -sparse.csc_matrix(np.ones((m, 1)))]),
-            sparse.hstack([I, sparse.csc_matrix((S, 1))]), sparse.hstack([-I, sparse.csc_matrix((S, 1))]),
-            sparse.csc_matrix(([-1.0], ([0], [S])), shape=(1, S + 1))]
-    b = np.concatenate([-rhs, np.full(2 * S, box), [1.0]])
-    A_eq = sparse.csc_matrix(([1.0], ([0], [0])), shape=(1, S + 1))
-    return _clarabel_lp(c, A_eq, np.zeros(1), sparse.vstack(rows, format="csc"), b)
+    lb = np.concatenate([[0.0], np.full(S - 1, -box), [-1.0]])
+    ub = np.concatenate([[0.0], np.full(S - 1, box), [np.inf]])
+    return backend(c, np.hstack([-G, -np.ones((m, 1))]), -rhs, lb, ub)
 
 
-#: Constraint systems with more rows than this are solved by row generation over actions:
-#: the LP is solved with the rows of a few actions (first, middle, last) and the actions
-#: with the most violated rows are added until none is violated. (Clarabel on the full dense
-#: S = 256, A = 64 system takes minutes; for the tracking models three actions suffice.)
+#: Constraint systems with more rows than this are solved by row generation: the LP is
+#: solved with a subset of the rows and violated rows are added until none is (the dense
+#: S = 256, A = 64 system in one piece takes Clarabel minutes and HiGHS seconds).
 DIRECT_ROWS = 1500
 
 
-def _cutting_planes(G: np.ndarray, rhs: np.ndarray, solve: Any, violation: Any,
-                    per_round: int = 2) -> tuple[_LPResult, np.ndarray]:
+def _cutting_planes(G: np.ndarray, rhs: np.ndarray, solve: Callable[[np.ndarray], _LPResult],
+                    violation: Callable[[np.ndarray], np.ndarray], by_pairs: bool,
+                    start: np.ndarray | None = None, per_round: int = 2) -> tuple[_LPResult, np.ndarray]:
     """Solve an LP whose rows ``G v >= rhs`` (ordered by action, ``S - 1`` rows each) may be
-    many, by generating the rows of whole actions.
+    many, by row generation.
 
     ``solve(rows)`` solves the LP restricted to ``rows``; ``violation(x)`` gives each row's
     violation at the solution ``x`` (``> 0``: violated beyond the accepted tolerance). The
     restricted LP is a relaxation, so a restricted optimum feasible for all rows is optimal
-    and an infeasible restriction proves the full LP infeasible. Terminates after at most
-    ``A`` rounds (then all rows are in).
+    and an infeasible restriction proves the full LP infeasible. ``by_pairs`` (HiGHS path):
+    start from one row per state pair (``start``, else the largest right-hand side) and add,
+    per round, the most violated row of every violated pair. Otherwise (Clarabel path): start
+    from the rows of the first, middle and last action and add the ``per_round`` actions with
+    the worst violations. Every round adds a row, so both terminate.
     """
     m, S = G.shape
     if m <= DIRECT_ROWS:
@@ -304,31 +559,41 @@ def _cutting_planes(G: np.ndarray, rhs: np.ndarray, solve: Any, violation: Any,
         return solve(rows), rows
     n = S - 1
     A = m // n
-
-    def action_rows(acts: np.ndarray) -> np.ndarray:
-        return (acts[:, None] * n + np.arange(n)[None, :]).reshape(-1)
-
-    acts = np.unique(np.linspace(0, A - 1, min(A, 3)).round().astype(int))
+    if by_pairs:
+        rows = np.unique(start if start is not None else np.argmax(rhs.reshape(A, n), axis=0) * n + np.arange(n))
+    else:
+        acts = np.unique(np.linspace(0, A - 1, min(A, 3)).round().astype(int))
+        rows = (acts[:, None] * n + np.arange(n)[None, :]).reshape(-1)
     while True:
-        rows = action_rows(acts)
         res = solve(rows)
         if res.x is None:
             return res, rows
-        worst = violation(res.x).reshape(A, n).max(axis=1)
-        worst[acts] = -np.inf
-        bad = np.flatnonzero(worst > 0)
-        if bad.size == 0:
+        viol = violation(res.x)
+        viol[rows] = -np.inf
+        V = viol.reshape(A, n)
+        if by_pairs:
+            worst = np.argmax(V, axis=0)
+            pairs = np.flatnonzero(V[worst, np.arange(n)] > 0)
+            new = worst[pairs] * n + pairs
+        else:
+            wa = V.max(axis=1)
+            bad = np.flatnonzero(wa > 0)
+            top = bad[np.argsort(-wa[bad], kind="stable")[:per_round]]
+            new = (top[:, None] * n + np.arange(n)[None, :]).reshape(-1)
+        if new.size == 0:
             return res, rows
-        acts = np.union1d(acts, bad[np.argsort(-worst[bad], kind="stable")[:per_round]])
+        rows = np.union1d(rows, new)
 
 
-def _solve_l1(G: np.ndarray, rhs: np.ndarray, margin: float, accept: float,
-              hinge: tuple[np.ndarray, np.ndarray] | None = None, l1_weight: float = 1.0) -> _LPResult:
+def _solve_l1(system: _System, margin: float, accept: float, solver: str,
+              hinge: tuple[np.ndarray, np.ndarray] | None = None, l1_weight: float = 1.0,
+              start: np.ndarray | None = None) -> _LPResult:
     """:func:`_l1_lp` with row generation; the result satisfies ``G v >= rhs + margin - accept``."""
-    S = G.shape[1]
+    G, rhs, S = system.G, system.rhs, system.model.S
+    backend = _BACKENDS[solver]
     return _cutting_planes(
-        G, rhs, lambda rows: _l1_lp(G[rows], rhs[rows], margin, hinge=hinge, l1_weight=l1_weight),
-        lambda x: rhs + margin - accept - G @ x[:S])[0]
+        G, rhs, lambda rows: _l1_lp(G[rows], rhs[rows], margin, backend, hinge=hinge, l1_weight=l1_weight),
+        lambda x: rhs + margin - accept - _matvec(G, x[:S]), by_pairs=solver != "clarabel", start=start)[0]
 
 
 @dataclass
@@ -338,55 +603,73 @@ class _VectorResult:
     message: str
     most_violated: dict[str, Any] | None = None
     min_margin: float | None = None
+    least: bool = False  # the least feasible g (greatest h)
 
 
 def _pair(model: POMDP, row: int) -> tuple[int, int]:
     return divmod(int(row), model.S - 1)
 
 
-def _solve_vector(model: POMDP, which: str) -> _VectorResult:
-    """L1-minimal feasible ``g`` (``which="g"``) or ``h``, or a phase-1 infeasibility report."""
+def _solve_vector(system: _System, solver: str, st: _Structure | None, goal: str = "l1") -> _VectorResult:
+    """``goal="l1"``: the L1-minimal feasible vector; ``goal="least"``: the least feasible ``g``
+    (greatest ``h``) when ``st`` proves it exists. Else a phase-1 infeasibility report."""
+    model, which = system.model, system.which
     S = model.S
     if S < 2:
         return _VectorResult(True, np.zeros(S), "S = 1: no constraints", None, None)
-    G, rhs = constraint_system(model, which)
-    scale = _scale(model, which)
-    for margin in (LP_MARGIN_RTOL * scale, 0.0):
-        accept = 0.5 * margin if margin > 0 else 0.5 * FEAS_RTOL * scale
-        res = _solve_l1(G, rhs, margin, accept)
+    start = None
+    if st is not None and st.contraction:
+        least = _least_vector(system, st)
+        if least is not None:
+            v, start = least
+            mm = float(system.margins(v).min())
+            norm = f"||{which}||_1 = {np.abs(v).sum():.6g}"
+            extreme = "least feasible g" if which == "g" else "greatest feasible h"
+            if goal == "least":
+                bound = "higher lower" if which == "g" else "lower upper"
+                return _VectorResult(True, v, f"{which}: the {extreme} (no feasible {which} gives a {bound} bound "
+                                     f"at any belief; {norm})", None, mm, least=True)
+            delta = 1e-9 * (1.0 + float(np.abs(v).max()))
+            if np.all((v if which == "g" else -v) >= -delta):  # extreme and of one sign: L1-minimal
+                return _VectorResult(True, v, f"{which}: L1-minimal feasible vector (the {extreme}; {norm})",
+                                     None, mm, least=True)
+    for margin in (LP_MARGIN_RTOL * system.scale, 0.0):
+        accept = 0.5 * margin if margin > 0 else 0.5 * FEAS_RTOL * system.scale
+        res = _solve_l1(system, margin, accept, solver, start=start)
         if res.x is not None:
             v = res.x[:S].copy()
             v[0] = 0.0
-            if is_feasible(model, v, which):
-                mm = float(constraint_margins(model, v, which).min())
+            if system.feasible(v):
+                mm = float(system.margins(v).min())
                 return _VectorResult(True, v, f"{which}: L1-minimal feasible vector (||{which}||_1 = "
                                      f"{np.abs(v).sum():.6g})", None, mm)
-    return _infeasible_report(model, which, G, rhs, scale)
+    return _infeasible_report(system, solver)
 
 
-def _infeasible_report(model: POMDP, which: str, G: np.ndarray, rhs: np.ndarray, scale: float) -> _VectorResult:
+def _infeasible_report(system: _System, solver: str) -> _VectorResult:
+    model, which, G, rhs = system.model, system.which, system.G, system.rhs
     S = model.S
-    box = 1e6 * scale
-    tol = FEAS_RTOL * scale
-    p1, rows = _cutting_planes(G, rhs, lambda rows: _phase1(G[rows], rhs[rows], box),
-                               lambda x: rhs - G @ x[:S] - x[S] - tol)
+    box = 1e6 * system.scale
+    tol = FEAS_RTOL * system.scale
+    backend = _BACKENDS[solver]
+    p1, rows = _cutting_planes(G, rhs, lambda rows: _phase1(G[rows], rhs[rows], box, backend),
+                               lambda x: rhs - _matvec(G, x[:S]) - x[S] - tol, by_pairs=solver != "clarabel")
     if p1.x is None:
         return _VectorResult(False, None, f"{which}: LP solver failed ({p1.status}); treated as infeasible",
                              {"vector": which, "solver_status": p1.status}, None)
     v = p1.x[:S].copy()
     v[0] = 0.0
-    viol = rhs - G @ v  # > 0 where violated
+    viol = rhs - _matvec(G, v)  # > 0 where violated
     t_star = float(viol.max())
-    if t_star <= feasibility_tolerance(model, v, which):
-        mm = float(-t_star)
-        return _VectorResult(True, v, f"{which}: feasible only at the boundary (phase-1 vector)", None, mm)
+    if t_star <= FEAS_RTOL * (system.scale + float(np.sum(np.abs(v)))):
+        return _VectorResult(True, v, f"{which}: feasible only at the boundary (phase-1 vector)", None, -t_star)
     m = G.shape[0]
     duals = np.zeros(m)
-    if p1.z is not None:  # zero cone first, then the active G rows
-        duals[rows] = p1.z[1:1 + rows.size]
+    if p1.z is not None:
+        duals[rows] = np.maximum(p1.z, 0.0)
     worst = int(np.argmax(viol))
     a, i = _pair(model, worst)
-    order = np.argsort(-duals)
+    order = np.argsort(-duals, kind="stable")
     conflicting = [{"action": _pair(model, r)[0], "priority": _pair(model, r)[0] + 1,
                     "state_pair": [_pair(model, r)[1], _pair(model, r)[1] + 1], "weight": float(duals[r])}
                    for r in order[:8] if duals[r] > 1e-6 * max(duals.max(), 1e-300)]
@@ -403,6 +686,13 @@ def _infeasible_report(model: POMDP, which: str, G: np.ndarray, rhs: np.ndarray,
 
 
 # ---------------------------------------------------------------- tightness
+def _draw(rng: np.random.Generator, probs: np.ndarray) -> np.ndarray:
+    """One index per row of ``probs`` (rows are distributions), by inverse CDF."""
+    cdf = np.cumsum(probs, axis=-1)
+    u = rng.random(probs.shape[0]) * cdf[:, -1]
+    return np.minimum(np.sum(cdf <= u[:, None], axis=-1), probs.shape[-1] - 1)
+
+
 def sample_beliefs(model: POMDP, n: int, seed: int = 0, horizon: int = 8) -> np.ndarray:
     """``n`` beliefs reachable by simulating the model (seeded).
 
@@ -416,12 +706,12 @@ def sample_beliefs(model: POMDP, n: int, seed: int = 0, horizon: int = 8) -> np.
     S, A = model.S, model.A
     n_traj = max(1, math.ceil(n / (horizon + 1)))
     B = rng.dirichlet(np.ones(S), size=n_traj)
-    s = np.array([rng.choice(S, p=b) for b in B])
+    s = _draw(rng, B)
     out = [B]
     for _ in range(horizon):
         a = rng.integers(0, A, size=n_traj)
-        s = np.array([rng.choice(S, p=model.P[ai, si]) for ai, si in zip(a, s, strict=True)])
-        z = np.array([rng.choice(model.Z, p=model.O[ai, si]) for ai, si in zip(a, s, strict=True)])
+        s = _draw(rng, model.P[a, s])
+        z = _draw(rng, model.O[a, s])
         B, _ = update_batch(model, B, a, z)
         out.append(B)
     allB = np.concatenate(out, axis=0)
@@ -433,56 +723,53 @@ def sample_beliefs(model: POMDP, n: int, seed: int = 0, horizon: int = 8) -> np.
 MAX_HINGE_ROWS = 1500
 
 
-def _hinge_rows(model: POMDP, B: np.ndarray, target: np.ndarray, which: str,
+def _predicted_rows(model: POMDP, B: np.ndarray, k: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """``B[k[j]] @ P[a[j]]`` for every ``j`` (one matrix product per action)."""
+    out = np.empty((k.size, model.S))
+    for act in np.unique(a):
+        sel = a == act
+        out[sel] = B[k[sel]] @ model.P[act]
+    return out
+
+
+def _hinge_rows(model: POMDP, B: np.ndarray, rho: np.ndarray, target: np.ndarray, which: str,
                 margin: float) -> tuple[np.ndarray, np.ndarray]:
     """Rows ``H v >= d`` asking the transformed reward of ``target[k]`` to beat every action
     below it (``which="g"``: lower bound pushed up) or above it (``"h"``: upper pushed down)
     at belief ``B[k]`` by ``margin``. Linear in ``v`` because only ``-gamma b P[a] v`` depends on a.
     """
-    rho = model.rho(B)  # (N, A)
-    BP = np.einsum("ks,ast->kat", B, model.P)  # (N, A, S): b P[a]
-    A = model.A
-    ks, others = [], []
-    for k, t in enumerate(target):
-        rng_a = range(0, t) if which == "g" else range(t + 1, A)
-        for a in rng_a:
-            ks.append((k, t))
-            others.append(a)
-    if not ks:
+    acts = np.arange(model.A)[None, :]
+    mask = acts < target[:, None] if which == "g" else acts > target[:, None]
+    k_idx, a_idx = np.nonzero(mask)  # belief-major, actions increasing
+    if k_idx.size == 0:
         return np.zeros((0, model.S)), np.zeros(0)
-    if len(ks) > MAX_HINGE_ROWS:  # keep the LP small: an evenly spaced, deterministic subset
-        keep = np.linspace(0, len(ks) - 1, MAX_HINGE_ROWS).round().astype(int)
-        ks = [ks[i] for i in keep]
-        others = [others[i] for i in keep]
-    k_idx = np.array([k for k, _ in ks])
-    t_idx = np.array([t for _, t in ks])
-    a_idx = np.array(others)
+    if k_idx.size > MAX_HINGE_ROWS:  # keep the LP small: an evenly spaced, deterministic subset
+        keep = np.linspace(0, k_idx.size - 1, MAX_HINGE_ROWS).round().astype(int)
+        k_idx, a_idx = k_idx[keep], a_idx[keep]
+    t_idx = target[k_idx]
     # rho_v(b, t) - rho_v(b, a) = rho(b,t) - rho(b,a) - gamma (bP[t] - bP[a]) v >= margin
-    H = -model.gamma * (BP[k_idx, t_idx] - BP[k_idx, a_idx])
+    H = -model.gamma * (_predicted_rows(model, B, k_idx, t_idx) - _predicted_rows(model, B, k_idx, a_idx))
     d = margin - (rho[k_idx, t_idx] - rho[k_idx, a_idx])
     return H, d
 
 
-def _tight_vector(model: POMDP, which: str, B: np.ndarray, target: np.ndarray,
+def _tight_vector(system: _System, solver: str, B: np.ndarray, rho: np.ndarray, target: np.ndarray,
                   base: np.ndarray) -> np.ndarray | None:
     """Hinge-loss LP: feasible ``v`` making ``target`` the bound action on as many samples as it can."""
-    S = model.S
-    G, rhs = constraint_system(model, which)
-    scale = _scale(model, which)
-    rho = model.rho(B)
+    model = system.model
     spread = float(np.ptp(rho)) if rho.size else 1.0
-    H, d = _hinge_rows(model, B, target, which, 1e-6 * (1.0 + spread))
+    H, d = _hinge_rows(model, B, rho, target, system.which, 1e-6 * (1.0 + spread))
     if H.shape[0] == 0:
         return None
     # a small L1 weight keeps the LP bounded along the rays of the feasible set
-    margin = LP_MARGIN_RTOL * scale
-    res = _solve_l1(G, rhs, margin, 0.5 * margin, hinge=(H, d),
+    margin = LP_MARGIN_RTOL * system.scale
+    res = _solve_l1(system, margin, 0.5 * margin, solver, hinge=(H, d),
                     l1_weight=1e-4 * H.shape[0] / (np.abs(base).sum() + 1.0))
     if res.x is None:
         return None
-    v = res.x[:S].copy()
+    v = res.x[:model.S].copy()
     v[0] = 0.0
-    return v if is_feasible(model, v, which) else None
+    return v if system.feasible(v) else None
 
 
 def _score(lo: np.ndarray, up: np.ndarray) -> tuple[float, float]:
@@ -499,12 +786,13 @@ def _better(a: tuple[float, float], b: tuple[float, float]) -> bool:
     return a[0] > b[0] + 1e-12 or (abs(a[0] - b[0]) <= 1e-12 and a[1] > b[1] + 1e-12)
 
 
-def _tighten(model: POMDP, g: np.ndarray, h: np.ndarray, B: np.ndarray, rounds: int = 3
-             ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+def _tighten(sg: _System, sh: _System, solver: str, g: np.ndarray, h: np.ndarray, B: np.ndarray,
+             rounds: int = 3) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Alternate hinge LPs for ``g`` (target: one action above the current lower action where
     the bounds disagree) and ``h`` (one below the current upper action); a candidate replaces
     the current vector only if it improves :func:`_score` on the samples, so the result is
     never worse there than the L1-minimal start."""
+    model = sg.model
     rho = model.rho(B)
     best_g, best_h = g, h
     lo, up = MyopicBounds(model, g, h).actions(B, rho)
@@ -516,13 +804,13 @@ def _tighten(model: POMDP, g: np.ndarray, h: np.ndarray, B: np.ndarray, rounds: 
         changed = False
         # targets one action beyond the current bound where the bounds disagree: a target the
         # optimal policy cannot reach (lower can never exceed it) would only waste hinge loss
-        cand_g = _tight_vector(model, "g", B, np.where(lo < up, lo + 1, lo), best_g)
+        cand_g = _tight_vector(sg, solver, B, rho, np.where(lo < up, lo + 1, lo), best_g)
         if cand_g is not None:
             lo_c = MyopicBounds(model, cand_g, best_h).lower(B, rho)
             score = _score(lo_c, up)
             if _better(score, best):
                 best_g, lo, best, changed = cand_g, lo_c, score, True
-        cand_h = _tight_vector(model, "h", B, np.where(up > lo, up - 1, up), best_h)
+        cand_h = _tight_vector(sh, solver, B, rho, np.where(up > lo, up - 1, up), best_h)
         if cand_h is not None:
             up_c = MyopicBounds(model, best_g, cand_h).upper(B, rho)
             score = _score(lo, up_c)
@@ -531,7 +819,7 @@ def _tighten(model: POMDP, g: np.ndarray, h: np.ndarray, B: np.ndarray, rounds: 
         history.append({"round": r, "agreement": best[0], "mean_distance": -best[1]})
         if not changed:
             break
-    return best_g, best_h, {"rounds": history}
+    return best_g, best_h, {"method": "hinge LPs on the samples", "rounds": history}
 
 
 # ---------------------------------------------------------------- public API
@@ -541,6 +829,7 @@ class BoundsSolution:
 
     model: POMDP = field(repr=False)
     variant: str
+    constant: str
     feasible: bool
     g_feasible: bool
     h_feasible: bool
@@ -557,6 +846,7 @@ class BoundsSolution:
     sample_mean_gap: float | None = None
     sample_crossed: float | None = None
     tightening: dict[str, Any] | None = None
+    solver: str = BOUND_SOLVERS[0]
 
     @property
     def myopic(self) -> MyopicBounds | None:
@@ -568,33 +858,45 @@ class BoundsSolution:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (vectors as lists)."""
         return {
-            "model": self.model.name, "variant": self.variant, "feasible": self.feasible,
-            "g_feasible": self.g_feasible, "h_feasible": self.h_feasible,
+            "model": self.model.name, "variant": self.variant, "constant": self.constant,
+            "feasible": self.feasible, "g_feasible": self.g_feasible, "h_feasible": self.h_feasible,
             "g": None if self.g is None else self.g.tolist(),
             "h": None if self.h is None else self.h.tolist(),
             "solve_time": self.solve_time, "message": self.message, "constants": dict(self.constants),
             "covers": self.covers, "most_violated": self.most_violated, "min_margin": dict(self.min_margin),
             "samples": self.samples, "sample_agreement": self.sample_agreement,
             "sample_mean_gap": self.sample_mean_gap, "sample_crossed": self.sample_crossed,
+            "solver": self.solver,
         }
 
 
-def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, seed: int = 0) -> BoundsSolution:
+def solve_bounds(model: POMDP, variant: str = "tight", *, constant: str = DEFAULT_CONSTANT, samples: int = 400,
+                 seed: int = 0, solver: str = BOUND_SOLVERS[0]) -> BoundsSolution:
     """Solve the Theorem 2 LPs for ``g`` (lower bound) and ``h`` (upper bound).
 
-    ``variant``: ``"feasible"`` (L1-minimal vectors) or ``"tight"`` (starts from those and
-    improves the agreement of the bounds on ``samples`` reachable beliefs drawn with
-    ``seed``; see the module docstring). The solution is feasible only if both vectors are;
-    each returned vector satisfies every constraint (post-checked).
+    ``variant``: ``"feasible"`` (L1-minimal vectors) or ``"tight"`` (the least elements where
+    they are provably tightest, else the L1-minimal vectors improved for agreement of the
+    bounds on ``samples`` reachable beliefs drawn with ``seed``; see the module docstring).
+    ``constant``: ``"mlr"`` (exact for what Corollary 1 needs) or ``"fosd"`` (the stronger
+    first-order dominance constant). ``solver``: ``"structured"`` or ``"clarabel"`` (the
+    previous path, for cross-checks). The solution is feasible only if both vectors are; each
+    returned vector satisfies every constraint of ``constant`` (post-checked).
     """
     if variant not in BOUND_VARIANTS:
         raise ValueError(f"variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
+    check_constant(constant)
+    if solver not in BOUND_SOLVERS:
+        raise ValueError(f"solver: expected one of {', '.join(BOUND_SOLVERS)}, got {solver!r}")
     if not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples: expected a positive integer, got {samples!r}")
     t0 = time.perf_counter()
-    constants = bound_constants(model)
-    rg = _solve_vector(model, "g")
-    rh = _solve_vector(model, "h")
+    constants = bound_constants(model, constant)
+    sg, sh = _System.build(model, "g", constant), _System.build(model, "h", constant)
+    st = _structure(model) if solver == "structured" and model.S > 1 else None
+    certified = (variant == "tight" and st is not None and st.certifies_tightest and model.A > 1)
+    goal = "least" if certified else "l1"
+    rg = _solve_vector(sg, solver, st, goal)
+    rh = _solve_vector(sh, solver, st, goal)
     feasible = rg.feasible and rh.feasible
     g, h = rg.v, rh.v
     tightening = None
@@ -604,14 +906,21 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
         B = sample_beliefs(model, samples, seed)
         n_samples = B.shape[0]
         if variant == "tight" and model.A > 1 and model.S > 1:
-            g, h, tightening = _tighten(model, g, h, B)
+            if certified and rg.least and rh.least:
+                lo, up = MyopicBounds(model, g, h).actions(B)
+                tightening = {"method": "least elements (tightest at every belief: monotone transitions, "
+                                        f"kappa = {st.kappa:.3g} < 1, actions ordered)",
+                              "rounds": [{"round": 0, "agreement": float(np.mean(lo == up)),
+                                          "mean_distance": float(np.mean(np.abs(up - lo)))}]}
+            else:
+                g, h, tightening = _tighten(sg, sh, solver, g, h, B)
         lo, up = MyopicBounds(model, g, h).actions(B)
         agreement = float(np.mean(lo == up))
         gap = float(np.mean(up - lo))
         crossed = float(np.mean(lo > up))
     # final guarantee: never report an infeasible vector as feasible
-    g_ok = g is not None and is_feasible(model, g, "g")
-    h_ok = h is not None and is_feasible(model, h, "h")
+    g_ok = g is not None and sg.feasible(g)
+    h_ok = h is not None and sh.feasible(h)
     if (rg.feasible and not g_ok) or (rh.feasible and not h_ok):  # pragma: no cover - defensive
         raise RuntimeError("internal error: a vector reported feasible fails the exact post-check")
     parts = [rg.message, rh.message]
@@ -626,14 +935,15 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, samples: int = 400, se
     most = None
     if not feasible:
         most = {k: r.most_violated for k, r in (("g", rg), ("h", rh)) if r.most_violated is not None}
-    margins = {"g": None if g is None or model.S < 2 else float(constraint_margins(model, g, "g").min()),
-               "h": None if h is None or model.S < 2 else float(constraint_margins(model, h, "h").min())}
+    margins = {"g": None if g is None or model.S < 2 else float(sg.margins(g).min()),
+               "h": None if h is None or model.S < 2 else float(sh.margins(h).min())}
     return BoundsSolution(
-        model=model, variant=variant, feasible=feasible, g_feasible=rg.feasible, h_feasible=rh.feasible,
-        g=None if g is None else _ro(g), h=None if h is None else _ro(h),
+        model=model, variant=variant, constant=constant, feasible=feasible, g_feasible=rg.feasible,
+        h_feasible=rh.feasible, g=None if g is None else _ro(g), h=None if h is None else _ro(h),
         solve_time=time.perf_counter() - t0, message="; ".join(parts), constants=constants,
         covers=covers, most_violated=most, min_margin=margins, samples=n_samples,
         sample_agreement=agreement, sample_mean_gap=gap, sample_crossed=crossed, tightening=tightening,
+        solver=solver,
     )
 
 

@@ -8,7 +8,8 @@ ones). The planners are imported here, at the top: nothing registers itself at i
 
 Policies: ``random`` (seeded uniform actions), ``myopic`` (greedy ``argmax_a rho(b, a)``,
 Eq. 3), ``bnb`` (branch-and-bound search, Algorithm 1), ``exhaustive`` (the same search
-without pruning), ``lower`` / ``upper`` (the myopic bound policies of Sec. IV, Theorem 2).
+without pruning), ``lower`` / ``upper`` (the myopic bound policies of Sec. IV, Theorem 2),
+``mcts`` (information-aware MCTS on exact beliefs, :mod:`.belief_mcts`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from .belief_mcts import POLICY_OPTIONS as MCTS_OPTIONS
+from .belief_mcts import make_belief_mcts_policy
 from .bounds import BOUND_VARIANTS
 from .gate import PlannerSetup, build_planner
 from .model import POMDP, ModelError, short_repr
@@ -192,6 +195,15 @@ def _bound_policy(model: POMDP, opts: Mapping[str, Any], which: str) -> BoundPol
     return BoundPolicy(setup.myopic, which, setup)
 
 
+def _mcts_policy(model: POMDP, opts: Mapping[str, Any]) -> Policy:
+    """``mcts``: the information-aware belief-space MCTS (``core/belief_mcts.py``); its option
+    errors (``ValueError`` naming the option) become model errors for the edges."""
+    try:
+        return make_belief_mcts_policy(model, opts)
+    except ValueError as exc:
+        raise ModelError(f"policy mcts: option {exc}") from None
+
+
 @dataclass(frozen=True)
 class PolicyEntry:
     """One row of :data:`POLICIES`: the factory, a one-line help and the options it accepts."""
@@ -221,6 +233,10 @@ POLICIES: dict[str, PolicyEntry] = {
     "upper": PolicyEntry(lambda m, o: _bound_policy(m, o, "upper"),
                          f"myopic upper-bound policy of Theorem 2; refused where the bounds are not valid (options: "
                          f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
+    "mcts": PolicyEntry(_mcts_policy,
+                        "UCT on exact Bayes beliefs with the true reward rho (options: time_budget=S | "
+                        "simulations=N, max_depth, exploration, exploration_scale, leaf, rollout_depth, tail, "
+                        "backup, reuse)", tuple(MCTS_OPTIONS)),
 }
 
 

@@ -55,6 +55,12 @@ second to a few seconds. For gamma = 0.99 the a-priori certificate needs H ~ 100
 
 Conventions: ``P[a, i, j] = P(j | i, a)``, ``O[a, j, z] = P(z | j, a)``, 0-based actions
 (see :mod:`pomdp_planner.core.model`).
+
+Independence: from the package this module uses only the model's arrays (``P``, ``O``, ``r``,
+``w``, ``gamma``, the name of the uncertainty function). The Bayes update (Eqs. 1-2) and the
+belief reward (Eq. 3, with the entropies written out) are re-derived here
+(:func:`_posteriors`, :func:`_belief_reward`) rather than imported from ``core/belief.py``
+and ``POMDP.rho``, so the validation of the bounds does not rest on the code it checks.
 """
 
 from __future__ import annotations
@@ -67,7 +73,6 @@ import scipy.sparse as sp
 from scipy.optimize import linprog
 from scipy.sparse.linalg import splu
 
-from .belief import posteriors_all
 from .model import POMDP
 
 __all__ = [
@@ -81,6 +86,39 @@ __all__ = [
     "reference_policy",
     "solve_grid",
 ]
+
+
+# ---------------------------------------------------------------- Eqs. 1-3, written here
+def _posteriors(model: POMDP, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``tau(b, a, z)`` and ``eta(z | b, a)`` for every belief, action and observation.
+
+    Eq. 1: ``b^a(s') = sum_s b(s) P[a, s, s']``; Eq. 2: ``eta = sum_s' b^a(s') O[a, s', z]`` and
+    ``tau(s') = b^a(s') O[a, s', z] / eta``. Where ``eta = 0`` the posterior carries no weight;
+    it is set to ``b^a``. Shapes ``(M, A, Z, S)`` and ``(M, A, Z)``.
+    """
+    B = np.asarray(B, dtype=float)
+    pred = np.einsum("ms,ast->mat", B, model.P)  # (M, A, S)
+    joint = pred[:, :, None, :] * np.transpose(model.O, (0, 2, 1))[None, :, :, :]  # (M, A, Z, S)
+    eta = joint.sum(axis=-1)
+    pos = eta > 0.0
+    tau = np.where(pos[..., None], joint / np.where(pos, eta, 1.0)[..., None], pred[:, :, None, :])
+    return tau, eta
+
+
+def _belief_reward(model: POMDP, B: np.ndarray) -> np.ndarray:
+    """Eq. 3, ``rho(b, a) = b . r[:, a] - w_a f(b)``, shape ``(M, A)``, with ``f`` written out:
+    Shannon ``-sum b log b`` (``0 log 0 = 0``), Renyi quadratic ``-log sum b^2``, none ``0``."""
+    B = np.asarray(B, dtype=float)
+    name = model.uncertainty.name
+    if name == "shannon":
+        f = -np.sum(np.where(B > 0.0, B * np.log(np.where(B > 0.0, B, 1.0)), 0.0), axis=-1)
+    elif name == "renyi2":
+        f = -np.log(np.sum(B * B, axis=-1))
+    elif name == "none":
+        f = np.zeros(B.shape[0])
+    else:  # pragma: no cover - the model refuses other names
+        raise ValueError(f"uncertainty.function: no reference formula for {name!r}")
+    return B @ model.r - f[:, None] * np.asarray(model.w, dtype=float)[None, :]
 
 
 # ---------------------------------------------------------------------------- the grid
@@ -216,9 +254,9 @@ class GridSolution:
         reference action off the grid (e.g. at sampled reachable beliefs).
         """
         B = np.atleast_2d(np.asarray(B, dtype=float))
-        tau, eta = posteriors_all(self.model, B)  # (M, A, Z, S), (M, A, Z)
+        tau, eta = _posteriors(self.model, B)  # (M, A, Z, S), (M, A, Z)
         v = self.grid.interpolate(self.V, tau.reshape(-1, self.model.S)).reshape(eta.shape)
-        return self.model.rho(B) + self.model.gamma * np.sum(eta * v, axis=-1)
+        return _belief_reward(self.model, B) + self.model.gamma * np.sum(eta * v, axis=-1)
 
 
 def _q_gap(Q: np.ndarray) -> np.ndarray:
@@ -232,13 +270,13 @@ def _backup_operator(model: POMDP, grid: FreudenthalGrid) -> tuple[np.ndarray, s
     """``R`` (N*A,) and the sparse ``T`` (N*A, N) with ``Q.ravel() = R + gamma T @ V``."""
     B = grid.beliefs
     N, A, Z, S = grid.size, model.A, model.Z, model.S
-    tau, eta = posteriors_all(model, B)  # (N, A, Z, S), (N, A, Z)
+    tau, eta = _posteriors(model, B)  # (N, A, Z, S), (N, A, Z)
     idx, lam = grid.vertices_and_weights(tau.reshape(-1, S))  # (N*A*Z, S)
     data = (lam * eta.reshape(-1, 1)).ravel()
     rows = np.repeat(np.arange(N * A), Z * S)  # row (k, a) collects all z and vertices
     T = sp.csr_matrix((data, (rows, idx.ravel())), shape=(N * A, N))
     T.sum_duplicates()
-    R = model.rho(B).ravel()
+    R = _belief_reward(model, B).ravel()
     return R, T
 
 

@@ -1,0 +1,135 @@
+"""Bound LP benchmark: ``solve_bounds`` on the new path against the previous one, in one run.
+
+``python -m pomdp_planner.bench.lp [--models ...] [--repeat N] [--no-old] [--json FILE]``
+
+For every model, variant and constant it times :func:`~pomdp_planner.core.bounds.solve_bounds`
+with ``solver="structured"`` (the default: least element where it is certified, HiGHS dual
+simplex otherwise) and with ``solver="clarabel"`` (the previous path: Clarabel interior point
+for every LP, row generation over whole actions, hinge-LP tightening), and prints the wall
+times, their ratio and both solutions' worst constraint margins (``>= 0`` means every exact
+constraint holds; both are post-checked by ``solve_bounds`` itself). The default models are
+the paper's Sec. VI-B comparison case S = 256, A = 64 (``core.domains.comparison``; f = none,
+so both constants coincide there) and the shipped Renyi models under both constants.
+
+Timings on a shared machine are noisy: each figure is the best of ``--repeat`` runs, and
+only the ratio measured in one run is meaningful.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
+from ..core.domains.comparison import comparison_model
+from ..core.io.model_yaml import load_model
+from ..core.io.paths import resolve_path
+from ..core.model import POMDP
+
+#: ``comparison:S,A`` (the Sec. VI-B model) or a model file name / path.
+DEFAULT_MODELS = ("comparison:256,64", "tracking_s8_natural.yaml", "tracking_s3_info.yaml")
+NEW, OLD = BOUND_SOLVERS  # "structured", "clarabel"
+
+
+def load_bench_model(spec: str) -> POMDP:
+    """``comparison:S,A`` or a model file (shipped name or path)."""
+    m = re.fullmatch(r"comparison:(\d+),(\d+)", spec.strip())
+    if m:
+        return comparison_model(int(m.group(1)), int(m.group(2)))
+    return load_model(resolve_path(spec, field="--models"))
+
+
+def _best_of(model: POMDP, variant: str, constant: str, solver: str, repeat: int) -> tuple[float, Any]:
+    best, sol = float("inf"), None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        sol = solve_bounds(model, variant, constant=constant, solver=solver)
+        best = min(best, time.perf_counter() - t0)
+    return best, sol
+
+
+def _worst_margin(sol: Any) -> float | None:
+    vals = [v for v in sol.min_margin.values() if v is not None]
+    return min(vals) if vals else None
+
+
+def run_lp_bench(models: Sequence[str] = DEFAULT_MODELS, repeat: int = 1, old: bool = True,
+                 log: Any = lambda s: None) -> list[dict[str, Any]]:
+    """One row per (model, variant, constant); constants are deduplicated where they coincide."""
+    warm = comparison_model(4, 3)  # first calls pay for imports and solver set-up: not timed
+    for solver in BOUND_SOLVERS:
+        solve_bounds(warm, "tight", solver=solver, samples=20)
+    rows = []
+    for spec in models:
+        model = load_bench_model(spec)
+        constants = BOUND_CONSTANTS if model.uncertainty.name == "renyi2" else BOUND_CONSTANTS[:1]
+        for variant in BOUND_VARIANTS:
+            for constant in constants:
+                t_new, s_new = _best_of(model, variant, constant, NEW, repeat)
+                row: dict[str, Any] = {
+                    "model": model.name, "S": model.S, "A": model.A, "uncertainty": model.uncertainty.name,
+                    "variant": variant, "constant": constant, "new_time": t_new, "new_feasible": s_new.feasible,
+                    "new_worst_margin": _worst_margin(s_new), "new_agreement": s_new.sample_agreement,
+                    "old_time": None, "old_feasible": None, "old_worst_margin": None, "old_agreement": None,
+                }
+                if old:
+                    t_old, s_old = _best_of(model, variant, constant, OLD, repeat)
+                    row.update(old_time=t_old, old_feasible=s_old.feasible, old_worst_margin=_worst_margin(s_old),
+                               old_agreement=s_old.sample_agreement)
+                log(f"{model.name} {variant} {constant}: new {t_new:.3f} s"
+                    + (f", old {row['old_time']:.3f} s" if old else ""))
+                rows.append(row)
+    return rows
+
+
+def _f(x: Any, spec: str) -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def format_table(rows: Sequence[dict[str, Any]]) -> str:
+    head = (f"{'model':<22} {'S':>4} {'A':>3} {'variant':<8} {'const':<5} {'new s':>8} {'old s':>8} "
+            f"{'old/new':>8} {'new margin':>11} {'old margin':>11} {'agree new':>9} {'agree old':>9}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        ratio = r["old_time"] / r["new_time"] if r["old_time"] is not None and r["new_time"] > 0 else None
+        lines.append(f"{r['model']:<22} {r['S']:>4} {r['A']:>3} {r['variant']:<8} {r['constant']:<5} "
+                     f"{r['new_time']:>8.3f} {_f(r['old_time'], '>8.3f')} {_f(ratio, '>7.1f') + 'x':>8} "
+                     f"{_f(r['new_worst_margin'], '>11.2e')} {_f(r['old_worst_margin'], '>11.2e')} "
+                     f"{_f(r['new_agreement'], '>9.3f')} {_f(r['old_agreement'], '>9.3f')}")
+    lines.append("new: solver='structured' (least element / HiGHS); old: solver='clarabel' (the previous path). "
+                 "Times: best of the repeats, wall clock. Margins: worst exact constraint margin of g and h "
+                 "(>= 0: feasible). Agreement: lower == upper on the 400 fitting samples.")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.lp", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS), metavar="MODEL",
+                        help="'comparison:S,A' or model files (default: %(default)s)")
+    parser.add_argument("--repeat", type=int, default=1, metavar="N", help="best of N runs per cell (1)")
+    parser.add_argument("--no-old", action="store_true", help="time the new path only")
+    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    args = parser.parse_args(argv)
+    if args.repeat < 1:
+        parser.error(f"--repeat: must be >= 1, got {args.repeat}")
+    try:
+        rows = run_lp_bench(args.models, args.repeat, not args.no_old,
+                            log=lambda s: print(s, file=sys.stderr, flush=True))
+    except (ValueError, OSError) as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_table(rows))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=2)
+            fh.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
