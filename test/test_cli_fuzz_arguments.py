@@ -42,7 +42,7 @@ def values(*valid: str) -> st.SearchStrategy[str]:
 
 def option_values(*valid: str) -> st.SearchStrategy[str]:
     keys = st.sampled_from(["depth", "time_budget", "max_depth", "seed", "variant", "prune_without_guarantee",
-                            "no_limit", "bogus", ""])
+                            "no_limit", "simulations", "rollout_depth", "reuse", "leaf", "bogus", ""])
     vals = st.sampled_from(list(valid) + NASTY)
     return st.builds(lambda k, v: f"{k}={v}", keys, vals) | TEXT
 
@@ -54,7 +54,7 @@ COMMANDS: dict[str, tuple[list[str], dict[str, st.SearchStrategy[str] | None]]] 
     "export": ([S2], {"--format": values("pomdp", "yaml"), "-o": values("out.txt", ".", "missing/x", "/dev/full"),
                       "--json": None}),
     "simulate": ([S2], {"--steps": values(*SMALL), "--seed": values(*SMALL),
-                        "--policy": values("myopic", "random", "bnb", "exhaustive", "lower", "upper"),
+                        "--policy": values("myopic", "random", "bnb", "exhaustive", "lower", "upper", "mcts"),
                         "--option": option_values("0.01", "tight", "feasible", *SMALL),
                         "--belief": values("uniform", "0.5,0.5", "1,0", "0.5,0.6"),
                         "--initial-state": values("0", "1"), "--json": None}),
