@@ -3,24 +3,33 @@
 Each subcommand is a module ``pomdp_planner.cli.<name>`` (listed in :data:`SUBCOMMANDS`)
 exposing ``register(subparsers)``, which adds its parser and sets ``func`` (called with the
 parsed arguments, returning an exit code). Pure core only: nothing here imports rclpy.
+
+Exit codes: 0 success, 1 a negative answer (``check``: Assumption 1 fails; ``bounds``: the LP
+is infeasible), 2 bad input: a bad argument, file or option value, or a request the guards
+refuse (too deep, too large). Every error is one line on stderr naming the option or field;
+:func:`main` returns the code instead of raising ``SystemExit``, so it can be called in-process.
+An interrupt (Ctrl-C) ends with code 130 and one line; a closed output pipe (``| head``) ends
+quietly with code 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
 from ..core.belief import BeliefError
 from ..core.model import ModelError
 from . import bench, bounds, check, export, plan, simulate
+from ._common import Parser, one_line
 
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMANDS = (check, bounds, export, simulate, plan, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="pomdp-planner",
         description="Information-acquisition POMDPs with myopic policy bounds (Lauri et al.). "
         "Actions are shown as tracking priorities 1..A (1 = greatest priority).",
@@ -33,15 +42,42 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a bad argument (2, one line already printed)
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         return int(args.func(args) or 0)
     except (ModelError, BeliefError) as exc:  # bad input: the message names the field
-        print(f"pomdp-planner: error: {exc}", file=sys.stderr)
+        print(f"pomdp-planner: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
-    except BrokenPipeError:
+    except BrokenPipeError:  # the reader went away (| head): stop quietly
+        _silence_stdout()
         return 0
+    except UnicodeEncodeError as exc:  # e.g. a file name that is not UTF-8, printed to a strict stdout
+        print(f"pomdp-planner: error: cannot print the output: {exc.reason} ({exc.encoding})", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("pomdp-planner: interrupted", file=sys.stderr)
+        return 130
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's final flush of a closed pipe does not
+    print "Exception ignored ... BrokenPipeError" (Python's documented recipe)."""
+    try:
+        sys.stdout.flush()
+    except (BrokenPipeError, ValueError):
+        pass
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a real file (a test's capture): nothing to flush at exit
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 if __name__ == "__main__":

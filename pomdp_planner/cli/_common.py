@@ -10,6 +10,10 @@ Every subcommand module uses the same conventions, so that the commands look ali
 * ``add_belief_argument(parser)`` / ``parse_belief(text, model)``: a belief given on the
   command line as ``uniform`` or comma-separated probabilities ``0.2,0.3,0.5``.
 * ``format_table(headers, rows)`` renders a plain-text table (right-aligned numbers).
+* Every parser is a :class:`Parser`: a bad argument is one line on stderr naming the option
+  (``pomdp-planner plan: error: argument --depth: ...``) and exit code 2, never the usage text
+  and never a traceback. Numbers are parsed by :func:`int_in` / :func:`float_in` (ranges checked
+  while parsing, NaN and infinity refused) and seeds by :func:`seed_arg`.
 
 Actions are always shown to users as tracking priorities ``1..A`` (``priority_of``).
 """
@@ -20,14 +24,77 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Iterable, Sequence
-from typing import Any, TextIO
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, NoReturn, TextIO
 
 import numpy as np
 
 from ..core.belief import check_belief, uniform_belief
 from ..core.io.model_yaml import load_model
-from ..core.model import POMDP, ModelError
+from ..core.model import POMDP, ModelError, short_repr
+from ..core.policies import SEED_RANGE, check_seed
+
+
+def one_line(text: str) -> str:
+    """``text`` on one line: every character that is not printable (line breaks of any kind, including
+    the separators ``str.splitlines`` honours, and other control characters) is shown escaped, as in
+    ``repr``. Every error is one line of stderr, whatever a user typed."""
+    return "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line naming the option (module docstring)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see '{self.prog} --help')\n")
+
+
+def int_in(lo: int | None, hi: int | None) -> Callable[[str], int]:
+    """An argparse ``type``: an integer (ASCII digits, optional sign) in ``lo..hi`` (``None``: open)."""
+    want = (f"an integer in {lo}..{hi}" if lo is not None and hi is not None else
+            f"an integer >= {lo}" if lo is not None else f"an integer <= {hi}")
+
+    def parse(text: str) -> int:
+        t = text.strip()
+        digits = t[1:] if t[:1] in "+-" else t
+        value = int(t) if digits.isascii() and digits.isdigit() and len(digits) <= 30 else None
+        if value is None or (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(f"must be {want}, got {short_repr(text)}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def float_in(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
+    """An argparse ``type``: a finite number in ``lo..hi`` (NaN and infinity refused)."""
+    span = "..".join(f"{x:.0f}" if float(x).is_integer() else f"{x:g}" for x in (lo, hi))
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text) if text.isascii() else math.nan
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise argparse.ArgumentTypeError(f"must be a number{unit} in {span}, got {short_repr(text)}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def seed_arg(text: str) -> int:
+    """An argparse ``type`` for seeds: an integer in :data:`~pomdp_planner.core.policies.SEED_RANGE`."""
+    try:
+        return check_seed(int_in(*SEED_RANGE)(text), "seed")
+    except (argparse.ArgumentTypeError, ModelError):
+        raise argparse.ArgumentTypeError(f"must be an integer in {SEED_RANGE[0]}..{SEED_RANGE[1]}, "
+                                         f"got {short_repr(text)}") from None
+
+
+def add_seed_argument(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """Add ``--seed K`` (:func:`seed_arg`, default 0)."""
+    parser.add_argument("--seed", type=seed_arg, default=0, metavar="K", help=help_text)
 
 
 def add_model_argument(parser: argparse.ArgumentParser) -> None:
@@ -63,10 +130,11 @@ def parse_belief(text: str, model: POMDP, field: str = "--belief") -> np.ndarray
     text = text.strip()
     if text.lower() == "uniform":
         return uniform_belief(model)
-    try:
-        values = [float(x) for x in text.replace(" ", "").split(",") if x != ""]
+    items = text.replace(" ", "").split(",")
+    try:  # an empty item ("0.5,,0.5", a trailing comma) is an error, as any other non-number
+        values = [float(x) if x.isascii() else math.nan for x in items]
     except ValueError:
-        raise ModelError(f"{field}: expected 'uniform' or comma-separated numbers, got {text!r}") from None
+        raise ModelError(f"{field}: expected 'uniform' or comma-separated numbers, got {short_repr(text)}") from None
     return check_belief(model, np.asarray(values, dtype=float), field=field)
 
 
@@ -96,6 +164,30 @@ def emit_json(data: Any, stream: TextIO | None = None) -> None:
     stream = sys.stdout if stream is None else stream
     json.dump(to_jsonable(data), stream, indent=2, allow_nan=False)
     stream.write("\n")
+
+
+def emit_json_stream(head: dict, key: str, items: Iterable[Any], tail: Callable[[], dict],
+                     stream: TextIO | None = None) -> None:
+    """Print one JSON object ``{**head, key: [*items], **tail()}`` while ``items`` is being produced.
+
+    Each item is written (one line) as soon as it comes and then dropped, so the memory does not
+    grow with the number of items (``simulate --json`` with any ``--steps``); ``tail`` is called
+    after the last item (summaries of the run). The output is the same JSON as :func:`emit_json`
+    would give for the whole object, laid out differently.
+    """
+    out = sys.stdout if stream is None else stream
+
+    def dump(value: Any) -> str:
+        return json.dumps(to_jsonable(value), allow_nan=False)
+
+    out.write("{\n" + "".join(f"  {json.dumps(str(k))}: {dump(v)},\n" for k, v in head.items()))
+    out.write(f"  {json.dumps(key)}: [")
+    sep = "\n    "
+    for item in items:
+        out.write(sep + dump(item))
+        sep = ",\n    "
+    out.write("]" if sep == "\n    " else "\n  ]")
+    out.write("".join(f",\n  {json.dumps(str(k))}: {dump(v)}" for k, v in tail().items()) + "\n}\n")
 
 
 def format_number(x: Any, digits: int = 4) -> str:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +28,24 @@ from ..core.bounds import (
     sample_beliefs,
     solve_bounds,
 )
-from ..core.model import POMDP, ModelError, priority_of
-from ._common import add_json_argument, add_model_argument, emit_json, format_table, load_model_arg
+from ..core.io.file_text import read_model_text
+from ..core.model import POMDP, ModelError, priority_of, short_repr
+from ._common import (
+    add_json_argument,
+    add_model_argument,
+    add_seed_argument,
+    emit_json,
+    format_table,
+    int_in,
+    load_model_arg,
+)
 
 #: Beliefs used to fit the "tight" variant (independent of the beliefs displayed).
 FIT_SAMPLES = 400
+#: Most beliefs evaluated (``--samples``, rows of ``--beliefs``): seconds of work and of output.
+MAX_BELIEFS = 100_000
+#: Largest ``--beliefs`` file read (bytes): 16 MiB, about 100 000 rows of 8 probabilities.
+MAX_BELIEFS_FILE_BYTES = 16 * 2**20
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -51,23 +65,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--beliefs", metavar="FILE.csv",
                    help="beliefs to evaluate, one per line, S comma-separated probabilities ('#' comments "
                         "and a non-numeric header line are skipped)")
-    p.add_argument("--samples", type=int, default=20, metavar="N",
-                   help="number of sampled reachable beliefs to evaluate when --beliefs is not given (default 20)")
-    p.add_argument("--seed", type=int, default=0, metavar="K",
-                   help="seed for the sampled beliefs and for fitting the tight variant (default 0)")
+    p.add_argument("--samples", type=int_in(1, MAX_BELIEFS), default=20, metavar="N",
+                   help=f"number of sampled reachable beliefs to evaluate when --beliefs is not given, "
+                        f"1..{MAX_BELIEFS:,} (default 20)")
+    add_seed_argument(p, "seed for the sampled beliefs and for fitting the tight variant (default 0)")
     add_json_argument(p)
     p.set_defaults(func=run)
 
 
 def read_beliefs_csv(path: str | Path, model: POMDP) -> np.ndarray:
-    """Read beliefs (rows of S probabilities) from a CSV file; errors name file and line."""
+    """Read beliefs (rows of S probabilities) from a CSV file; errors name file and line.
+
+    The file is read as a model file is (``core.io.file_text``): a regular UTF-8 file of at most
+    :data:`MAX_BELIEFS_FILE_BYTES`, with at most :data:`MAX_BELIEFS` beliefs.
+    """
     path = Path(path)
     try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ModelError(f"--beliefs: cannot read {path}: {exc.strerror or exc}") from None
+        text = read_model_text(path, "beliefs file", MAX_BELIEFS_FILE_BYTES, "MAX_BELIEFS_FILE_BYTES")
+    except ModelError as exc:
+        raise ModelError(f"--beliefs: {exc}") from None
     rows = []
-    for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
+    for lineno, row in _csv_rows(text, path):
         cells = [c.strip() for c in row if c.strip() != ""]
         if not cells or cells[0].startswith("#"):
             continue
@@ -76,7 +94,8 @@ def read_beliefs_csv(path: str | Path, model: POMDP) -> np.ndarray:
         except ValueError:
             if not rows and lineno == 1:  # a header line
                 continue
-            raise ModelError(f"--beliefs: {path}:{lineno}: not a row of numbers: {','.join(cells)!r}") from None
+            raise ModelError(f"--beliefs: {path}:{lineno}: not a row of numbers: "
+                             f"{short_repr(','.join(cells))}") from None
         b = np.asarray(values)
         where = f"--beliefs: {path}:{lineno}"
         if b.size != model.S:
@@ -86,9 +105,25 @@ def read_beliefs_csv(path: str | Path, model: POMDP) -> np.ndarray:
         if abs(b.sum() - 1.0) > 1e-6:
             raise ModelError(f"{where}: probabilities sum to {b.sum():.9g}, not 1")
         rows.append(b / b.sum())
+        if len(rows) > MAX_BELIEFS:
+            raise ModelError(f"--beliefs: {path}: more than {MAX_BELIEFS:,} beliefs (MAX_BELIEFS)")
     if not rows:
         raise ModelError(f"--beliefs: {path} contains no beliefs")
     return np.array(rows)
+
+
+def _csv_rows(text: str, path: Path) -> Iterator[tuple[int, list[str]]]:
+    """``(line number, cells)`` of the CSV ``text``; the csv module's errors (a field over its
+    size limit) as ``ModelError`` naming the line."""
+    reader = csv.reader(text.splitlines())
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise ModelError(f"--beliefs: {path}:{reader.line_num}: {exc}") from None
+        yield reader.line_num, row
 
 
 def evaluate(sol: BoundsSolution, B: np.ndarray) -> dict:
@@ -109,8 +144,6 @@ def run(args: argparse.Namespace) -> int:
         B = read_beliefs_csv(args.beliefs, model)
         source = f"file {args.beliefs}"
     else:
-        if args.samples < 1:
-            raise ModelError(f"--samples: must be a positive integer, got {args.samples}")
         # displayed beliefs come from a different stream than the tight variant's fitting samples
         B = sample_beliefs(model, args.samples, seed=args.seed + 1)
         source = f"{args.samples} sampled reachable beliefs (seed {args.seed})"

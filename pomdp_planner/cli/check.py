@@ -12,7 +12,19 @@ import argparse
 
 from ..core.model import POMDP
 from ..core.structure import EXACT_MAX_STATES, SDP_MAX_STATES, check_assumptions
-from ._common import add_json_argument, add_model_argument, emit_json, load_model_arg
+from ._common import (
+    add_json_argument,
+    add_model_argument,
+    add_seed_argument,
+    emit_json,
+    float_in,
+    int_in,
+    load_model_arg,
+)
+
+#: ``--tol``: the tolerances are relative (core/structure.py); above 1e-3 a test would accept
+#: violations a thousand times larger than rounding, and a negative one would refuse exact zeros.
+TOL_RANGE = (0.0, 1e-3)
 
 
 def model_summary(model: POMDP) -> dict:
@@ -60,10 +72,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_model_argument(p)
     add_json_argument(p)
-    p.add_argument("--tol", type=float, default=1e-9, help="absolute tolerance of every test (default 1e-9)")
-    p.add_argument("--sdp-max-states", type=int, default=SDP_MAX_STATES, metavar="N",
-                   help=f"attempt the (A2) SDP certificate only for S <= N (default {SDP_MAX_STATES})")
-    p.add_argument("--exact-max-states", type=int, default=EXACT_MAX_STATES, metavar="N",
-                   help=f"exact (A2) small-support test only for S <= N (default {EXACT_MAX_STATES})")
-    p.add_argument("--seed", type=int, default=0, help="seed of the counterexample search (default 0)")
+    p.add_argument("--tol", type=float_in(*TOL_RANGE), default=1e-9, metavar="TOL",
+                   help=f"tolerance of every test, {TOL_RANGE[0]:g}..{TOL_RANGE[1]:g} (default 1e-9; relative, "
+                        "see core/structure.py)")
+    p.add_argument("--sdp-max-states", type=int_in(0, None), default=SDP_MAX_STATES, metavar="N",
+                   help=f"attempt the (A2) SDP certificate only for S <= N, N >= 0 (default {SDP_MAX_STATES})")
+    p.add_argument("--exact-max-states", type=int_in(0, None), default=EXACT_MAX_STATES, metavar="N",
+                   help=f"exact (A2) small-support test only for S <= N, N >= 0 (default {EXACT_MAX_STATES})")
+    add_seed_argument(p, "seed of the counterexample search (default 0)")
     p.set_defaults(func=run)

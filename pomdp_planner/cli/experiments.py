@@ -10,9 +10,17 @@ says so.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
 
-from ..bench.experiments.runner import SECTIONS, run_all
+from ..bench.experiments.runner import CACHE_DIR, SECTIONS, run_all
+from ..core.io.outputs import check_output_dir
+from ..core.model import ModelError
+from ._common import int_in
+
+#: ``--jobs``: worker processes, at most one per CPU (the budgeted planners are timed).
+MAX_JOBS = os.cpu_count() or 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,9 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"run only these sections ({', '.join(SECTIONS)})")
     parser.add_argument("--report-only", action="store_true",
                         help="run nothing: rewrite RESULTS.md and the plots from DIR/.experiments-cache")
-    parser.add_argument("--jobs", type=int, default=1, metavar="N",
-                        help="worker processes for the peer comparison (default 1; budgets are CPU time, so load "
-                             "does not change the results, only the run time: use at most one per core)")
+    parser.add_argument("--jobs", type=int_in(1, MAX_JOBS), default=1, metavar="N",
+                        help=f"worker processes for the peer comparison, 1..{MAX_JOBS} (the CPUs; default 1; budgets "
+                             "are CPU time, so load does not change the results, only the run time: use at most one "
+                             "per core)")
     parser.add_argument("--resume", action="store_true",
                         help="peer comparison: reuse the chunks of episodes an interrupted run left in "
                              "DIR/.experiments-cache/peers-chunks instead of starting afresh")
@@ -40,13 +49,26 @@ def run(args: argparse.Namespace) -> int:
         print("pomdp-planner: error: the experiments need matplotlib: pip install 'pomdp_planner[experiments]'",
               file=sys.stderr)
         return 2
-    if args.jobs < 1:
-        print(f"pomdp-planner: error: --jobs: must be >= 1, got {args.jobs}", file=sys.stderr)
-        return 2
-    data = run_all(args.output, quick=args.quick, progress=not args.no_progress,
-                   sections=() if args.report_only else tuple(args.only) if args.only else SECTIONS,
-                   jobs=args.jobs, resume=args.resume)
+    output = check_output_dir(args.output, "--output")
+    if args.report_only and not cached_sections(output):
+        raise ModelError(f"--report-only: {output / CACHE_DIR} holds no results to report (run the experiments "
+                         "first, without --report-only)")
+    try:
+        data = run_all(output, quick=args.quick, progress=not args.no_progress,
+                       sections=() if args.report_only else tuple(args.only) if args.only else SECTIONS,
+                       jobs=args.jobs, resume=args.resume)
+    except OSError as exc:  # a file of the output folder could not be written (disk full, permissions)
+        where = f" {exc.filename}" if exc.filename else ""
+        raise ModelError(f"--output: cannot write{where}: {exc.strerror or exc}") from None
     mode = "report only" if args.report_only else "quick mode" if args.quick else "full mode"
     print(f"wrote {args.output}/RESULTS.md ({mode}; "
           + ", ".join(f"{k} {v:.0f} s" for k, v in data["timings"].items()) + ")")
     return 0
+
+
+def cached_sections(output: Path) -> list[str]:
+    """The sections with a cached result in ``output``'s cache folder (any file ``<section>.*``)."""
+    cache = output / CACHE_DIR
+    if not cache.is_dir():
+        return []
+    return [name for name in SECTIONS if any(cache.glob(f"{name}.*"))]

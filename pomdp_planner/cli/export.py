@@ -14,6 +14,7 @@ import yaml
 
 from ..core.io.cassandra import export_pomdp
 from ..core.io.model_yaml import model_to_dict
+from ..core.io.outputs import check_output_file, write_text_file
 from ._common import add_json_argument, add_model_argument, emit_json, load_model_arg
 
 
@@ -29,6 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.output is not None:  # before any work: a directory, a missing folder
+        check_output_file(args.output, "-o/--output")
     model = load_model_arg(args)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -39,12 +42,11 @@ def run(args: argparse.Namespace) -> int:
     messages = [str(w.message) for w in caught]
     for m in messages:
         print(f"pomdp-planner: warning: {m}", file=sys.stderr)
-    if args.output:
-        with open(args.output, "w") as f:
-            f.write(text)
+    if args.output is not None:
+        write_text_file(args.output, text, "-o/--output")
     if args.json:
         emit_json({"model": model.name, "format": args.format, "output": args.output, "warnings": messages,
-                   "text": None if args.output else text})
-    elif not args.output:
+                   "text": None if args.output is not None else text})
+    elif args.output is None:
         sys.stdout.write(text)
     return 0

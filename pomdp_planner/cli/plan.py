@@ -14,6 +14,12 @@ from the LP of Theorem 2 (``--variant``) through the assumption gate
 infeasible or the Shannon guarantee covers no domain, the search is exhaustive and the output
 says why. ``--prune-without-guarantee`` prunes anyway; the output then says that no guarantee
 holds, and no decision is certified. Crossed root bounds (lower > upper) are reported as such.
+
+Resource guards (checked before the search starts; a refusal is exit code 2 with the figures):
+a fixed depth whose complete tree has more than ``MAX_TREE_NODES`` (1e10) belief nodes is
+refused unless ``--no-limit``; a depth whose memory estimate exceeds ``--memory-budget`` (MiB,
+default 1024) is refused with the deepest depth that fits; the anytime search's
+``--max-depth`` is capped at that depth instead, and the output says so.
 """
 
 from __future__ import annotations
@@ -23,11 +29,31 @@ import sys
 
 from ..core.bounds import BOUND_VARIANTS
 from ..core.gate import build_planner
-from ..core.search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_time_budget
-from ._common import add_belief_argument, add_json_argument, add_model_argument, emit_json, load_model_arg, parse_belief
+from ..core.search import (
+    DEFAULT_MEMORY_BUDGET,
+    MAX_DEPTH_RANGE,
+    TIME_BUDGET_RANGE,
+    check_depth,
+    check_search_memory,
+    check_time_budget,
+    check_tree_size,
+    deepest_depth_within_budget,
+)
+from ._common import (
+    add_belief_argument,
+    add_json_argument,
+    add_model_argument,
+    emit_json,
+    float_in,
+    load_model_arg,
+    parse_belief,
+)
 
 DEFAULT_DEPTH = 3
 DEFAULT_MAX_DEPTH = 10
+MIB = 2**20
+#: ``--memory-budget`` in MiB: at least 1 MiB, at most 1 TiB.
+MEMORY_BUDGET_RANGE_MIB = (1.0, float(2**20))
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -44,6 +70,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-depth", type=int, default=DEFAULT_MAX_DEPTH, metavar="D",
                    help=f"deepest depth of the anytime search, {depths} (default {DEFAULT_MAX_DEPTH})")
     p.add_argument("--exhaustive", action="store_true", help="search all actions (no myopic bounds)")
+    lo, hi = MEMORY_BUDGET_RANGE_MIB
+    p.add_argument("--memory-budget", type=float_in(lo, hi, " of MiB"), default=DEFAULT_MEMORY_BUDGET / MIB,
+                   metavar="MIB", help=f"memory the search may use, in MiB ({lo:g}..{hi:g}, default "
+                   f"{DEFAULT_MEMORY_BUDGET / MIB:g}): a deeper fixed depth is refused, the anytime search's "
+                   "--max-depth capped")
+    p.add_argument("--no-limit", action="store_true",
+                   help="run a fixed depth whose complete tree exceeds MAX_TREE_NODES (1e10 belief nodes; "
+                        "refused by default: it would take minutes to hours)")
     p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
                    help=f"bound variant of the LP (default {BOUND_VARIANTS[0]})")
     p.add_argument("--prune-without-guarantee", action="store_true",
@@ -60,9 +94,25 @@ def run(args: argparse.Namespace) -> int:
     max_depth = check_depth(args.max_depth, "--max-depth", MAX_DEPTH_RANGE)
     budget = None if args.time_budget is None else check_time_budget(args.time_budget, "--time-budget",
                                                                        TIME_BUDGET_RANGE)
+    # The resource guards, before the gate (whose assumption check and LP take long on large models).
+    S, A, Z = model.S, model.A, model.Z
+    memory = int(args.memory_budget * MIB)
+    capped = None  # the anytime search's max depth, when the memory budget lowers it
+    if budget is None:
+        if not args.no_limit:
+            check_tree_size(A, Z, depth, "--depth", hint="use --time-budget S (anytime search, stopped in time) "
+                            "or --no-limit")
+        check_search_memory(S, A, Z, depth, memory, "--depth")
+    else:
+        check_search_memory(S, A, Z, 1, memory, "--max-depth")  # refused if not even depth 1 fits
+        fits = deepest_depth_within_budget(S, A, Z, max_depth, memory)
+        if fits < max_depth:
+            capped, max_depth = max_depth, fits
+            cap_note = (f"--max-depth capped at {fits} (asked {capped}): a deeper search needs more than the "
+                        f"memory budget of {args.memory_budget:g} MiB")
     setup = build_planner(model, use_bounds=not args.exhaustive, variant=args.variant,
                           prune_without_guarantee=args.prune_without_guarantee,
-                          override_name="--prune-without-guarantee")
+                          override_name="--prune-without-guarantee", memory_budget=memory)
     planner = setup.planner
     assert planner is not None  # the gate refuses only when asked to (on_assumption_failure="refuse")
     sol = setup.bounds
@@ -76,8 +126,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         res = planner.search(belief, depth, use_bounds=use_bounds)
     if args.json:
+        if capped is not None:
+            print(f"pomdp-planner plan: {cap_note}", file=sys.stderr)
         emit_json({"model": model.name, "belief": belief, "mode": "anytime" if budget is not None
-                   else "fixed-depth", "bounds": bounds_info, "gate": setup.to_dict(), **res.to_dict()})
+                   else "fixed-depth", "bounds": bounds_info, "gate": setup.to_dict(),
+                   "max_depth": max_depth if budget is not None else None, "max_depth_capped_from": capped,
+                   "memory_budget_bytes": planner.memory_budget, **res.to_dict()})
         return 0
     d = res.to_dict()
     q = ", ".join(f"{i + 1}: {'-' if v is None else f'{v:.6g}'}" for i, v in enumerate(d["q_values"]))
@@ -102,5 +156,7 @@ def run(args: argparse.Namespace) -> int:
                                         enumerate(zip(d["nodes_expanded"], d["percent_pruned"], strict=True))),
         f"time: {d['time_used'] * 1e3:.1f} ms",
     ]
+    if capped is not None:
+        lines.insert(5, f"max depth: {cap_note}")
     print("\n".join(lines))
     return 0

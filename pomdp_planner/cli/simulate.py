@@ -7,30 +7,41 @@ names them, else by 0-based index. ``--json`` prints the same as data. For the p
 (``bnb``, ``exhaustive``, ``lower``, ``upper``) a header line (JSON: ``planner``) gives the
 assumption gate's decision: pruning with valid bounds, exhaustive search and why, or pruning
 without guarantee (``--option prune_without_guarantee=1``).
+
+The steps are streamed: each line (each JSON step) is printed as soon as the step is simulated
+and then forgotten, and the summary comes from running sums (``core.simulate.Simulation``,
+``RunningSummary``), so any ``--steps`` runs in constant memory and ``| head`` stops it at once.
+The JSON output is still one object, with one step per line. Everything (model, options,
+policy, the search guards) is checked before the first step is printed.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator, Sequence
 
-from ..core.model import ModelError
+from ..core.model import POMDP, ModelError, short_repr
 from ..core.policies import POLICIES, make_policy, policy_names
-from ..core.simulate import simulate
+from ..core.simulate import RunningSummary, Simulation, SimulationStep
 from ._common import (
     add_belief_argument,
     add_json_argument,
     add_model_argument,
-    emit_json,
-    format_table,
+    add_seed_argument,
+    emit_json_stream,
+    format_number,
+    int_in,
     load_model_arg,
     parse_belief,
 )
 
 
 def _option(text: str) -> tuple[str, object]:
+    """``KEY=VALUE``; the value as an int, else a float, else the text (the policy checks it)."""
     key, sep, value = text.partition("=")
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {short_repr(text)}")
+    key = key.strip()
     for conv in (int, float):
         try:
             return key, conv(value)
@@ -46,8 +57,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                   f"  {name:<11} {POLICIES[name].help}" for name in policy_names()),
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     add_model_argument(p)
-    p.add_argument("--steps", type=int, default=20, help="number of steps (default 20)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same run")
+    p.add_argument("--steps", type=int_in(0, None), default=20, metavar="N",
+                   help="number of steps, >= 0 (default 20); streamed: any number runs in constant memory")
+    add_seed_argument(p, "random seed (default 0); same seed, same run")
     p.add_argument("--policy", default="myopic",
                    help=f"policy name: {', '.join(policy_names())} (default myopic; see below)")
     p.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
@@ -60,15 +72,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _initial_state(text: str | None, model) -> int | None:
+def _initial_state(text: str | None, model: POMDP) -> int | None:
     if text is None:
         return None
     if model.state_names is not None and text in model.state_names:
         return model.state_names.index(text)
-    try:
-        s = int(text)
-    except ValueError:
-        raise ModelError(f"--initial-state: {text!r} is neither a state name nor an index") from None
+    t = text.strip()
+    digits = t[1:] if t[:1] in "+-" else t
+    if not (digits.isascii() and digits.isdigit() and len(digits) <= 30):
+        raise ModelError(f"--initial-state: {short_repr(text)} is neither a state name nor an index")
+    s = int(t)
     if not 0 <= s < model.S:
         raise ModelError(f"--initial-state: index {s} out of range 0..{model.S - 1}")
     return s
@@ -76,39 +89,81 @@ def _initial_state(text: str | None, model) -> int | None:
 
 def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
-    if args.steps < 0:
-        raise ModelError(f"--steps: must be non-negative, got {args.steps}")
     if args.policy not in POLICIES:
-        raise ModelError(f"--policy: unknown policy {args.policy!r} (known: {', '.join(policy_names())})")
+        raise ModelError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")
     belief = parse_belief(args.belief, model) if args.belief else None
+    initial_state = _initial_state(args.initial_state, model)
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.
     options = {"seed": args.seed + 1, **dict(args.option)}
     policy = make_policy(args.policy, model, **options)
-    trace = simulate(model, policy, args.steps, seed=args.seed,
-                     initial_state=_initial_state(args.initial_state, model), initial_belief=belief)
-    data = trace.to_dict(model.state_names, model.observation_names)
-    data["policy"] = args.policy
+    sim = Simulation(model, policy, args.steps, seed=args.seed, initial_state=initial_state, initial_belief=belief)
     setup = getattr(policy, "setup", None)  # the assumption gate's decision, for the planners
-    if setup is not None:
-        data["planner"] = {**setup.to_dict(), "certified_decisions": getattr(policy, "certified", None)}
+    note = getattr(policy, "note", "")  # e.g. the anytime search's max_depth capped by the memory budget
+    summary = RunningSummary(model.gamma)
+
+    def steps() -> Iterator[SimulationStep]:
+        for st in sim:
+            summary.add(st)
+            yield st
+
     if args.json:
-        emit_json(data)
+        head = {"model": model.name, "policy": args.policy, "seed": args.seed, "gamma": model.gamma,
+                "initial_belief": sim.initial_belief}
+        if note:
+            head["policy_note"] = note
+
+        def tail() -> dict:
+            out: dict = {"summary": summary.summary()}
+            if setup is not None:
+                out["planner"] = {**setup.to_dict(), "certified_decisions": getattr(policy, "certified", None)}
+            return out
+
+        rows = (st.to_dict(model.state_names, model.observation_names) for st in steps())
+        emit_json_stream(head, "steps", rows, tail)
         return 0
-
-    def label(names, i):
-        return names[i] if names is not None else int(i)
-
-    rows = [[row["step"], label(model.state_names, row["state"]), row["priority"],
-             label(model.observation_names, row["observation"]), row["entropy"], row["reward"],
-             row["state_reward"]] for row in data["steps"]]
     print(f"# {model.describe()}  policy={args.policy} seed={args.seed} steps={args.steps}")
     if setup is not None:
         print(f"# planner: {setup.describe()}")
-    print(format_table(["step", "state", "priority", "obs", "entropy", "reward", "r(s,a)"], rows))
-    s = data["summary"]
+    if note:
+        print(f"# policy: {note}")
+    table = StepTable(model, args.steps)
+    print(table.header)
+    for st in steps():
+        print(table.line(st))
+    s = summary.summary()
     print(f"mean reward {s['mean_reward']:.4f}  discounted return {s['discounted_return']:.4f}  "
           f"(state reward: mean {s['mean_state_reward']:.4f}, discounted {s['discounted_state_return']:.4f})")
     if s["recovered_steps"]:
         print(f"warning: {s['recovered_steps']} observation(s) impossible under the belief; belief re-initialised "
               "from the observation likelihood")
     return 0
+
+
+class StepTable:
+    """One table line per step, with the column widths fixed in advance (the rows are streamed,
+    so they cannot be measured first): integer columns by their largest value, names by the
+    longest name (left-aligned), numbers at least 9 characters (a wider value widens its line only)."""
+
+    HEADERS = ("step", "state", "priority", "obs", "entropy", "reward", "r(s,a)")
+
+    def __init__(self, model: POMDP, steps: int):
+        def width(names: Sequence[str] | None, count: int) -> int:
+            return max(len(n) for n in names) if names is not None else len(str(count - 1))
+
+        self.states, self.observations = model.state_names, model.observation_names
+        cols = [len(str(max(steps - 1, 0))), width(self.states, model.S), len(str(model.A)),
+                width(self.observations, model.Z), 9, 9, 9]
+        self.widths = [max(w, len(h)) for w, h in zip(cols, self.HEADERS, strict=True)]
+        self.left = [False, self.states is not None, False, self.observations is not None, False, False, False]
+        self.header = self._line(self.HEADERS) + "\n" + "  ".join("-" * w for w in self.widths)
+
+    def _line(self, cells: Sequence[str]) -> str:
+        return "  ".join(c.ljust(w) if left else c.rjust(w)
+                         for c, w, left in zip(cells, self.widths, self.left, strict=True)).rstrip()
+
+    def line(self, st: SimulationStep) -> str:
+        """The table line of one step."""
+        state = self.states[st.state] if self.states is not None else str(st.state)
+        obs = self.observations[st.observation] if self.observations is not None else str(st.observation)
+        return self._line([str(st.t), state, str(st.action + 1), obs, format_number(st.entropy),
+                           format_number(st.reward), format_number(st.state_reward)])

@@ -119,6 +119,7 @@ import numpy as np
 from .belief import ETA_MIN, check_belief
 from .gc_pause import paused_gc
 from .model import POMDP, priority_of
+from .search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 
 #: Leaf evaluations accepted by :class:`BeliefMCTS` (see the module docstring).
 LEAF_KINDS = ("rollout", "rho", "zero")
@@ -643,6 +644,20 @@ class BeliefMCTSPolicy:
         return self.last.action
 
 
+#: The largest ``simulations`` per decision a user may ask for (``--option simulations=N``): about
+#: 25-50 s of search at the 20-50 thousand simulations/s measured on the tracking models.
+MAX_SIMULATIONS = 10**6
+#: The largest ``rollout_depth`` a user may ask for (greedy steps per simulation).
+MAX_ROLLOUT_DEPTH = 1000
+
+
+def _check_range(value: Any, name: str, lo: float, hi: float) -> None:
+    """A user-facing range (the same ranges as the search planners' options, where they share one)."""
+    if value is not None and not (isinstance(value, (int, float, np.integer, np.floating)) and lo <= value <= hi):
+        span = "..".join(str(int(x)) if float(x).is_integer() else f"{x:g}" for x in (lo, hi))
+        raise ValueError(f"{name}: must be in {span}, got {value!r}")
+
+
 #: Options of :func:`make_belief_mcts_policy` and their defaults.
 POLICY_OPTIONS: dict[str, Any] = {
     "time_budget": None, "simulations": None, "max_depth": DEFAULT_MAX_DEPTH, "exploration": None,
@@ -663,6 +678,12 @@ def make_belief_mcts_policy(model: POMDP, options: Mapping[str, Any] | None = No
     """
     opts = dict(POLICY_OPTIONS)
     opts.update({k: v for k, v in (options or {}).items() if k in POLICY_OPTIONS and v is not None})
+    # user-facing ranges, checked after the types (BeliefMCTS, BeliefMCTSPolicy) would be too late
+    # for an absurd but well-typed value: time_budget=1e9 or rollout_depth=1e8 would stall a run
+    for name, (lo, hi) in {"time_budget": TIME_BUDGET_RANGE, "max_depth": MAX_DEPTH_RANGE,
+                           "simulations": (1, MAX_SIMULATIONS), "rollout_depth": (0, MAX_ROLLOUT_DEPTH)}.items():
+        if not isinstance(opts[name], bool):
+            _check_range(opts[name], name, lo, hi)
     reuse = opts["reuse"]
     if isinstance(reuse, str) and reuse.lower() in ("true", "false"):  # from the command line
         reuse = reuse.lower() == "true"

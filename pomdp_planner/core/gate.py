@@ -42,7 +42,7 @@ import numpy as np
 from .bounds import BOUND_VARIANTS, BoundsSolution, solve_bounds
 from .model import POMDP, ModelError
 from .myopic import MyopicBounds
-from .search import DEFAULT_CHUNK_BYTES, Planner
+from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner
 from .structure import AssumptionReport, check_assumptions
 
 #: What :func:`build_planner` does when Assumption 1 fails or is unproven.
@@ -145,14 +145,17 @@ class PlannerSetup:
 
 def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tight", constant: str | None = None,
                   on_assumption_failure: str = "exhaustive", prune_without_guarantee: bool = False,
-                  chunk_bytes: int = DEFAULT_CHUNK_BYTES, report: AssumptionReport | None = None,
-                  override_name: str = "prune_without_guarantee") -> PlannerSetup:
+                  chunk_bytes: int = DEFAULT_CHUNK_BYTES, memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                  report: AssumptionReport | None = None, override_name: str = "prune_without_guarantee"
+                  ) -> PlannerSetup:
     """Check Assumption 1, solve the bounds and build the planner (module docstring).
 
     ``variant`` (and ``constant``, passed to :func:`~.bounds.solve_bounds` only when given)
     choose the LP's bounds. ``report``: an Assumption 1 report already computed for ``model``
     (else :func:`assumption_report`). ``override_name`` is how the caller's user spells the
     override (``--prune-without-guarantee``, ``prune_without_guarantee=1``), quoted in the reason.
+    ``chunk_bytes`` and ``memory_budget`` (bytes, checked before every search) go to the
+    :class:`~.search.Planner`.
     """
     if variant not in BOUND_VARIANTS:
         raise ModelError(f"variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
@@ -160,9 +163,12 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
         raise ModelError(f"on_assumption_failure: expected one of {', '.join(ON_ASSUMPTION_FAILURE)}, "
                          f"got {on_assumption_failure!r}")
 
+    def planner(bounds: MyopicBounds | None, guaranteed: bool) -> Planner:
+        return Planner(model, bounds, chunk_bytes=chunk_bytes, guaranteed=guaranteed, memory_budget=memory_budget)
+
     def exhaustive(reason: str, rep: AssumptionReport | None = None, sol: BoundsSolution | None = None
                    ) -> PlannerSetup:
-        return PlannerSetup(Planner(model, None, chunk_bytes=chunk_bytes), "exhaustive", False, reason, rep, sol,
+        return PlannerSetup(planner(None, False), "exhaustive", False, reason, rep, sol,
                             variant if sol is not None else None)
 
     if not use_bounds:
@@ -186,9 +192,7 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     if unguaranteed:
         reason = (f"forced by {override_name} although {unguaranteed}; no guarantee holds: the bounds may "
                   "exclude the optimal action, and they certify nothing")
-        return PlannerSetup(Planner(model, sol.myopic, chunk_bytes=chunk_bytes, guaranteed=False), "prune", False,
-                            reason, rep, sol, variant, forced=True)
+        return PlannerSetup(planner(sol.myopic, False), "prune", False, reason, rep, sol, variant, forced=True)
     covers = "the simplex" if sol.covers == "simplex" else sol.covers
     reason = f"Assumption 1 holds and the bound LP ({variant}) is feasible; the guarantee covers {covers}"
-    return PlannerSetup(Planner(model, sol.myopic, chunk_bytes=chunk_bytes, guaranteed=True), "prune", True,
-                        reason, rep, sol, variant)
+    return PlannerSetup(planner(sol.myopic, True), "prune", True, reason, rep, sol, variant)

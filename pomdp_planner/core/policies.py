@@ -24,9 +24,29 @@ from .belief_mcts import POLICY_OPTIONS as MCTS_OPTIONS
 from .belief_mcts import make_belief_mcts_policy
 from .bounds import BOUND_VARIANTS
 from .gate import PlannerSetup, build_planner
-from .model import POMDP, ModelError
+from .model import POMDP, ModelError, short_repr
 from .myopic import MyopicBounds
-from .search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, SearchResult, check_depth, check_time_budget
+from .search import (
+    MAX_DEPTH_RANGE,
+    TIME_BUDGET_RANGE,
+    SearchResult,
+    check_depth,
+    check_time_budget,
+    check_tree_size,
+)
+
+#: Seeds a user may give (``--seed``, the ``seed`` option): integers in this range, inclusive
+#: (numpy takes any non-negative integer; the cap keeps a seed an int64 for JSON readers).
+SEED_RANGE = (0, 2**63 - 1)
+
+
+def check_seed(seed: Any, field: str = "seed") -> int:
+    """``seed`` as an int after checking it is an integer in :data:`SEED_RANGE` (``ModelError``
+    naming ``field``)."""
+    lo, hi = SEED_RANGE
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not lo <= seed <= hi:
+        raise ModelError(f"{field}: must be an integer in {lo}..{hi}, got {short_repr(seed)}")
+    return int(seed)
 
 
 class PolicyObject(Protocol):
@@ -65,17 +85,38 @@ class SearchPolicy:
     ``setup`` is the assumption gate's decision (:func:`~.gate.build_planner`): its planner
     prunes only when the gate said so. ``depth``: fixed-depth search (default 3), or
     ``time_budget`` seconds of anytime search up to ``max_depth`` (default 10).
+
+    The resource guards of the search are applied once, here, before the first step: a fixed
+    depth whose complete tree exceeds :data:`~.search.MAX_TREE_NODES` is refused unless
+    ``no_limit`` (:func:`~.search.check_tree_size`), as is one over the planner's memory budget
+    (:class:`~.search.SearchMemoryError`); the anytime search's ``max_depth`` is capped at the
+    deepest depth within the memory budget (``note`` says so; refused if not even depth 1 fits).
     """
 
-    def __init__(self, setup: PlannerSetup, depth: int = 3, time_budget: float | None = None, max_depth: int = 10):
+    def __init__(self, setup: PlannerSetup, depth: int = 3, time_budget: float | None = None, max_depth: int = 10,
+                 no_limit: bool = False):
         if setup.planner is None:
             raise ModelError(f"policy: no planner ({setup.reason})")
         self.setup = setup
-        self.planner = setup.planner
+        self.planner = planner = setup.planner
         self.depth = check_depth(depth, "option depth", MAX_DEPTH_RANGE)
         self.max_depth = check_depth(max_depth, "option max_depth", MAX_DEPTH_RANGE)
         self.time_budget = None if time_budget is None else check_time_budget(time_budget, "option time_budget",
                                                                               TIME_BUDGET_RANGE)
+        self.note = ""
+        m = planner.model
+        if self.time_budget is None:
+            if not no_limit:
+                check_tree_size(m.A, m.Z, self.depth, "option depth",
+                                hint="use the option time_budget=S (anytime search), or no_limit=1")
+            planner.check_memory(self.depth, "option depth")
+        else:
+            planner.check_memory(1, "option max_depth")  # refused if not even depth 1 fits
+            fits = planner.deepest_depth_within_budget(self.max_depth)
+            if fits < self.max_depth:
+                self.note = (f"max_depth capped at {fits}: deeper searches need more than the memory budget "
+                             f"({self.max_depth} asked for)")
+                self.max_depth = fits
         self.use_bounds = setup.pruning
         self.last: SearchResult | None = None
         self.decisions = self.certified = 0
@@ -139,7 +180,8 @@ def _search_policy(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> S
     """``bnb`` (``use_bounds``) or ``exhaustive``: the gate decides whether ``bnb`` may prune;
     on a model failing Assumption 1 it searches exhaustively and says why (``policy.setup``)."""
     return SearchPolicy(_setup(model, opts, use_bounds), depth=opts.get("depth", 3),
-                        time_budget=opts.get("time_budget"), max_depth=opts.get("max_depth", 10))
+                        time_budget=opts.get("time_budget"), max_depth=opts.get("max_depth", 10),
+                        no_limit=_flag(opts, "no_limit"))
 
 
 def _bound_policy(model: POMDP, opts: Mapping[str, Any], which: str) -> BoundPolicy:
@@ -171,7 +213,7 @@ class PolicyEntry:
     options: tuple[str, ...] = ("seed",)
 
 
-_SEARCH_OPTIONS = ("seed", "depth", "time_budget", "max_depth")
+_SEARCH_OPTIONS = ("seed", "depth", "time_budget", "max_depth", "no_limit")
 _BOUND_OPTIONS = ("variant", OVERRIDE)
 
 #: Every policy ``simulate`` knows: name -> :class:`PolicyEntry`.
@@ -180,10 +222,11 @@ POLICIES: dict[str, PolicyEntry] = {
     "myopic": PolicyEntry(lambda m, o: MyopicPolicy(m), "greedy argmax_a rho(b, a) (Eq. 3)"),
     "bnb": PolicyEntry(lambda m, o: _search_policy(m, o, True),
                        "branch-and-bound search, Algorithm 1; exhaustive (and says why) where the bounds are not "
-                       f"valid (options: depth=3 | time_budget=S, max_depth, variant, {OVERRIDE}=1)",
+                       f"valid (options: depth=3 | time_budget=S, max_depth, no_limit=1, variant, {OVERRIDE}=1)",
                        (*_SEARCH_OPTIONS, *_BOUND_OPTIONS)),
     "exhaustive": PolicyEntry(lambda m, o: _search_policy(m, o, False),
-                              "exhaustive tree search (options: depth=3 | time_budget=S, max_depth)", _SEARCH_OPTIONS),
+                              "exhaustive tree search (options: depth=3 | time_budget=S, max_depth, no_limit=1)",
+                              _SEARCH_OPTIONS),
     "lower": PolicyEntry(lambda m, o: _bound_policy(m, o, "lower"),
                          f"myopic lower-bound policy of Theorem 2; refused where the bounds are not valid (options: "
                          f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
@@ -209,8 +252,10 @@ def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
         raise ModelError(f"policy: unknown policy {name!r} (known: {', '.join(policy_names())})")
     unknown = sorted(set(options) - set(entry.options))
     if unknown:
-        raise ModelError(f"policy {name}: unknown option {', '.join(map(repr, unknown))} "
+        raise ModelError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
                          f"(known: {', '.join(entry.options)})")
+    if options.get("seed") is not None:
+        options = {**options, "seed": check_seed(options["seed"], "option seed")}
     return entry.factory(model, options)
 
 

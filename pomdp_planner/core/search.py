@@ -92,6 +92,13 @@ DEFAULT_MEMORY_BUDGET = 2**30
 #: Deepest search accepted: the search recurses once per level (Python's stack is finite), and
 #: any depth near this has ``(A Z)^d`` leaves, far beyond any time budget unless ``A = Z = 1``.
 MAX_SEARCH_DEPTH = 100
+#: A fixed-depth search whose complete tree (:func:`complete_tree_nodes`, what exhaustive search
+#: expands and an upper bound of what branch-and-bound expands) has more belief nodes than this
+#: is refused by the entry points (:func:`check_tree_size`) unless the user lifts the limit:
+#: at the 25-35 M nodes/s measured for exhaustive search on the S = 8 model, 1e10 nodes take
+#: minutes, and every further level multiplies that by ``A Z`` (24 there). The anytime search
+#: (under a time budget) is not limited: its deadline stops it.
+MAX_TREE_NODES = 10**10
 #: Fixed part of :func:`search_memory_estimate` (root arrays, results, small temporaries).
 SEARCH_OVERHEAD_BYTES = 64 * 2**10
 #: The search depths a user may ask for (Table II convention; ``--depth``/``--max-depth`` of the
@@ -140,6 +147,36 @@ def complete_level_sizes(A: int, Z: int, depth: int) -> tuple[int, ...]:
 def complete_tree_nodes(A: int, Z: int, depth: int) -> int:
     """``sum_{i=0}^depth (A Z)^i``: belief nodes of the complete tree of ``depth`` (Sec. VI-A)."""
     return sum(complete_level_sizes(A, Z, depth))
+
+
+def count_text(n: int) -> str:
+    """A node count in three significant digits (``1.1e+11``), also beyond the range of a float."""
+    return f"{n:.3g}" if n < 10**300 else f"about 1e{len(str(n)) - 1}"
+
+
+class SearchSizeError(ModelError):
+    """A fixed-depth search whose tree is too large to finish in reasonable time (:data:`MAX_TREE_NODES`);
+    a :class:`~.model.ModelError`, so the command line reports it as exit code 2."""
+
+
+def check_tree_size(A: int, Z: int, depth: int, field: str = "depth", limit: int | None = None,
+                    hint: str = "") -> int:
+    """Refuse (:class:`SearchSizeError`) a fixed-depth search whose complete tree has more than
+    ``limit`` belief nodes (default :data:`MAX_TREE_NODES`, read when called); returns the node
+    count. The message gives the count, the limit and the deepest depth within it, then ``hint``
+    (how the caller's user lifts the limit or switches to the anytime search)."""
+    limit = MAX_TREE_NODES if limit is None else int(limit)
+    nodes = complete_tree_nodes(A, Z, depth)
+    if nodes <= limit:
+        return nodes
+    fits = 0
+    while fits < depth and complete_tree_nodes(A, Z, fits + 1) <= limit:
+        fits += 1
+    deepest = f"the deepest depth within it is {fits}" if fits else "not even depth 1 is within it"
+    raise SearchSizeError(
+        f"{field}: a search of depth {depth} has up to {count_text(nodes)} belief nodes (complete tree, "
+        f"A={A}, Z={Z}; branch-and-bound prunes an unknown share), more than the limit of "
+        f"{count_text(limit)} (MAX_TREE_NODES: minutes of search); {deepest}" + (f"; {hint}" if hint else ""))
 
 
 def next_depth_cannot_finish(depth_times: Sequence[float], remaining: float, margin: float = PREDICT_MARGIN) -> bool:
@@ -198,6 +235,38 @@ def search_memory_estimate(S: int, A: int, Z: int, depth: int, chunk_bytes: int 
     expansion = (8 * (3 * S + 4) + 1) * A * Z * widest if depth > 1 else 0
     leaf_chunk = 3 * per_parent * min(leaf, n) // 2
     return 5 * (total + max(expansion, leaf_chunk)) // 4 + SEARCH_OVERHEAD_BYTES
+
+
+def deepest_depth_within_budget(S: int, A: int, Z: int, upto: int, memory_budget: int,
+                                chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> int:
+    """The deepest depth ``<= upto`` (and ``<= MAX_SEARCH_DEPTH``) whose :func:`search_memory_estimate`
+    is within ``memory_budget`` bytes; 0 if not even depth 1 is (the estimate grows with the depth)."""
+    fits = 0
+    while fits < min(upto, MAX_SEARCH_DEPTH) and \
+            search_memory_estimate(S, A, Z, fits + 1, chunk_bytes) <= memory_budget:
+        fits += 1
+    return fits
+
+
+def check_search_memory(S: int, A: int, Z: int, depth: int, memory_budget: int, name: str = "depth",
+                        chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> None:
+    """Refuse (:class:`SearchMemoryError`) a search of ``depth`` beyond :data:`MAX_SEARCH_DEPTH` or
+    whose :func:`search_memory_estimate` exceeds ``memory_budget`` bytes; the message (starting with
+    ``name``) gives the figures and the deepest depth that fits. Needs only the sizes, so an entry
+    point can refuse before it builds anything."""
+    nodes = count_text(complete_tree_nodes(A, Z, min(depth, MAX_SEARCH_DEPTH)))
+    if depth > MAX_SEARCH_DEPTH:
+        raise SearchMemoryError(f"{name}: {depth} is deeper than MAX_SEARCH_DEPTH = {MAX_SEARCH_DEPTH} (a complete "
+                                f"tree of depth {MAX_SEARCH_DEPTH} already has {nodes} belief nodes)")
+    need = search_memory_estimate(S, A, Z, depth, chunk_bytes)
+    if need <= memory_budget:
+        return
+    fits = deepest_depth_within_budget(S, A, Z, depth, memory_budget, chunk_bytes)
+    deepest = f"the deepest depth within it is {fits}" if fits else "not even depth 1 fits"
+    raise SearchMemoryError(
+        f"{name}: a search of depth {depth} needs about {format_bytes(need)} (estimate for S={S}, A={A}, "
+        f"Z={Z}; complete tree {nodes} belief nodes), more than the memory budget of "
+        f"{format_bytes(memory_budget)}; {deepest}")
 
 
 class _DeadlineExceeded(Exception):
@@ -308,7 +377,9 @@ class Planner:
         self.clock = clock
         self.guaranteed = bool(guaranteed) and bounds is not None
         self.chunk_bytes = chunk_bytes
-        self.memory_budget = memory_budget
+        if isinstance(memory_budget, bool) or not isinstance(memory_budget, (int, np.integer)) or memory_budget < 1:
+            raise ModelError(f"memory_budget: must be a positive integer number of bytes, got {memory_budget!r}")
+        self.memory_budget = int(memory_budget)
         self.trivial = TrivialBounds(model)
         self.bounds = self.trivial if bounds is None else bounds
         if getattr(self.bounds, "model", model) is not model:
@@ -447,27 +518,16 @@ class Planner:
         m = self.model
         return search_memory_estimate(m.S, m.A, m.Z, depth, self.chunk_bytes)
 
-    def check_memory(self, depth: int, name: str = "depth") -> None:
-        """Refuse (:class:`SearchMemoryError`) a search of ``depth`` beyond :data:`MAX_SEARCH_DEPTH`
-        or whose :meth:`memory_estimate` exceeds ``memory_budget``; the message gives the figures
-        and the deepest depth that fits. Called before every search starts."""
+    def deepest_depth_within_budget(self, upto: int) -> int:
+        """:func:`deepest_depth_within_budget` for this planner's model, chunk size and budget."""
         m = self.model
-        n = complete_tree_nodes(m.A, m.Z, min(depth, MAX_SEARCH_DEPTH))
-        nodes = f"{n:.3g}" if n < 10**300 else f"about 1e{int(math.log10(n))}"
-        if depth > MAX_SEARCH_DEPTH:
-            raise SearchMemoryError(f"{name}: {depth} is deeper than MAX_SEARCH_DEPTH = {MAX_SEARCH_DEPTH} (a complete "
-                                    f"tree of depth {MAX_SEARCH_DEPTH} already has {nodes} belief nodes)")
-        need = self.memory_estimate(depth)
-        if need <= self.memory_budget:
-            return
-        fits = 0
-        while fits < depth and self.memory_estimate(fits + 1) <= self.memory_budget:
-            fits += 1
-        deepest = f"the deepest depth within it is {fits}" if fits else "not even depth 1 fits"
-        raise SearchMemoryError(
-            f"{name}: a search of depth {depth} needs about {format_bytes(need)} (estimate for S={m.S}, A={m.A}, "
-            f"Z={m.Z}; complete tree {nodes} belief nodes), more than the memory budget of "
-            f"{format_bytes(self.memory_budget)}; {deepest}")
+        return deepest_depth_within_budget(m.S, m.A, m.Z, upto, self.memory_budget, self.chunk_bytes)
+
+    def check_memory(self, depth: int, name: str = "depth") -> None:
+        """:func:`check_search_memory` for this planner's model, chunk size and budget; called
+        before every search starts."""
+        m = self.model
+        check_search_memory(m.S, m.A, m.Z, depth, self.memory_budget, name, self.chunk_bytes)
 
     # --------------------------------------------------------------- internals
     def _root(self, b: np.ndarray, bounds: Bounds

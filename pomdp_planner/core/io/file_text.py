@@ -19,7 +19,7 @@ import os
 import stat
 from pathlib import Path
 
-from ..model import ModelError, format_bytes
+from ..model import ModelError, format_bytes, short_repr
 
 #: Largest model file read (bytes): 16 MiB. The loaders bound their work by the number of values
 #: as well (``MAX_YAML_NODES``, ``MAX_TOKENS``); this bounds what a file of long strings or
@@ -49,9 +49,13 @@ def _read_at_most(f, n: int, size_hint: int) -> bytes:
     return b"".join(parts)
 
 
-def read_model_text(path: str | Path, what: str = "model file", limit: int | None = None) -> str:
-    """The text of the model file ``path`` (module docstring); ``ModelError`` otherwise."""
+def read_model_text(path: str | Path, what: str = "model file", limit: int | None = None,
+                    limit_name: str = "MAX_MODEL_FILE_BYTES") -> str:
+    """The text of the model file ``path`` (module docstring); ``ModelError`` otherwise. ``what``
+    and ``limit`` (named ``limit_name`` in messages) serve other files a user gives (a beliefs file)."""
     limit = MAX_MODEL_FILE_BYTES if limit is None else limit
+    if "\0" in str(path):  # no file has such a name (the OS refuses it with a ValueError)
+        raise ModelError(f"{short_repr(str(path))}: cannot read {what}: the name contains a NUL character")
     path = Path(path)
     try:
         st = os.stat(path)
@@ -59,13 +63,13 @@ def read_model_text(path: str | Path, what: str = "model file", limit: int | Non
             raise ModelError(f"{path}: cannot read {what}: it is {_file_kind(st.st_mode)}, not a regular file")
         if st.st_size > limit:
             raise ModelError(f"{path}: {what} is {format_bytes(st.st_size)}, larger than the limit of "
-                             f"{format_bytes(limit)} (MAX_MODEL_FILE_BYTES)")
+                             f"{format_bytes(limit)} ({limit_name})")
         with open(path, "rb") as f:
             data = _read_at_most(f, limit + 1, st.st_size)
     except OSError as exc:
         raise ModelError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     if len(data) > limit:  # grew since stat, or a file whose size is not known in advance
-        raise ModelError(f"{path}: {what} is larger than the limit of {format_bytes(limit)} (MAX_MODEL_FILE_BYTES)")
+        raise ModelError(f"{path}: {what} is larger than the limit of {format_bytes(limit)} ({limit_name})")
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

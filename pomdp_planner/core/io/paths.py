@@ -62,6 +62,10 @@ def resolve_path(path: str, field: str = "model_file") -> Path:
         if c.is_file():
             return c
     if len(cands) == 1:
+        if cands[0].is_dir():
+            raise ModelError(f"{field}: {cands[0]} is a directory, not a file")
+        if cands[0].exists():
+            raise ModelError(f"{field}: {cands[0]} is not a regular file")
         raise ModelError(f"{field}: file {cands[0]} does not exist")
     places = list(dict.fromkeys(str(c.parent) for c in cands))
     raise ModelError(f"{field}: {str(path)!r} not found (looked in {', '.join(places)})")
