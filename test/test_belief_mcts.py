@@ -11,6 +11,7 @@ from __future__ import annotations
 import gc
 import json
 import math
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ from pomdp_planner.core.belief_mcts import (
     BeliefMCTS,
     BeliefMCTSPolicy,
     average_greedy_reward,
+    expansion_bytes,
     make_belief_mcts_policy,
     rho_range,
 )
@@ -455,3 +457,39 @@ def test_policy_decides_with_the_cyclic_collector_paused_and_restores_it(s3):
         assert not gc.isenabled()
     finally:
         gc.enable()
+
+
+@pytest.mark.parametrize("name", ["tracking_s3_info", "tracking_s8_info"])
+def test_expansion_bytes_bounds_the_measured_tree_memory(name):
+    """The per-expansion estimate behind the memory cap is an upper bound of what a tree really
+    holds (tracemalloc, deep tree, many expansions)."""
+    model = load_model(MODELS / f"{name}.yaml")
+    planner = BeliefMCTS(model, seed=1, max_depth=30, leaf="rho")
+    b = np.full(model.S, 1.0 / model.S)
+    planner.search(b, simulations=10)  # warm up caches outside the measurement
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        res = planner.search(b, simulations=3000)
+        held = tracemalloc.get_traced_memory()[0] - base
+    finally:
+        tracemalloc.stop()
+    assert res.expanded > 500
+    assert held <= res.expanded * expansion_bytes(model.S, model.A, model.Z)
+    assert held >= 0.2 * res.expanded * expansion_bytes(model.S, model.A, model.Z)  # not absurdly loose
+
+
+def test_memory_budget_caps_the_tree_and_the_search_goes_on(s3):
+    per = expansion_bytes(s3.S, s3.A, s3.Z)
+    planner = BeliefMCTS(s3, seed=0, max_depth=50, leaf="rho", memory_budget=40 * per)
+    assert planner.max_expansions == 40
+    res = planner.search(np.full(3, 1 / 3), simulations=5000)
+    assert res.simulations == 5000 and res.expanded == 40 and res.memory_capped
+    free = BeliefMCTS(s3, seed=0, max_depth=50, leaf="rho").search(np.full(3, 1 / 3), simulations=5000)
+    assert free.expanded > 40 and not free.memory_capped
+    # reuse counts the old tree: a reused subtree cannot push the total past the cap
+    b1 = res.root.post[res.action * s3.Z]
+    again = planner.search(b1, simulations=500, previous=res, action=res.action)
+    assert again.reused and again.expanded == 40 and again.memory_capped
+    with pytest.raises(ValueError, match="memory_budget"):
+        BeliefMCTS(s3, memory_budget=0)

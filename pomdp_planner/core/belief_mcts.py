@@ -119,7 +119,7 @@ import numpy as np
 from .belief import ETA_MIN, check_belief
 from .gc_pause import paused_gc
 from .model import POMDP, priority_of
-from .search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
+from .search import DEFAULT_MEMORY_BUDGET, MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 
 #: Leaf evaluations accepted by :class:`BeliefMCTS` (see the module docstring).
 LEAF_KINDS = ("rollout", "rho", "zero")
@@ -217,6 +217,26 @@ class _Node:
         self.sn: list[float] | None = None  # Bellman backup: sum of eta over the visited children of a
 
 
+def expansion_bytes(S: int, A: int, Z: int) -> int:
+    """An upper estimate of the memory one expansion adds to the tree: the node's ``(A Z, A + S)``
+    float array (posteriors and the linear part of their rho), its Python lists (cumulative eta,
+    eta, rho of every child, children, counts) and its ``A Z`` child nodes with their belief views.
+
+    Checked against tracemalloc in ``test/test_belief_mcts.py`` (measured: 0.5-0.6 of the estimate
+    on the shipped S = 3 and S = 8 models); with the default memory budget
+    (:data:`~.search.DEFAULT_MEMORY_BUDGET`, 1 GiB) an S = Z = 8, A = 3 tree stops growing at
+    55 142 expanded nodes (about 0.55 GB measured).
+    """
+    AZ = A * Z
+    floats = 8 * AZ * (A + S) + 128  # the array Y and the view of its posteriors
+    lists = (AZ * (64 + 8 * A) + AZ * A * 32  # rho of every child: one list of A floats each
+             + A * (64 + 8 * Z) + AZ * 32  # cumulative eta per action
+             + 3 * (64 + 8 * AZ) + AZ * 32  # eta, children, spare
+             + 6 * (64 + 8 * A) + 4 * A * 32)  # counts, Q, sums, untried
+    children = AZ * (256 + 128)  # a child node object and its belief view
+    return floats + lists + children
+
+
 @dataclass(frozen=True)
 class MCTSResult:
     """Outcome of :meth:`BeliefMCTS.search`.
@@ -227,7 +247,9 @@ class MCTSResult:
     tree reuse these include the simulations of earlier decisions). ``simulations`` counts this
     call's simulations, ``depth`` is the deepest node below the root (action-observation
     levels) that they reached, ``nodes`` the belief nodes they created, ``reused`` whether the
-    root came from the previous tree.
+    root came from the previous tree. ``expanded`` counts the expanded nodes of the tree (an upper
+    bound when it was reused); ``memory_capped`` says the tree reached
+    :attr:`BeliefMCTS.max_expansions` and the search went on without growing it.
     """
 
     action: int
@@ -242,6 +264,8 @@ class MCTSResult:
     reused: bool
     exploration: float
     root: _Node = field(repr=False, compare=False)
+    expanded: int = 0
+    memory_capped: bool = False
 
     @property
     def value(self) -> float:
@@ -259,6 +283,8 @@ class MCTSResult:
             "time_used": float(self.time_used),
             "deadline_hit": bool(self.deadline_hit),
             "reused": bool(self.reused),
+            "expanded": int(self.expanded),
+            "memory_capped": bool(self.memory_capped),
             "exploration": float(self.exploration),
         }
 
@@ -293,7 +319,8 @@ class BeliefMCTS:
                  leaf: str = "rollout", rollout_depth: int = DEFAULT_ROLLOUT_DEPTH, tail: str = "average",
                  backup: str = DEFAULT_BACKUP,
                  seed: int | None = 0,
-                 clock: Callable[[], float] = time.perf_counter):
+                 clock: Callable[[], float] = time.perf_counter,
+                 memory_budget: int = DEFAULT_MEMORY_BUDGET):
         self.model = model
         self.max_depth = _check_int(max_depth, "max_depth", 1)
         self.rollout_depth = _check_int(rollout_depth, "rollout_depth", 0)
@@ -320,6 +347,9 @@ class BeliefMCTS:
         self._runi = _Uniforms(self._rng)  # those of the rollouts
         S, A, Z = model.S, model.A, model.Z
         self._S, self._A, self._Z = S, A, Z
+        self.memory_budget = _check_int(memory_budget, "memory_budget", 1)
+        #: The tree stops growing at this many expanded nodes (:func:`expansion_bytes`).
+        self.max_expansions = max(1, self.memory_budget // expansion_bytes(S, A, Z))
         self._gamma = float(model.gamma)
         self._w = [float(x) for x in model.w]
         kind = model.uncertainty.name
@@ -366,6 +396,7 @@ class BeliefMCTS:
         b = check_belief(self.model, belief)
         root = None if previous is None or action is None else self._reusable(previous.root, action, b)
         reused = root is not None
+        expanded = previous.expanded if reused else 0  # an upper bound: the subtree of the old tree
         if root is None:
             root = _Node(b, self._rho(b), 0)
         deadline = math.inf if time_budget is None else t0 + time_budget
@@ -373,7 +404,8 @@ class BeliefMCTS:
         horizon = root.depth + self.max_depth
         if root.kids is None:
             self._expand(root)
-        done, created, deepest, hit = self._run(root, horizon, limit, deadline)
+            expanded += 1
+        done, created, deepest, hit, expanded = self._run(root, horizon, limit, deadline, expanded)
         A = self._A
         q = np.array([x if n > 0 else math.nan for x, n in zip(root.q, root.na, strict=True)])
         visits = np.array(root.na, dtype=int)
@@ -383,7 +415,8 @@ class BeliefMCTS:
         return MCTSResult(
             action=int(best), priority=int(priority_of(best)), q_values=q, visits=visits, simulations=done,
             depth=deepest - root.depth, nodes=created, time_used=clock() - t0, deadline_hit=hit, reused=reused,
-            exploration=self.exploration, root=root)
+            exploration=self.exploration, root=root, expanded=expanded,
+            memory_capped=expanded >= self.max_expansions)
 
     # --------------------------------------------------------------- internals
     def _rho(self, b: np.ndarray) -> list[float]:
@@ -430,7 +463,8 @@ class BeliefMCTS:
             z -= 1
         return z
 
-    def _run(self, root: _Node, horizon: int, limit: float, deadline: float) -> tuple[int, int, int, bool]:
+    def _run(self, root: _Node, horizon: int, limit: float, deadline: float,
+             expanded: int) -> tuple[int, int, int, bool, int]:
         """Simulations from ``root`` until ``limit`` of them are done or the clock passes ``deadline``.
 
         One simulation: from the root, choose ``a`` by UCB1 (untried actions first, greedy order;
@@ -440,7 +474,11 @@ class BeliefMCTS:
         the discounted return up the path. The body is one loop with local names: the per-level
         work is plain Python (a numpy call costs more than the whole UCB1 step for a few actions).
 
-        Returns (simulations done, nodes created, deepest node depth, deadline hit).
+        A node is expanded only while the tree has fewer than :attr:`max_expansions` expanded nodes
+        (``expanded`` counts them); beyond, an unexpanded node is a leaf (memory stays bounded
+        whatever the budget and depth; the existing tree keeps being refined).
+
+        Returns (simulations done, nodes created, deepest node depth, deadline hit, expanded).
         """
         A, Z = self._A, self._Z
         gamma, c = self._gamma, self.exploration
@@ -453,6 +491,7 @@ class BeliefMCTS:
         actions = range(A)
         Node = _Node
         done = created = 0
+        cap = self.max_expansions
         deepest = root.depth
         hit = False
         while done < limit:
@@ -461,9 +500,10 @@ class BeliefMCTS:
             while node.depth < horizon:
                 kids = node.kids
                 if kids is None:
-                    if node.n == 0:
+                    if node.n == 0 or expanded >= cap:
                         break
                     expand(node)
+                    expanded += 1
                     kids = node.kids
                 if ui > nbuf - 2:  # a level draws at most two numbers (a tie, an observation)
                     buf, ui = rng.random(_RANDOM_BLOCK).tolist(), 0
@@ -538,7 +578,7 @@ class BeliefMCTS:
                 hit = done < limit
                 break
         self._ubuf, self._ui = buf, ui
-        return done, created, deepest, hit
+        return done, created, deepest, hit, expanded
 
     def _rollout(self, b: np.ndarray, rho: list[float]) -> float:
         """The leaf value of ``leaf="rollout"``: greedy rewards for ``rollout_depth`` steps plus the tail."""
