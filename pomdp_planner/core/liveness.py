@@ -36,6 +36,12 @@ been started into a running loop) joins at once, without the stall, on
 :data:`JOIN_MIN_INPUTS` off-line inputs forming such a run (two readings, e.g. the oldest two of
 the simulator's transient-local history).
 
+**Join** (the simulator; ``nodes/target_simulator.py``). A (re)started simulator takes no step
+before it knows the loop's epoch: it continues the numbering of the newest action (and, timer-driven,
+of the newest belief) it receives within :data:`JOIN_DELAY` of the first one. Timer-driven, with
+nothing received within ``join_timeout``, it numbers on its own from epoch 0 (a loop without planner
+and filter, or one that they will join).
+
 **Re-send** (:class:`Resender`, at-least-once delivery). A node that published its output for
 epoch ``t`` and has not had the input it expects next (the input that answers it) within
 ``period`` seconds publishes the same message again, every ``period`` until answered. Receivers
@@ -68,6 +74,11 @@ JOIN_MIN_INPUTS = 2
 DEFAULT_STALL_WARN = 2.0
 DEFAULT_STALL_ERROR = 10.0
 DEFAULT_RESEND_PERIOD = 1.0
+#: Seconds a (re)starting simulator keeps collecting actions (and beliefs) after the first one before
+#: it joins at the newest: a transient-local history arrives as one burst, within milliseconds.
+JOIN_DELAY = 0.2
+#: Default seconds a timer-driven simulator waits for the loop's epoch before numbering on its own.
+DEFAULT_JOIN_TIMEOUT = 5.0
 
 Verdict = Literal["join", "next", "ahead", "repeat", "behind", "out_of_window"]
 
