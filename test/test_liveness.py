@@ -73,6 +73,21 @@ def test_a_stalled_node_resyncs_to_the_newest_of_repeated_off_line_inputs():
     assert line.resync_due(2.0).epoch == 12
 
 
+def test_a_replay_after_a_long_wait_is_not_evidence_until_it_lasts():
+    """A node that waited while its peer was dead (stalled for long) must not re-sync to the burst
+    of old epochs the restarted peer replays: the evidence itself must be stall_after old."""
+    clock = Clock()
+    line = EpochLine(1000, position=500, clock=clock)
+    clock.t += 60.0  # the peer was dead for a minute
+    for e in range(400, 500):  # its replay, in a burst
+        line.off_line(e)
+    assert line.resync_due(2.0) is None
+    clock.t += 1.0
+    line.advance(501)  # the peer caught up
+    clock.t += 10.0
+    assert line.resync_due(2.0) is None
+
+
 def test_advancing_clears_the_evidence():
     clock = Clock()
     line = EpochLine(1000, position=50, clock=clock)

@@ -22,7 +22,8 @@ act on them, but they are the evidence of the re-sync rule.
 **Re-sync** (:class:`EpochLine`). A node re-syncs to the newest off-line input (acts on it as if
 it were the next one, adopting its epoch; counted ``resyncs``, one log line) when
 
-* it has not advanced for ``stall_after`` seconds, and
+* for ``stall_after`` seconds it has received off-line inputs and nothing it could act on (the
+  first off-line input since it last advanced is ``stall_after`` old), and
 * at least :data:`RESYNC_MIN_INPUTS` off-line inputs arrived since it last advanced; for a
   *counting* line (the belief filter, whose source, the simulator, numbers epochs by stepping)
   they must moreover span :data:`RESYNC_MIN_INPUTS` consecutive epochs (``e, e + 1, e + 2``;
@@ -31,7 +32,9 @@ it were the next one, adopting its epoch; counted ``resyncs``, one log line) whe
 
 So a single forged message never moves a node (it is one input, and the loop keeps advancing),
 and a peer that restarted on another numbering is followed once it is clear that the loop cannot
-advance otherwise. A *fresh* counting line (a filter that has applied no reading yet: it may have
+advance otherwise. The time is counted from the first off-line input, not from the last advance:
+a node that waited while a peer was dead must not re-sync to the burst of old epochs that the
+restarted peer replays from its inputs' histories (it catches up within a fraction of a second). A *fresh* counting line (a filter that has applied no reading yet: it may have
 been started into a running loop) joins at once, without the stall, on
 :data:`JOIN_MIN_INPUTS` off-line inputs forming such a run (two readings, e.g. the oldest two of
 the simulator's transient-local history).
@@ -140,6 +143,7 @@ class EpochLine:
 
     def _reset_evidence(self) -> None:
         self.off_line_inputs = 0          # since the last advance
+        self._first_off_line: float | None = None
         self._run = 0                     # consecutive epochs of the current run (counting lines)
         self._newest: OffLine | None = None
 
@@ -157,6 +161,8 @@ class EpochLine:
         """Record an input the node did not act on (``behind`` or ``out_of_window``)."""
         prev = self._newest
         self.off_line_inputs += 1
+        if self._first_off_line is None:
+            self._first_off_line = self._clock()
         if prev is None or not 0 <= epoch - prev.epoch <= 1:
             self._run = 1
         elif epoch == prev.epoch + 1:
@@ -174,7 +180,7 @@ class EpochLine:
             return None
         if self.counting and self.fresh:
             return new if self._run >= JOIN_MIN_INPUTS else None
-        if self.stalled_for() < stall_after:
+        if self._clock() - self._first_off_line < stall_after:
             return None
         if self.counting:
             return new if self._run >= RESYNC_MIN_INPUTS else None

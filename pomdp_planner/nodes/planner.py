@@ -57,7 +57,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 from ..core.bounds import BOUND_VARIANTS
 from ..core.gate import PlannerSetup, build_planner
 from ..core.io.sensors import load_model_file
-from ..core.liveness import EpochLine, InputWatch, Level, Resender
+from ..core.liveness import JOIN_DELAY, EpochLine, InputWatch, Level, Resender
 from ..core.search import Planner
 from .diagnostics import LEVELS, Warnings, status
 from .messages import BeliefMsg, MessageError, decode_belief, encode_action, encode_plan_info
@@ -134,6 +134,7 @@ class PlannerNode(Node):
         self.last_epoch = -1  # the same, -1 before the first
         self.planning_epoch: int | None = None
         self._mailbox: tuple[BeliefMsg, float] | None = None  # newest belief to plan, its arrival time
+        self._join_first_seen: float | None = None  # first belief seen before the first decision
         self._decisions: OrderedDict[int, int] = OrderedDict()  # action epoch -> priority (recent ones)
         self._last_action = None
         self.resender = Resender(self.live.resend_period)
@@ -156,6 +157,7 @@ class PlannerNode(Node):
         # search go to the mailbox, and the guard condition wakes the planning callback for them
         self.create_subscription(Float64MultiArray, "belief", self._on_belief, STREAM_QOS)
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=self.plan_group)
+        self._join_timer = self.create_timer(JOIN_DELAY, self._on_join_timer, autostart=False)
         self.create_timer(self.live.watchdog_period, self._watchdog)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
@@ -221,6 +223,11 @@ class PlannerNode(Node):
                 self.resender.answered()
                 if self._mailbox is None or bel.epoch > self._mailbox[0].epoch:
                     self._mailbox = (bel, arrived)
+                if verdict == "join" and self._join_first_seen is None:
+                    # joining: the newest of what comes within JOIN_DELAY (a restarted filter's history
+                    # starts with its prior at epoch 0; a running filter's history ends at its epoch)
+                    self._join_first_seen = time.monotonic()
+                    self._join_timer.reset()
             elif verdict == "out_of_window":
                 self.line.off_line(bel.epoch, (bel, arrived))
                 self.warnings.warn("out_of_window", f"belief of epoch {bel.epoch} is beyond the epoch window "
@@ -247,9 +254,17 @@ class PlannerNode(Node):
         self._mailbox = due.payload
 
     @callback
+    def _on_join_timer(self) -> None:
+        self._join_timer.cancel()
+        self._plan_trigger.trigger()
+
+    @callback
     def _plan_next(self) -> None:
         """The planning callback (plan_group): plan the belief in the mailbox, if any."""
         with self._lock:
+            if self.line.position is None and (self._join_first_seen is None
+                                               or time.monotonic() - self._join_first_seen < JOIN_DELAY):
+                return  # joining: the join timer wakes this callback again
             taken, self._mailbox = self._mailbox, None
             if taken is None:
                 return
