@@ -269,7 +269,9 @@ class PlannerNode(Node):
             if taken is None:
                 return
             bel, t0 = taken
-            if self.line.position is not None and bel.epoch <= self.line.position:
+            if self.line.position is None:  # the join: the deliberate JOIN_DELAY is not decision latency
+                t0 = time.perf_counter()
+            elif bel.epoch <= self.line.position:
                 return  # a newer one was planned meanwhile
             self.line.advance(bel.epoch)
             self.last_epoch = bel.epoch
