@@ -60,13 +60,20 @@ def _spin_until(executor, predicate, timeout):
     return True
 
 
-def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
+def _observer() -> tuple[Context, Recorder, SingleThreadedExecutor, set[str]]:
+    """The test's own context, a recorder on it and its executor (spun by ``_spin_until``), and
+    the shared-memory segments that existed before (a killed process leaves some behind)."""
     shm_before = _shm_entries()
     ctx = Context()
     rclpy.init(context=ctx)
     rec = Recorder(ctx, threading.Condition())
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(rec)
+    return ctx, rec, executor, shm_before
+
+
+def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
+    ctx, rec, executor, shm_before = _observer()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     common = ["-p", f"model_file:={REPO / 'config' / 'models' / 'tracking_s3_info.yaml'}"]
     args = {
@@ -200,12 +207,7 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
     loop's numbering, the restarted filter says which belief it started from; in free-running
     mode every observation carries one of the actions the planner(s) sent for its epoch. The
     recovery times are printed (``-s``), not asserted."""
-    shm_before = _shm_entries()
-    ctx = Context()
-    rclpy.init(context=ctx)
-    rec = Recorder(ctx, threading.Condition())
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(rec)
+    ctx, rec, executor, shm_before = _observer()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     model = ["-p", f"model_file:={REPO / 'config' / 'models' / 'tracking_s3_info.yaml'}"]
     period = {"free": "0.0", "timer": "0.05"}[mode]

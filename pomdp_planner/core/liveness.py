@@ -34,10 +34,11 @@ So a single forged message never moves a node (it is one input, and the loop kee
 and a peer that restarted on another numbering is followed once it is clear that the loop cannot
 advance otherwise. The time is counted from the first off-line input, not from the last advance:
 a node that waited while a peer was dead must not re-sync to the burst of old epochs that the
-restarted peer replays from its inputs' histories (it catches up within a fraction of a second). A *fresh* counting line (a filter that has applied no reading yet: it may have
-been started into a running loop) joins at once, without the stall, on
-:data:`JOIN_MIN_INPUTS` off-line inputs forming such a run (two readings, e.g. the oldest two of
-the simulator's transient-local history).
+restarted peer replays from its inputs' histories (it catches up within a fraction of a second).
+
+A *fresh* counting line (a filter that has applied no reading yet: it may have been started into
+a running loop) joins at once, without the stall, on :data:`JOIN_MIN_INPUTS` off-line inputs
+forming such a run (two readings, e.g. the oldest two of the simulator's transient-local history).
 
 **Join** (the simulator; ``nodes/target_simulator.py``). A (re)started simulator takes no step
 before it knows the loop's epoch: it continues the numbering of the newest action (and, timer-driven,
@@ -185,6 +186,13 @@ class EpochLine:
         if self.counting:
             return new if self._run >= RESYNC_MIN_INPUTS else None
         return new if self.off_line_inputs >= RESYNC_MIN_INPUTS else None
+
+    def resync_reason(self, due: OffLine, what: str, peer: str) -> str:
+        """The log line of a re-sync to ``due`` (before :meth:`resync`): ``what`` the inputs are
+        called, ``peer`` the node that presumably restarted."""
+        return (f"re-synced from epoch {self.position} to epoch {due.epoch}: nothing new for "
+                f"{self.stalled_for():.1f} s while {self.off_line_inputs} {what} came from another numbering "
+                f"(a restarted {peer}?)")
 
     def resync(self, epoch: int) -> None:
         """Adopt ``epoch`` (the node acted on the off-line input): counted in ``resyncs``."""

@@ -247,9 +247,7 @@ class PlannerNode(Node):
         due = self.line.resync_due(self.live.stall.warn_after)
         if due is None:
             return
-        self.warnings.warn("resyncs", f"re-synced from epoch {self.line.position} to epoch {due.epoch}: nothing new "
-                           f"to plan for {self.line.stalled_for():.1f} s while {self.line.off_line_inputs} beliefs "
-                           "came from another numbering (a restarted filter?)")
+        self.warnings.warn("resyncs", self.line.resync_reason(due, "beliefs", "filter"))
         self.line.resync(due.epoch - 1)  # so that the belief of due.epoch is the next one
         self._mailbox = due.payload
 

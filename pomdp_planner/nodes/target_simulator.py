@@ -288,9 +288,7 @@ class TargetSimulator(Node):
         due = self.line.resync_due(self.live.stall.warn_after)
         if due is None:
             return
-        self.warnings.warn("resyncs", f"re-synced from epoch {self.epoch} to epoch {due.epoch}: no step for "
-                           f"{self.line.stalled_for():.1f} s while {self.line.off_line_inputs} actions came from "
-                           "another numbering (a restarted planner?)")
+        self.warnings.warn("resyncs", self.line.resync_reason(due, "actions", "planner"))
         self.line.resync(due.epoch - 1)
         self.epoch = due.epoch - 1
         self.step(due.epoch, due.payload.priority)

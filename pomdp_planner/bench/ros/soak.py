@@ -85,11 +85,13 @@ def growth(epochs: np.ndarray, times: np.ndarray, rss: np.ndarray) -> tuple[floa
 
 
 def run(model: str, step_period: float, epochs: int, minutes: float, sample: float, warmup: float,
-        names: tuple[str, ...], out=sys.stdout) -> int:
+        names: tuple[str, ...], time_budget: float | None = None, out=sys.stdout) -> int:
     domain_id = random.randint(1, 101)
     os.environ.update(ros_env(domain_id))
     log_dir = Path(tempfile.mkdtemp(prefix="pomdp_planner_soak_"))
     extra = {"target_simulator": ["-p", f"step_period:={step_period}"]}
+    if time_budget is not None:
+        extra["planner"] = ["-p", f"time_budget:={time_budget}"]
     ctx = Context()
     rclpy.init(context=ctx)
     probe = DiagnosticsProbe(ctx)
@@ -98,7 +100,8 @@ def run(model: str, step_period: float, epochs: int, minutes: float, sample: flo
     spin = threading.Thread(target=executor.spin, daemon=True)
     spin.start()
     procs = start_nodes(model, domain_id, log_dir, extra, names=names)
-    mode = "free running" if step_period == 0 else f"step_period {step_period:g} s"
+    mode = ("free running" if step_period == 0 else f"step_period {step_period:g} s") + (
+        "" if time_budget is None else f", time_budget {time_budget:g} s")
     print(f"soak: {model}, {', '.join(names)} as processes, {mode}, until {epochs} epochs or {minutes:g} min, "
           f"a sample every {sample:g} s; load average {os.getloadavg()[0]:.1f}; logs in {log_dir}", file=out)
     header = f"{'t s':>7} {'epoch':>8} " + " ".join(f"{n + ' MiB':>22}" for n in names)
@@ -158,10 +161,12 @@ def main(argv=None) -> int:
     p.add_argument("--sample", type=float, default=10.0, help="seconds between samples (default 10)")
     p.add_argument("--warmup", type=float, default=0.2, help="fraction of the run left out of the fit (default 0.2)")
     p.add_argument("--nodes", nargs="+", choices=NODES, default=list(NODES), help="node processes to run")
+    p.add_argument("--time-budget", type=float, default=None, help="planner time_budget (default: the file's)")
     args = p.parse_args(argv)
     if args.sample <= 0 or not 0 <= args.warmup < 1:
         p.error("--sample must be > 0 and --warmup in [0, 1)")
-    return run(args.model, args.step_period, args.epochs, args.minutes, args.sample, args.warmup, tuple(args.nodes))
+    return run(args.model, args.step_period, args.epochs, args.minutes, args.sample, args.warmup, tuple(args.nodes),
+               args.time_budget)
 
 
 if __name__ == "__main__":
