@@ -23,8 +23,9 @@ A decision whose total time exceeds ``time_budget + deadline_slack`` counts as a
 
 Liveness (``core/liveness.py``; README, "Liveness"): a belief beyond ``epoch_window`` is dropped
 and counted (``out_of_window``); a stale or repeated one is counted (``stale_beliefs``); a
-planner that has planned nothing new for ``stall_warn_after`` seconds while at least three such
-beliefs came re-syncs to the newest of them (a restarted filter on another numbering). The last
+planner that for ``stall_warn_after`` seconds has received only stale or out-of-window beliefs (at
+least three) re-syncs to the newest of them (a restarted filter on another numbering). A starting
+planner plans the newest belief it receives within ``JOIN_DELAY`` of the first. The last
 action is re-published every ``resend_period`` while the belief it leads to has not come, from a
 cache of recent decisions: an epoch decided once is never re-planned differently (after a
 re-sync too). ``belief`` silent or not advancing for ``stall_warn_after`` / ``stall_error_after``

@@ -34,8 +34,8 @@ observations again carry the action that was applied, so pairing stays exact.
 
 Liveness: stepping on actions, the last observations are re-published every ``resend_period``
 while no new action comes; an action beyond ``epoch_window`` is dropped and counted, and a
-simulator that has not stepped for ``stall_warn_after`` seconds while at least three such (or
-stale) actions came re-syncs to the newest (``core/liveness.py``). ``action`` silent or not
+simulator that for ``stall_warn_after`` seconds has received only such (or stale) actions, at
+least three, re-syncs to the newest (``core/liveness.py``). ``action`` silent or not
 advancing for ``stall_warn_after`` / ``stall_error_after`` seconds is WARN / ERROR.
 """
 
