@@ -154,9 +154,17 @@ class PlannerNode(Node):
         self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.plan_group = MutuallyExclusiveCallbackGroup()
-        # receiving (default group) is apart from planning (plan_group): beliefs that come during a
-        # search go to the mailbox, and the guard condition wakes the planning callback for them
+        # Two readers of ``belief``, each taking every sample: in the default group, ``_on_belief``
+        # decodes, checks and counts each one and keeps the newest to plan in the mailbox (it runs
+        # during a search too); in plan_group, ``_on_belief_planning`` plans the mailbox's belief.
+        # The planning reader runs right when a belief comes, so the usual decision costs no extra
+        # hand-over between callbacks; the guard condition wakes the planning group only when the
+        # mailbox got a belief after the planning reader had already taken that sample (and for a
+        # join or a re-sync).
+        self._received = self._planning_received = 0  # samples taken by each reader
         self.create_subscription(Float64MultiArray, "belief", self._on_belief, STREAM_QOS)
+        self.create_subscription(Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS,
+                                 callback_group=self.plan_group)
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=self.plan_group)
         self._join_timer = self.create_timer(JOIN_DELAY, self._on_join_timer, autostart=False)
         self.create_timer(self.live.watchdog_period, self._watchdog)
@@ -207,16 +215,18 @@ class PlannerNode(Node):
     @callback
     def _on_belief(self, msg: Float64MultiArray) -> None:
         """Receive a belief: the newest valid, not-yet-planned one within the window goes to the
-        mailbox (then the planning callback is woken); every other one is counted."""
+        mailbox; every other one is counted."""
         arrived = time.perf_counter()
         try:
             bel = decode_belief(msg, self.model.S)
         except MessageError as exc:
             with self._lock:
+                self._received += 1
                 self.watch.arrived(False)
                 self.warnings.warn("bad_beliefs", f"ignored {exc}; no action published")
             return
         with self._lock:
+            self._received += 1
             verdict = self.line.classify(bel.epoch)
             new = verdict in ("join", "next", "ahead")
             self.watch.arrived(new, bel.epoch)
@@ -238,19 +248,28 @@ class PlannerNode(Node):
                 self.counts["stale_beliefs"] += 1
                 if verdict == "behind":
                     self.line.off_line(bel.epoch, (bel, arrived))
-            self._resync_if_due()
-            wake = self._mailbox is not None
+            resynced = self._resync_if_due()
+            # the planning reader has taken this sample already (it may run ahead): wake it again
+            wake = self._mailbox is not None and (resynced or self._planning_received >= self._received)
         if wake:
             self._plan_trigger.trigger()
 
-    def _resync_if_due(self) -> None:
+    @callback
+    def _on_belief_planning(self, msg: Float64MultiArray) -> None:
+        """The planning group's reader: plan what the mailbox holds (``_on_belief`` checks the sample)."""
+        with self._lock:
+            self._planning_received += 1
+        self._plan_next()
+
+    def _resync_if_due(self) -> bool:
         """(lock held) The re-sync rule: put the newest off-line belief in the mailbox."""
         due = self.line.resync_due(self.live.stall.warn_after)
         if due is None:
-            return
+            return False
         self.warnings.warn("resyncs", self.line.resync_reason(due, "beliefs", "filter"))
         self.line.resync(due.epoch - 1)  # so that the belief of due.epoch is the next one
         self._mailbox = due.payload
+        return True
 
     @callback
     def _on_join_timer(self) -> None:
