@@ -84,6 +84,18 @@ class Recorder(Node):
             msgs = list(self.beliefs)
         return [decode_belief(m, S) for m in msgs]
 
+    def belief_epochs(self, S: int) -> list[int]:
+        """Epochs of the beliefs received, each once, in order of first arrival (the filter re-sends
+        its last belief while no reading answers it: a repeat is the same message again)."""
+        seen: dict[int, None] = {}
+        for b in self.decoded_beliefs(S):
+            seen.setdefault(b.epoch)
+        return list(seen)
+
+    def beliefs_by_epoch(self, S: int) -> dict:
+        """The newest belief received for each epoch."""
+        return {b.epoch: b.belief for b in self.decoded_beliefs(S)}
+
 
 class RosHarness:
     def __init__(self):

@@ -176,3 +176,42 @@ def test_parameter_service_answers_during_a_search(harness):
     finally:
         release.set()
     assert h.wait_until(lambda: planner.counts["decisions"] == 1, timeout=10)  # the held search completes
+
+
+def test_shipped_files_step_the_simulator_at_a_sensor_rate():
+    """Realistic defaults (issue 13): the shipped files run the simulator as a 10 Hz sensor, not free
+    (which used about 1.4 cores doing nothing a tracker needs), and give the planner a budget that
+    fits in a sensor period."""
+    for model in ("s3", "s8"):
+        for name in (f"target_simulator_{model}.yaml", f"closed_loop_{model}.yaml"):
+            doc = yaml.safe_load((REPO / "config" / name).read_text())
+            assert doc["target_simulator"]["ros__parameters"]["step_period"] == 0.1, name
+        for name in (f"planner_{model}.yaml", f"closed_loop_{model}.yaml"):
+            doc = yaml.safe_load((REPO / "config" / name).read_text())
+            assert doc["planner"]["ros__parameters"]["time_budget"] < 0.1, name
+
+
+def test_an_integer_is_accepted_for_a_float_parameter(harness):
+    """``time_budget 5`` (a parameter file, ``-p time_budget:=5`` or ``ros2 param set``) means 5.0 s;
+    the range still applies, and other types are still refused."""
+    h = harness
+    planner = h.add(PlannerNode(context=h.context, cli_args=[
+        "--ros-args", "-p", f"model_file:={S3}", "-p", "time_budget:=5", "-p", "deadline_slack:=0"]))
+    assert planner.get_parameter("time_budget").value == 5.0
+    assert isinstance(planner.params["time_budget"], float) and planner.params["deadline_slack"] == 0.0
+    flt = h.add(BeliefFilter(context=h.context, cli_args=[
+        "--ros-args", "-p", f"model_file:={S3}", "-p", "initial_distribution:=[1, 0, 0]", "-p", "epoch_timeout:=2"]))
+    assert list(flt.get_parameter("initial_distribution").value) == [1.0, 0.0, 0.0]
+    assert flt.buffer.timeout == 2.0
+    client = AsyncParameterClient(h.add(rclpy_node(h)), "planner")
+    h.start()
+    assert client.wait_for_services(timeout_sec=10.0)
+    (res,) = _set(client, time_budget=2)
+    assert res.successful, res.reason
+    assert planner.get_parameter("time_budget").value == 2.0 and planner.params["time_budget"] == 2.0
+    (res,) = _set(client, time_budget=100)
+    assert not res.successful and "time_budget" in res.reason
+    (res,) = _set(client, time_budget="5")
+    assert not res.successful and "type" in res.reason.lower()
+    (res,) = _set(client, max_depth=3.0)  # the other way round stays refused: 3.0 is not an integer depth
+    assert not res.successful

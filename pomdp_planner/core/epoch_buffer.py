@@ -12,13 +12,18 @@ epoch is next in line:
   it has) after ``timeout`` seconds since its first reading or once ``max_pending`` later epochs
   are waiting;
 * if the next epoch has no reading at all while later ones wait (same timeout / backlog rule), it
-  is released as a *gap* (``action is None``). The buffer also remembers the last
+  is released as a *gap* (``action is None``);
+* a reading ``window`` or more epochs ahead of the next one is *out of window* and never buffered
+  (``core/liveness.py``: a jump that far is a restarted peer or a forged message, not a gap to
+  walk), so a gap is at most ``window`` epochs long and the buffer holds at most
+  ``max_pending + 1`` epochs whatever arrives. The buffer also remembers the last
   :data:`ACTION_MEMORY` *commanded* actions (:meth:`EpochBuffer.command`, e.g. from the planner's
   action topic): a gap is applied with the commanded action of its epoch if known
   (:attr:`EpochReadings.action_to_apply`; the filter then predicts), otherwise held.
 
 Actions are 0-based here, as everywhere in the core. Time comes from ``clock`` (default
-``time.monotonic``), so tests drive it by hand.
+``time.monotonic``), so tests drive it by hand; :meth:`EpochBuffer.next_deadline` says when the
+next release by time-out is due, so that a node can sleep until then instead of polling.
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+
+from .liveness import DEFAULT_EPOCH_WINDOW
 
 #: How many commanded actions (by epoch) are remembered for gaps and cross-checks.
 ACTION_MEMORY = 256
@@ -67,13 +74,14 @@ class EpochBuffer:
     """Orders readings of ``num_sensors`` sensors by epoch (see module docstring)."""
 
     def __init__(self, num_sensors: int, next_epoch: int = 1, timeout: float = 0.5, max_pending: int = 10,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, window: int = DEFAULT_EPOCH_WINDOW):
         if num_sensors < 1:
             raise ValueError("num_sensors: at least one sensor is needed")
         self.num_sensors = num_sensors
         self.next_epoch = next_epoch
         self.timeout = timeout
         self.max_pending = max_pending
+        self.window = window
         self._clock = clock
         self._pending: dict[int, EpochReadings] = {}
         self._commanded: OrderedDict[int, int] = OrderedDict()
@@ -82,18 +90,31 @@ class EpochBuffer:
     def pending_epochs(self) -> int:
         return len(self._pending)
 
-    def command(self, epoch: int, action: int) -> None:
-        """Remember the action commanded for ``epoch`` (the last :data:`ACTION_MEMORY` epochs)."""
+    def reset(self, next_epoch: int) -> None:
+        """Drop every pending reading and continue at ``next_epoch`` (a join or a re-sync)."""
+        self._pending.clear()
+        self.next_epoch = next_epoch
+
+    def command(self, epoch: int, action: int) -> bool:
+        """Remember the action commanded for ``epoch`` (the last :data:`ACTION_MEMORY` epochs);
+        an epoch outside ``next_epoch - ACTION_MEMORY .. next_epoch + window`` is ignored (False)."""
+        if not self.next_epoch - ACTION_MEMORY <= epoch < self.next_epoch + self.window:
+            return False
         self._commanded[epoch] = action
+        self._commanded.move_to_end(epoch)
         while len(self._commanded) > ACTION_MEMORY:
             self._commanded.popitem(last=False)
+        return True
 
     def add(self, sensor: int, epoch: int, action: int, observation: int) -> str:
-        """Buffer one reading; returns ``"buffered"``, ``"duplicate"`` or ``"conflict"``."""
+        """Buffer one reading; returns ``"buffered"``, ``"duplicate"``, ``"conflict"`` or
+        ``"out_of_window"`` (``window`` or more epochs ahead: not buffered)."""
         if not 0 <= sensor < self.num_sensors:
             raise ValueError(f"sensor: index {sensor} out of range 0..{self.num_sensors - 1}")
         if epoch < self.next_epoch:
             return "duplicate"
+        if epoch >= self.next_epoch + self.window:
+            return "out_of_window"
         entry = self._pending.get(epoch)
         if entry is None:
             entry = self._pending[epoch] = EpochReadings(epoch, action, first_seen=self._clock())
@@ -104,6 +125,16 @@ class EpochBuffer:
         entry.readings[sensor] = observation
         entry.complete = len(entry.readings) == self.num_sensors
         return "buffered"
+
+    def next_deadline(self) -> float | None:
+        """When :meth:`pop_ready` will release the next epoch by time-out (``clock`` time), or
+        ``None`` if nothing waits for a time-out (nothing pending, or the next epoch complete)."""
+        if not self._pending:
+            return None
+        entry = self._pending.get(self.next_epoch)
+        if entry is not None:
+            return None if entry.complete else entry.first_seen + self.timeout
+        return min(e.first_seen for e in self._pending.values()) + self.timeout
 
     def pop_ready(self) -> list[EpochReadings]:
         """Release, in epoch order, every epoch that is complete, timed out, or forced by the backlog."""

@@ -13,9 +13,10 @@ uncertainty function), the mean entropy and the deadline misses among the decisi
 decision's ``plan_info.deadline_miss``: the planner's rule, latency > ``time_budget + deadline_slack``).
 Exit code 0 if all three processes exited cleanly (code 0, no traceback).
 
-The loop runs free (each action steps the simulator at once), hundreds of epochs per second on
-the shipped models, and discovery between processes can take seconds, more than the writers'
-transient-local history (100 epochs) covers. So the monitor must have matched every writer
+The demo runs the loop free (``step_period`` 0, whatever the parameter files say: each action
+steps the simulator at once, so each row pairs a belief with the action chosen from it), hundreds
+of epochs per second on the shipped models, and discovery between processes can take seconds,
+more than the writers' transient-local history (100 epochs) covers. So the monitor must have matched every writer
 before the loop starts: the nodes are started filter, planner, simulator, each once the monitor
 has the previous one's prior or has matched its writer, and the simulator gets
 ``min_subscribers`` 2: it takes its first step only when the filter and the monitor both
@@ -119,8 +120,9 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
     domain_id = random.randint(1, 101) if domain_id is None else domain_id
     os.environ.update(ros_env(domain_id))
     model_path = resolve_path(f"config/models/tracking_{model_key}_info.yaml")
-    # min_subscribers 2: the simulator's first step waits for the filter and this monitor (docstring)
-    extra = {"target_simulator": ["-p", "min_subscribers:=2"]}
+    # free running (step_period 0: one step per decision, so each row pairs a belief with the action
+    # chosen from it); min_subscribers 2: the first step waits for the filter and this monitor (docstring)
+    extra = {"target_simulator": ["-p", "step_period:=0.0", "-p", "min_subscribers:=2"]}
     if time_budget is not None:
         extra["planner"] = ["-p", f"time_budget:={time_budget}"]
     log_dir = Path(tempfile.mkdtemp(prefix="pomdp_planner_demo_"))

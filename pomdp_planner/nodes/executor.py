@@ -99,14 +99,18 @@ def shutdown_executor(executor, timeout_sec: float = 2.0) -> None:
     was never awaited") on stderr at exit. So also stop the pool (``_executor``, a
     ``concurrent.futures.ThreadPoolExecutor``: running callbacks, e.g. a search of at most
     ``time_budget``, complete; queued ones are cancelled) and settle the executor's leftover
-    tasks (``_futures``): the exceptions of finished ones are retrieved (expected at shutdown),
+    tasks (``_futures`` and ``_tasks``): the exceptions of finished ones are retrieved (expected at shutdown),
     unstarted ones are cancelled and their coroutines closed. Private attributes, hence the guards.
     """
     executor.shutdown(timeout_sec=timeout_sec)
     pool = getattr(executor, "_executor", None)
     if pool is not None and hasattr(pool, "shutdown"):
         pool.shutdown(wait=True, cancel_futures=True)
-    for task in list(getattr(executor, "_futures", [])):
+    # _futures: tasks handed to the pool; _tasks: tasks the wait loop made and had not yielded yet
+    # (several entities ready at once: it yields one per call), never started at shutdown
+    tasks = list(getattr(executor, "_futures", []))
+    tasks += [entry[0] for entry in list(getattr(executor, "_tasks", [])) if entry and entry[0] not in tasks]
+    for task in tasks:
         if task.done():
             task.exception()
         else:

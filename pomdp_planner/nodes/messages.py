@@ -27,7 +27,11 @@ decision epoch it belongs to, and every observation carries the action it was ta
   action-out (s); ``deadline_hit`` (1/0): the budget limited the depth; ``deadline_miss`` (1/0):
   the planner's rule, ``latency > time_budget + deadline_slack`` with the parameters in force.
 
-Decoders raise :class:`MessageError` with a message that names the field and the problem.
+Decoders raise :class:`MessageError` with a message that names the field and the problem. They
+bound what they accept before converting anything: epochs are ``0..MAX_EPOCH`` (so that
+``epoch + 1`` always fits the ``int64`` of the next message, and an epoch label is at most 18
+digits), and the length is checked before the data are copied. Whether an epoch is *plausible* is
+the nodes' epoch window (``core/liveness.py``), not the decoder's business.
 """
 
 from __future__ import annotations
@@ -48,7 +52,9 @@ BELIEF_STATE_LABEL = "state"
 PLAN_INFO_FIELDS = ("epoch", "action_priority", "depth", "nodes_expanded", "pruned_percent", "certified",
                     "time_used", "latency", "deadline_hit", "deadline_miss")
 PLAN_INFO_LABEL = ",".join(PLAN_INFO_FIELDS)
-_EPOCH_LABEL_RE = re.compile(r"^epoch=(\d+)$")
+#: Largest epoch a message may carry (10^18 - 1 < 2^63 - 1, the int64 range, with room for + 1).
+MAX_EPOCH = 10**18 - 1
+_EPOCH_LABEL_RE = re.compile(r"^epoch=(\d{1,18})$")
 
 
 class MessageError(ValueError):
@@ -78,6 +84,11 @@ class BeliefMsg:
     belief: np.ndarray
 
 
+def _short(text: str, limit: int = 60) -> str:
+    """``text`` cut to ``limit`` characters: error messages never embed an unbounded field."""
+    return text if len(text) <= limit else text[:limit] + f"... ({len(text)} characters)"
+
+
 def _record(label: str, values: Sequence[int]) -> Int64MultiArray:
     msg = Int64MultiArray()
     msg.layout = MultiArrayLayout(
@@ -89,16 +100,16 @@ def _record(label: str, values: Sequence[int]) -> Int64MultiArray:
 
 def _decode_record(msg: Int64MultiArray, label: str, what: str) -> list[int]:
     names = label.split(",")
-    data = list(msg.data)
-    if len(data) != len(names):
-        raise MessageError(f"{what}: expected {len(names)} integers [{label}], got {len(data)}")
+    if len(msg.data) != len(names):
+        raise MessageError(f"{what}: expected {len(names)} integers [{label}], got {len(msg.data)}")
+    data = [int(v) for v in msg.data]
     dims = list(msg.layout.dim)
     # The label is the protocol: accept it, or no layout at all (hand-typed messages).
     if dims and (len(dims) != 1 or dims[0].label != label):
-        got = ",".join(d.label for d in dims)
+        got = _short(",".join(d.label for d in dims[:4]))
         raise MessageError(f"{what}: layout label {got!r} is not {label!r}")
-    if data[0] < 0:
-        raise MessageError(f"{what}: epoch must be >= 0, got {data[0]}")
+    if not 0 <= data[0] <= MAX_EPOCH:
+        raise MessageError(f"{what}: epoch must be in 0..{MAX_EPOCH}, got {data[0]}")
     return data
 
 
@@ -156,20 +167,20 @@ def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
     if len(dims) != 2 or dims[0].label != BELIEF_STATE_LABEL:
         raise MessageError(
             f"belief: layout must be [('{BELIEF_STATE_LABEL}', S), ('epoch=<t>', 1)], got "
-            f"{[(d.label, d.size) for d in dims]}"
+            f"{_short(str([(d.label, d.size) for d in dims[:4]]))}"
         )
     m = _EPOCH_LABEL_RE.match(dims[1].label)
     if m is None:
-        raise MessageError(f"belief: second dimension label {dims[1].label!r} is not 'epoch=<t>'")
+        raise MessageError(f"belief: second dimension label {_short(dims[1].label)!r} is not 'epoch=<t>' "
+                           f"(t: 0..{MAX_EPOCH})")
     if msg.layout.data_offset != 0:
         raise MessageError(f"belief: data_offset must be 0, got {msg.layout.data_offset}")
-    data = list(msg.data)
-    if len(data) != num_states or dims[0].size != num_states:
+    if len(msg.data) != num_states or dims[0].size != num_states:
         raise MessageError(
-            f"belief: expected {num_states} probabilities, got {len(data)} (layout size {dims[0].size})"
+            f"belief: expected {num_states} probabilities, got {len(msg.data)} (layout size {dims[0].size})"
         )
     try:
-        b = check_belief(num_states, np.array(data, dtype=float))
+        b = check_belief(num_states, np.array(msg.data, dtype=float))
     except BeliefError as exc:
         raise MessageError(str(exc)) from None
     return BeliefMsg(int(m.group(1)), b)

@@ -1,11 +1,23 @@
 """Parameter declarations shared by the nodes: descriptors (types and ranges, enforced by rclpy at
-declare and at set time), the model file parameter, optional array parameters."""
+declare and at set time), the model file parameter, optional array parameters, the liveness
+parameters of every node, and integers accepted for floating-point parameters."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+
+from ..core.liveness import (
+    DEFAULT_EPOCH_WINDOW,
+    DEFAULT_RESEND_PERIOD,
+    DEFAULT_STALL_ERROR,
+    DEFAULT_STALL_WARN,
+    StallLimits,
+)
+from .runtime import NodeConfigError
 
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
 DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
@@ -41,6 +53,7 @@ def declare_optional_array(node: Node, name: str, kind: str, description: str) -
         "string": (Parameter.Type.STRING_ARRAY, ParameterType.PARAMETER_STRING_ARRAY),
         "double": (Parameter.Type.DOUBLE_ARRAY, ParameterType.PARAMETER_DOUBLE_ARRAY),
     }[kind]
+    _convert_override(node, name, ros_type)
     node.declare_parameter(name, ptype, descriptor(description, read_only=True, type_=ros_type))
 
 
@@ -59,3 +72,86 @@ def declare_model_file(node: Node) -> str:
         "Model file: absolute, relative to the current directory, the package share dir or the source tree, "
         "or a shipped model's name", read_only=True))
     return node.get_parameter("model_file").value
+
+
+# rclpy types a parameter by its default: a double parameter refuses the integer ``5`` (from a
+# parameter file, ``-p time_budget:=5`` or ``ros2 param set /planner time_budget 5``) with "Wrong
+# parameter type". ``ParameterDescriptor.dynamic_typing`` would accept it, but also any other type
+# (a string), and a FloatingPointRange only applies to doubles. So the nodes keep static types and
+# convert an integer given for a double (an integer array for a double array) to the double type
+# before rclpy checks it: the override as the parameter is declared (:func:`declare_double`,
+# :func:`declare_optional_array`), and run-time sets in a pre-set callback
+# (:func:`accept_integers_for_doubles`, Jazzy's ``add_pre_set_parameters_callback``).
+_AS_DOUBLE = {Parameter.Type.INTEGER: (Parameter.Type.DOUBLE, float),
+              Parameter.Type.INTEGER_ARRAY: (Parameter.Type.DOUBLE_ARRAY, lambda v: [float(x) for x in v])}
+_DOUBLE_TYPES = {ParameterType.PARAMETER_DOUBLE: Parameter.Type.DOUBLE,
+                 ParameterType.PARAMETER_DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY}
+
+
+def _as_double(param: Parameter, declared: int) -> Parameter:
+    """``param`` converted to the double type ``declared`` if it is the integer form of it."""
+    conv = _AS_DOUBLE.get(param.type_)
+    if conv is None or _DOUBLE_TYPES.get(declared) != conv[0]:
+        return param
+    return Parameter(param.name, conv[0], conv[1](param.value))
+
+
+def _convert_override(node: Node, name: str, declared: int) -> None:
+    overrides = getattr(node, "_parameter_overrides", None)  # rclpy's dict of -p / parameter-file values
+    if overrides is not None and name in overrides:
+        overrides[name] = _as_double(overrides[name], declared)
+
+
+def declare_double(node: Node, name: str, default: float, desc: ParameterDescriptor) -> None:
+    """Declare a double parameter that also takes an integer override (comment above)."""
+    _convert_override(node, name, ParameterType.PARAMETER_DOUBLE)
+    node.declare_parameter(name, float(default), desc)
+
+
+def accept_integers_for_doubles(node: Node) -> None:
+    """Convert integers set at run time for ``node``'s double parameters (comment above)."""
+    def pre_set(params: list[Parameter]) -> list[Parameter]:
+        return [_as_double(p, node.describe_parameter(p.name).type) if node.has_parameter(p.name) else p
+                for p in params]
+
+    node.add_pre_set_parameters_callback(pre_set)
+
+
+@dataclass(frozen=True)
+class LivenessParams:
+    """The liveness parameters every node declares (README, "Liveness"; rules in ``core/liveness.py``)."""
+
+    epoch_window: int
+    resend_period: float
+    stall: StallLimits
+
+    @property
+    def watchdog_period(self) -> float:
+        """How often a node checks its re-send, re-sync and stall rules: a quarter of the shortest
+        of their times, within 0.05..1 s (0.25 s by default)."""
+        shortest = min(self.resend_period if self.resend_period > 0 else self.stall.warn_after,
+                       self.stall.warn_after)
+        return min(1.0, max(0.05, shortest / 4))
+
+
+def declare_liveness(node: Node) -> LivenessParams:
+    """Declare ``epoch_window``, ``resend_period``, ``stall_warn_after`` and ``stall_error_after``
+    (read-only) and return them; a warn limit above the error limit stops the node."""
+    d = descriptor
+    node.declare_parameter("epoch_window", DEFAULT_EPOCH_WINDOW, d(
+        "Farthest epoch jump acted on; beyond it an input is dropped and counted (a restarted peer or a forged "
+        "message; a peer that persists is re-synced to)", read_only=True, int_range=(1, 1_000_000)))
+    declare_double(node, "resend_period", DEFAULT_RESEND_PERIOD, d(
+        "Re-publish the last output when the input it expects next has not come within this many seconds "
+        "(0 = never)", read_only=True, float_range=(0.0, 3600.0)))
+    declare_double(node, "stall_warn_after", DEFAULT_STALL_WARN, d(
+        "Seconds without a new input before diagnostics say WARN (and a re-sync may happen)", read_only=True,
+        float_range=(0.01, 86400.0)))
+    declare_double(node, "stall_error_after", DEFAULT_STALL_ERROR, d(
+        "Seconds without a new input before diagnostics say ERROR", read_only=True, float_range=(0.01, 86400.0)))
+    value = node.get_parameter
+    try:
+        stall = StallLimits(value("stall_warn_after").value, value("stall_error_after").value)
+    except ValueError as exc:
+        raise NodeConfigError(f"stall_warn_after, stall_error_after: {exc}") from None
+    return LivenessParams(value("epoch_window").value, value("resend_period").value, stall)

@@ -17,17 +17,21 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 #: Per-epoch streams where every sample matters (``action``, ``observation``, ``true_state``,
 #: ``belief`` as published, ``plan_info``), for their writers and for the readers that must see
-#: every epoch (the simulator's and the filter's subscriptions). KEEP_LAST with a depth far beyond
+#: every epoch (the simulator's and the filter's subscriptions) or must not lose the real sample
+#: to a stray one (the planner's ``belief`` subscription, which plans only the newest valid one:
+#: with depth 1, one stale belief arriving between the real one and the take replaced it, and the
+#: loop stopped for good; issue 13). KEEP_LAST with a depth far beyond
 #: how many epochs a reader can fall behind: a reliable writer keeps a sample until every reader
 #: has it unless ``depth`` newer ones replace it first (then it is lost for good; with depth 1 a
 #: single transport loss of an action could not be repaired once the next one was out). Not
 #: KEEP_ALL: a stuck recorder must not block the loop's publishers. A late joiner gets at most the
-#: last ``depth`` epochs, which the nodes' epoch checks handle (stale epochs are dropped).
+#: last ``depth`` epochs, which the nodes' epoch checks handle (stale epochs are dropped; a
+#: restarted node joins at the newest, ``core/liveness.py``).
 STREAM_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: "Latest value" (latched), depth 1: readers for which only the newest sample is useful (the
-#: planner's ``belief`` subscription: a backlog of older beliefs is never planned for; a late
-#: planner gets the newest belief of the filter's history) and gauges (``belief_entropy``).
+#: "Latest value" (latched), depth 1: readers for which only the newest sample is useful (a
+#: timer-driven simulator's ``belief`` subscription, only to learn the loop's epoch when it
+#: joins) and gauges (``belief_entropy``).
 LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: For observers that record every sample of the loop (the demo's monitor, the latency probe, the

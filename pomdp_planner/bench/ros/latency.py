@@ -113,7 +113,8 @@ def measure(budget: float, decisions: int, model_key: str, max_depth: int, proce
     nodes, procs = [], {}
     if processes:
         extra = {"planner": ["-p", f"time_budget:={budget}", "-p", f"max_depth:={max_depth}",
-                             "-p", f"use_bounds:={str(use_bounds).lower()}"]}
+                             "-p", f"use_bounds:={str(use_bounds).lower()}"],
+                 "target_simulator": ["-p", "step_period:=0.0"]}  # free running (the files say 10 Hz)
         procs = start_nodes(model_key, domain_id, Path(tempfile.mkdtemp(prefix="latency_bench_")), extra)
     else:
         model_file = str(resolve_path(f"config/models/tracking_{model_key}_info.yaml"))
