@@ -31,11 +31,13 @@ import numpy as np
 from ...core.domains.comparison import comparison_model
 from ...core.gate import build_planner
 from ...core.model import POMDP
+from .datafile import register
 from .pbvi import pbvi
 from .progress import Progress
 from .sampling import reachable_beliefs
 
 
+@register
 @dataclass
 class PruningCell:
     S: int

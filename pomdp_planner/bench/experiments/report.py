@@ -296,6 +296,13 @@ def _peer_episode_note(peers: dict | None) -> str:
 
 
 def write_report(path: Path, data: dict) -> Path:
+    """Write :func:`render_report` of ``data`` to ``path``."""
+    path.write_text(render_report(data))
+    return path
+
+
+def render_report(data: dict) -> str:
+    """The markdown of docs/RESULTS.md for the sections present in ``data``."""
     lines = section_header(data)
     if "fig1" in data:
         lines += section_fig1(data["fig1"])
@@ -312,5 +319,4 @@ def write_report(path: Path, data: dict) -> Path:
         lines += section_peers(data["peers"], data)
     lines += section_differences(data)
     lines += section_when(data)
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return "\n".join(lines) + "\n"
