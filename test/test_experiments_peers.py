@@ -77,7 +77,7 @@ def test_parallel_and_resumed_runs_match_the_sequential_run(tmp_path, monkeypatc
     sequential = _cheap(compare_peers({"s3": S3}, plan))
     parallel = _cheap(compare_peers({"s3": S3}, _plan(jobs=2), cache_dir=tmp_path))
     assert parallel == sequential
-    files = sorted(tmp_path.glob("*.pickle"))
+    files = sorted(tmp_path.glob("*.json"))
     assert len(files) == len(plan.chunks(["s3"]))
     # an interrupted run: one chunk missing; resuming recomputes only that one
     victim = PeerChunk("s3", "random", None, 2, 4)

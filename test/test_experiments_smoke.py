@@ -26,7 +26,8 @@ else:
 
 from pomdp_planner.bench.experiments.peer_policies import mcts_available
 from pomdp_planner.bench.experiments.pouct import pouct_available
-from pomdp_planner.bench.experiments.runner import QUICK, run_all
+from pomdp_planner.bench.experiments.report import render_report
+from pomdp_planner.bench.experiments.runner import CACHE_DIR, QUICK, SECTIONS, run_all
 from pomdp_planner.cli import main
 
 
@@ -194,6 +195,18 @@ def test_when_to_use_what_cites_a_table_in_every_bullet(quick_run):
         assert re.search(r"Table (P\d+|S|X|III)", line), line
         assert re.search(r"\d", line), line
     assert "optimises a different objective" not in text  # the old, unsupported claim about POUCT is gone
+
+
+def test_the_cache_reproduces_the_report_exactly(quick_run, capsys):
+    """Every section is cached as JSON (no pickle) and re-rendering from the cache alone gives the
+    same report, character for character (the generation time aside, which is the report's own)."""
+    out, data = quick_run
+    cache = out / CACHE_DIR
+    assert sorted(p.name for p in cache.glob("*.json")) == sorted(f"{s}.json" for s in SECTIONS)
+    assert not list(cache.rglob("*.pickle")) and list((cache / "peers-chunks").glob("*.json"))
+    again = run_all(out, quick=True, progress=False, sections=())
+    assert "ignoring" not in capsys.readouterr().err
+    assert render_report({**again, "started": data["started"]}) == render_report(data)
 
 
 def test_cli_bench_all_quick_report_only(quick_run, capsys):

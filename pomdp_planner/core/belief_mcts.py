@@ -153,8 +153,10 @@ def rho_range(model: POMDP, samples: int = RHO_RANGE_SAMPLES) -> float:
     """``max rho - min rho`` over actions and beliefs (the scale of one step's reward, Eq. 3).
 
     Evaluated on the vertices of the simplex, its centre and ``samples`` beliefs drawn
-    uniformly from it with a fixed seed (deterministic). ``rho(., a)`` is convex for ``w_a >= 0``
-    and a concave ``f``, so the maximum is at a vertex; the minimum is approximated.
+    uniformly from it with a fixed seed (deterministic). For ``w_a >= 0`` the maximum is at a
+    vertex: ``f >= 0`` vanishes at the vertices, so ``rho(b, a) <= max_s r[s, a] = rho(e_s, a)``
+    (no concavity needed: Renyi quadratic entropy is not concave for S >= 3); the minimum is
+    approximated.
     """
     S = model.S
     B = np.vstack([np.eye(S), np.full((1, S), 1.0 / S), np.random.default_rng(0).dirichlet(np.ones(S), samples)])

@@ -31,16 +31,13 @@ process), does not recompute it (the same object is not even hashed again).
 
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Any
 from weakref import WeakKeyDictionary
 
-import numpy as np
-
 from .bounds import BOUND_VARIANTS, BoundsSolution, solve_bounds
-from .model import POMDP, ModelError
+from .model import POMDP, ModelError, array_digest
 from .myopic import MyopicBounds
 from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner
 from .structure import AssumptionReport, check_assumptions
@@ -62,11 +59,7 @@ def model_key(model: POMDP) -> bytes:
     """Digest of what Assumption 1 depends on: the shapes and values of ``P`` and ``O``."""
     key = _keys.get(model)
     if key is None:
-        h = hashlib.blake2b(digest_size=20)
-        for M in (model.P, model.O):
-            h.update(repr(M.shape).encode())
-            h.update(np.ascontiguousarray(M).tobytes())
-        key = _keys[model] = h.digest()
+        key = _keys[model] = array_digest(model.P, model.O)
     return key
 
 

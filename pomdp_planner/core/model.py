@@ -17,6 +17,8 @@ The expected reward is ``rho(b, a) = b . r[:, a] - w[a] f(b)`` (paper Eq. 3).
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import numbers
 import reprlib
@@ -174,6 +176,34 @@ def action_of_priority(priority: int, num_actions: int) -> int:
     if not 1 <= priority <= num_actions:
         raise ModelError(f"action: priority {priority} is out of range 1..{num_actions}")
     return int(priority) - 1
+
+
+def array_digest(*arrays: np.ndarray, digest_size: int = 20) -> bytes:
+    """A content digest (BLAKE2b) of ``arrays``: each one's dtype, shape and bytes, in order.
+
+    Two arrays digest alike iff they hold the same values in the same dtype and shape; used to
+    key caches by model content (:func:`model_digest`, ``core.gate.model_key``).
+    """
+    h = hashlib.blake2b(digest_size=digest_size)
+    for M in arrays:
+        M = np.ascontiguousarray(M)
+        h.update(f"{M.dtype.str}{M.shape}".encode())
+        h.update(M.tobytes())
+    return h.digest()
+
+
+def model_digest(model: POMDP, digest_size: int = 20) -> bytes:
+    """A content digest of everything that defines ``model``: ``P``, ``O``, ``r``, ``w``, ``gamma``,
+    the uncertainty function, ``epsilon``, the names and the metadata (e.g. the start belief).
+
+    Equal for an equal copy (e.g. a model sent to a worker process), different when any of
+    these differ; hashes data only, never code (no pickle).
+    """
+    names = {"name": model.name, "uncertainty": model.uncertainty.name, "gamma": repr(model.gamma),
+             "epsilon": repr(model.epsilon), "states": model.state_names, "actions": model.action_names,
+             "observations": model.observation_names, "metadata": model.metadata}
+    text = json.dumps(names, sort_keys=True, default=repr).encode()
+    return hashlib.blake2b(array_digest(model.P, model.O, model.r, model.w) + text, digest_size=digest_size).digest()
 
 
 def _frozen(x: np.ndarray) -> np.ndarray:

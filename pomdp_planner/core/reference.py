@@ -26,7 +26,8 @@ Two solvers, both independent of the myopic bounds they are used to check:
 Accuracy of the grid reference (read this before trusting an action)
 --------------------------------------------------------------------
 The grid solution is the exact optimum of a *discretised* problem, not of the POMDP. Where
-``rho`` is convex in ``b`` (``w >= 0`` and a concave ``f``), ``V*`` is convex and its
+``rho`` is convex in ``b`` (``w >= 0`` and a concave ``f``: Shannon, or Renyi only for S = 2;
+Renyi quadratic entropy is not concave for S >= 3), ``V*`` is convex and its
 piecewise-linear interpolation lies above it, so the grid ``V`` is an upper bound on ``V*``
 (Lovejoy 1991) and converges to it as ``n`` grows; the error of ``V`` is of order
 ``h^2 |curvature| / (1 - gamma)`` with ``h = 1/n`` (``h log h`` near the boundary for Shannon

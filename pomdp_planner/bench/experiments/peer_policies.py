@@ -25,9 +25,7 @@ decision's wall-clock time is recorded too.
 
 from __future__ import annotations
 
-import hashlib
 import math
-import pickle
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,7 +34,7 @@ import numpy as np
 
 from ...core.gate import PlannerSetup, build_planner
 from ...core.gc_pause import paused_gc
-from ...core.model import POMDP
+from ...core.model import POMDP, model_digest
 from ...core.policies import POLICIES, make_policy
 from ...core.reference import ReferencePolicy, reference_policy
 from ...core.search import complete_tree_nodes
@@ -125,8 +123,8 @@ _CACHE: dict = {}
 
 
 def _key(model: POMDP, *extra) -> tuple:
-    """Cache key by model content: each chunk brings its own unpickled copy of the model."""
-    return (hashlib.blake2b(pickle.dumps(model), digest_size=16).digest(), *extra)
+    """Cache key by model content (``core.model.model_digest``): each chunk brings its own copy of the model."""
+    return (model_digest(model), *extra)
 
 
 def gate_setup(model: POMDP, use_bounds: bool = True) -> PlannerSetup:

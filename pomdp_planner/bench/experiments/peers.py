@@ -20,8 +20,9 @@ before its numbers are reported in :mod:`.sanity`.
 
 **Work and cache.** A cell ``(model, planner, budget)`` is split into chunks of ``chunk``
 episodes, the unit of parallel work (``jobs`` processes) and of the resumable cache: every
-finished chunk is saved with its :meth:`PeerPlan.signature`, and a later run reuses a chunk only
-when the signature matches.
+finished chunk is saved with its :meth:`PeerPlan.signature` (a JSON file, :mod:`.datafile`:
+data only, never code), and a later run reuses a chunk only when the file is valid and the
+signature matches; any other file is ignored with one line on stderr and the chunk recomputed.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
-import pickle
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -41,6 +41,7 @@ from scipy.stats import t as student_t
 
 from ...core.model import POMDP
 from ...core.simulate import simulate
+from .datafile import CacheError, read_entry, register, write_entry
 from .peer_policies import BUDGETED, UNBUDGETED, ProbeConfig, ReferenceSpec, SearchPeer, make_peer
 from .pouct import TUNED, POUCTSettings, pouct_available, tree_depth
 
@@ -58,6 +59,7 @@ def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
     return m, (m - half, m + half)
 
 
+@register
 @dataclass
 class PeerResult:
     """One row of the comparison: a (model, planner, budget) cell.
@@ -117,7 +119,7 @@ class PeerChunk:
     @property
     def filename(self) -> str:
         b = "none" if self.budget is None else f"{self.budget:g}"
-        return f"{self.model}__{self.planner}__{b}__{self.start:04d}-{self.stop:04d}.pickle"
+        return f"{self.model}__{self.planner}__{b}__{self.start:04d}-{self.stop:04d}.json"
 
 
 @dataclass
@@ -274,20 +276,41 @@ def summarise_probes(probes: Sequence[dict]) -> dict:
     return out
 
 
+#: The keys of an episode record (:func:`run_chunk`).
+RECORD_KEYS = frozenset({"episode", "return", "state_return", "cpu", "wall", "depths", "certified", "sims",
+                         "certifies", "probes", "episode_cpu", "episode_wall"})
+
+
+def _numbers_only(x) -> bool:
+    """``x`` holds only numbers, booleans and ``None`` (in lists and string-keyed dicts)."""
+    if x is None or isinstance(x, (bool, int, float)):
+        return True
+    if isinstance(x, list):
+        return all(_numbers_only(v) for v in x)
+    return isinstance(x, dict) and all(isinstance(k, str) and _numbers_only(v) for k, v in x.items())
+
+
+def check_records(records, chunk: PeerChunk, plan: PeerPlan) -> None:
+    """Raise :class:`~.datafile.CacheError` unless ``records`` are episode records of ``chunk``
+    that the comparison can aggregate (a cached chunk's validation)."""
+    if not isinstance(records, list) or not all(isinstance(r, dict) and set(r) == RECORD_KEYS for r in records):
+        raise CacheError("not a list of episode records")
+    if [r["episode"] for r in records] != list(range(chunk.start, chunk.stop)):
+        raise CacheError(f"episodes are not {chunk.start}..{chunk.stop - 1}")
+    if not _numbers_only(records):
+        raise CacheError("an episode record holds something other than numbers")
+    aggregate(chunk.model, chunk.planner, chunk.budget, plan.steps_for(chunk.model), records)
+    summarise_probes([p for r in records for p in r["probes"]])
+
+
 def _load_chunk(path: Path, plan: PeerPlan, chunk: PeerChunk) -> list[dict] | None:
-    if not path.is_file():
-        return None
-    with open(path, "rb") as fh:
-        entry = pickle.load(fh)  # our own file, written by _save_chunk
-    return entry["records"] if entry.get("signature") == plan.signature(chunk) else None
+    """The records of a valid cached chunk made by ``plan``, else ``None`` (one stderr line if a file was there)."""
+    return read_entry(path, [plan.signature(chunk)], lambda rec: check_records(rec, chunk, plan),
+                      then="its episodes are run again")
 
 
 def _save_chunk(path: Path, plan: PeerPlan, chunk: PeerChunk, records: list[dict]) -> None:
-    tmp = path.with_suffix(".tmp")
-    with open(tmp, "wb") as fh:
-        pickle.dump({"signature": plan.signature(chunk), "records": records,
-                     "finished": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}, fh)
-    tmp.replace(path)  # atomic: a run killed mid-write leaves no half file
+    write_entry(path, plan.signature(chunk), records, meta={"chunk": asdict(chunk)})
 
 
 #: Worker processes compute single-threaded: two jobs on two cores must not oversubscribe them

@@ -16,6 +16,17 @@ paper's Table III: its A = 4 entries are multiples of 25 and reach 100 (S = 4), 
 paper's formula in Table III and the literal count beside it (same granularity ``100/A``,
 exactly ``100/A`` lower).
 
+Degenerate cells: a cell where one action is provably optimal measures nothing about how the
+bounds prune a real choice. Two exact tests flag it: (i) **reward-dominant**: the reward is
+linear in the belief (f = none or all weights 0, as in the Sec. VI-B model) and the
+blind-policy certificate :func:`~.pbvi.single_action_optimal` proves one action optimal at
+*every* belief (its value vector ``alpha = (I - gamma P_a)^-1 r_a`` satisfies
+``r_a' + gamma P_a' alpha <= alpha`` for every ``a'``); (ii) **bounds-degenerate**: the lower
+and upper bound agree, on the same action, at *every* sampled belief, so the bounds alone
+prove that action optimal wherever the cell was measured (Corollary 1). Both are reported per
+cell; the mean interval width ``mean(upper - lower + 1)`` (actions the search still has to
+consider) is reported beside the percentages.
+
 Looseness: the optimal action at the same beliefs comes from the point-based reference
 (:mod:`pomdp_planner.bench.experiments.pbvi`) run on those very beliefs, for ``S <= exact_max_S``;
 larger cells report only ``upper - lower``.
@@ -31,11 +42,13 @@ import numpy as np
 from ...core.domains.comparison import comparison_model
 from ...core.gate import build_planner
 from ...core.model import POMDP
-from .pbvi import pbvi
+from .datafile import register
+from .pbvi import pbvi, single_action_optimal
 from .progress import Progress
 from .sampling import reachable_beliefs
 
 
+@register
 @dataclass
 class PruningCell:
     S: int
@@ -47,7 +60,11 @@ class PruningCell:
     pct: tuple[float, float, float] | None = None  # paper formula (min, avg, max)
     pct_count: tuple[float, float, float] | None = None  # literal count (min, avg, max)
     mean_width: float = float("nan")  # mean (upper - lower)
+    mean_interval: float = float("nan")  # mean (upper - lower + 1): actions left in [lower, upper]
     crossed: int = 0  # beliefs with lower > upper (must be 0)
+    # degenerate cells (module docstring): priorities, None where the cell is not degenerate that way
+    single_action: int | None = None  # optimal at every belief, proven by the blind-policy certificate
+    bounds_single: int | None = None  # lower == upper == this priority at every sampled belief
     # looseness against the reference optimal policy (None where not computed)
     opt_method: str | None = None
     upper_minus_opt: float | None = None
@@ -59,6 +76,16 @@ class PruningCell:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @property
+    def degenerate(self) -> str | None:
+        """Why one action is provably optimal in this cell, or ``None`` (module docstring)."""
+        why = []
+        if self.single_action is not None:
+            why.append(f"priority {self.single_action} optimal at every belief (blind-policy certificate)")
+        if self.bounds_single is not None:
+            why.append(f"lower = upper = priority {self.bounds_single} at all {self.n} sampled beliefs")
+        return "; ".join(why) or None
 
 
 def pruned_percentages(lower: np.ndarray, upper: np.ndarray, A: int) -> tuple[np.ndarray, np.ndarray]:
@@ -103,7 +130,13 @@ def pruning_cell(S: int, A: int, n: int, seed: int, variant: str = "tight", exac
     cell.pct = _mma(paper)
     cell.pct_count = _mma(count)
     cell.mean_width = float(np.mean(up - lo))
+    cell.mean_interval = float(np.mean(up - lo + 1))
     cell.crossed = int(np.sum(lo > up))
+    if model.uncertainty.name == "none" or not np.any(model.w):
+        a_star = single_action_optimal(model)
+        cell.single_action = None if a_star is None else a_star + 1
+    if np.all(lo == up) and np.all(lo == lo[0]):
+        cell.bounds_single = int(lo[0]) + 1
     if S <= exact_max_S and A <= ref_max_actions:
         t0 = time.perf_counter()
         opt, decided = reference_actions(model, B)

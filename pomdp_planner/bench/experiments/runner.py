@@ -7,9 +7,9 @@ the report, so it always states exactly what was run.
 
 from __future__ import annotations
 
-import pickle
 import platform
 import sys
+import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -24,6 +24,7 @@ from ...core.io.paths import shipped_model_path
 from ...core.model import POMDP, ModelError
 from ...core.reference import alpha_vector_value_iteration, certified_actions, reference_policy
 from ..search import BenchConfig, run_search_bench
+from .datafile import CacheError, read_entry, write_entry
 from .figures import plot_fig1, plot_fig3, plot_looseness, plot_peers
 from .pbvi import pbvi, single_action_optimal
 from .peer_policies import BUDGETED, UNBUDGETED, ProbeConfig, ReferenceSpec, gate_setup, grid_reference, mcts_available
@@ -31,7 +32,7 @@ from .peers import PeerPlan, compare_peers
 from .pouct import exploration_constant, pouct_available, return_spread
 from .progress import Progress
 from .pruning import pruning_sweep
-from .report import write_report
+from .report import render_report, write_report
 from .sampling import random_beliefs
 from .sanity import run_sanity
 
@@ -81,7 +82,7 @@ FULL = ExperimentConfig(
     quick=False, fig1_grid=40, fig1_plot_grid=60, table2_beliefs=100, table2_depths=(2, 3, 4, 5, 6),
     table2_depth6_beliefs=20, model_check_states=(4, 5), model_check_actions=4, model_check_horizon=1500,
     table3_states=(4, 8, 16, 32, 64, 128, 256), table3_actions=(4, 8, 16, 32, 64), table3_beliefs=500,
-    table3_variants=(("feasible", 256), ("tight", 64)), looseness_max_states=16,
+    table3_variants=(("feasible", 256), ("tight", 256)), looseness_max_states=16,
     peers_models=PEER_MODELS, peers_budgets=(0.01, 0.05, 0.2, 1.0),
     peers_cheap_episodes=100, peers_episodes=(50, 50, 50, 20), peers_steps=50, peers_max_depth=12,
     peers_references=PEER_REFERENCES,
@@ -269,8 +270,9 @@ def run_peers(cfg: ExperimentConfig, progress: bool, cache: Path, jobs: int = 1,
     plan = peer_plan(cfg, jobs, with_pouct, with_mcts)
     chunk_dir = cache / "peers-chunks"
     if not resume and chunk_dir.is_dir():
-        for f in chunk_dir.glob("*.pickle"):
+        for f in (*chunk_dir.glob("*.json"), *chunk_dir.glob("*.pickle")):
             f.unlink()
+    _warn_pickles(chunk_dir)
     models, missing = available_models(cfg.peers_models)
     t0 = time.perf_counter()
     sanity_models, _ = available_models(cfg.peers_sanity_models)
@@ -298,6 +300,24 @@ SECTIONS = ("fig1", "fig3", "table2", "model_check", "table3", "peers")
 
 
 CACHE_DIR = ".experiments-cache"
+#: The layout version of each section's cached data: bump it when the data a section returns
+#: changes shape, and cache files of the older layout are ignored (the section is rerun or
+#: reported missing) instead of breaking the report. table2 2: the natural S = 8 model added
+#: (search.DEFAULT_MODELS); table3 2: degenerate cells and the mean interval width.
+SECTION_SCHEMAS = {"fig1": 1, "fig3": 1, "table2": 2, "model_check": 1, "table3": 2, "peers": 1}
+#: The configuration fields (names or name prefixes) each section's results depend on, besides
+#: ``quick`` and ``seed``; a cached section is reused only under the same values.
+SECTION_FIELDS = {"fig1": ("fig1_",), "fig3": ("fig1_grid",), "table2": ("table2_",),
+                  "model_check": ("model_check_", "table3_states", "table3_actions"),
+                  "table3": ("table3_", "looseness_"), "peers": ("peers_",)}
+
+
+def section_signature(cfg: ExperimentConfig | dict, name: str) -> dict:
+    """What a cached section must carry to be reused: its name, data layout and plan (the
+    configuration fields it depends on, :data:`SECTION_FIELDS`)."""
+    c = cfg if isinstance(cfg, dict) else asdict(cfg)
+    plan = {k: v for k, v in c.items() if k in ("quick", "seed") or k.startswith(SECTION_FIELDS[name])}
+    return {"section": name, "schema": SECTION_SCHEMAS[name], "plan": plan}
 
 
 def _cache_dir(output: Path) -> Path:
@@ -307,47 +327,30 @@ def _cache_dir(output: Path) -> Path:
     return d
 
 
-def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = True,
-            sections: tuple[str, ...] = SECTIONS, jobs: int = 1, resume: bool = False) -> dict:
-    """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``.
+def _warn_pickles(directory: Path) -> None:
+    """One stderr line when ``directory`` holds cache files of the old pickle format (never loaded)."""
+    old = sorted(directory.glob("*.pickle")) if directory.is_dir() else []
+    if old:
+        names = ", ".join(f.name for f in old[:3]) + (", ..." if len(old) > 3 else "")
+        print(f"pomdp-planner: ignoring {len(old)} old *.pickle cache file(s) in {directory} ({names}): never "
+              "loaded (unpickling can run code); delete them", file=sys.stderr, flush=True)
 
-    Each section's data is also pickled into ``output/.experiments-cache/`` (git-ignored).
-    When only some ``sections`` are run, the other sections are taken from that cache if
-    present, so a long run can be done in pieces; the report states each section's mode.
-    The peer comparison runs in ``jobs`` processes and, with ``resume``, reuses the chunks of
-    episodes an earlier, interrupted run left in ``output/.experiments-cache/peers-chunks``.
-    """
-    cfg = QUICK if quick else FULL
-    output = Path(output)
-    img = output / "img"
-    img.mkdir(parents=True, exist_ok=True)
-    cache = _cache_dir(output)
-    runners = {"fig1": lambda: run_fig1(cfg, img), "fig3": lambda: run_fig3(cfg, img),
-               "table2": lambda: run_table2(cfg, progress), "model_check": lambda: run_model_check(cfg, progress),
-               "table3": lambda: run_table3(cfg, progress),
-               "peers": lambda: run_peers(cfg, progress, cache, jobs, resume)}
-    data: dict = {"config": asdict(cfg), "configs": {}, "timings": {}, "modes": {},
-                  "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
-                  "machine": f"{platform.machine()}, {platform.python_implementation()} {platform.python_version()}"}
-    for name in SECTIONS:
-        if name in sections:
-            t0 = time.perf_counter()
-            if progress:
-                print(f"[experiments] {name} ...", file=sys.stderr, flush=True)
-            data[name] = runners[name]()
-            entry = {"data": data[name], "config": asdict(cfg), "time": time.perf_counter() - t0,
-                     "finished": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
-            with open(cache / f"{name}.pickle", "wb") as fh:
-                pickle.dump(entry, fh)
-        elif (cache / f"{name}.pickle").is_file():
-            with open(cache / f"{name}.pickle", "rb") as fh:
-                entry = pickle.load(fh)  # our own file, written above by an earlier run
-            data[name] = entry["data"]
-        else:
-            continue
-        data["configs"][name] = entry["config"]
-        data["timings"][name] = entry["time"]
-        data["modes"][name] = ("quick" if entry["config"]["quick"] else "full") + f", {entry['finished']}"
+
+def _header(cfg: ExperimentConfig) -> dict:
+    return {"config": asdict(cfg), "configs": {}, "timings": {}, "modes": {},
+            "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+            "machine": f"{platform.machine()}, {platform.python_implementation()} {platform.python_version()}"}
+
+
+def _add_section(data: dict, name: str, entry: dict) -> None:
+    data[name] = entry["data"]
+    data["configs"][name] = entry["config"]
+    data["timings"][name] = entry["time"]
+    data["modes"][name] = ("quick" if entry["config"]["quick"] else "full") + f", {entry['finished']}"
+
+
+def _plots(data: dict, img: Path) -> None:
+    """The plots made from several sections' data (looseness, peers), and their names in ``data``."""
     if "table3" in data:
         t3 = data["table3"].get("tight") or next(iter(data["table3"].values()))
         data["looseness_variant"] = "tight" if "tight" in data["table3"] else next(iter(data["table3"]))
@@ -356,8 +359,79 @@ def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = T
     if "peers" in data:
         data["peers_image"] = plot_peers(img / "peers_return_regret.png", data["peers"]["results"],
                                          data["peers"]["models"]).name
+
+
+def check_cached_section(name: str, entry: object, accept: list[dict]) -> None:
+    """Raise unless ``entry`` (a decoded cache file) is a section entry the report can be written
+    from: the right fields, a configuration whose signature is in ``accept``, and the section's
+    report and plots render from it alone (in a scratch directory)."""
+    if not isinstance(entry, dict) or set(entry) != {"data", "config", "time", "finished"}:
+        raise CacheError("not a section entry")
+    config = entry["config"]
+    if not isinstance(config, dict) or section_signature(config, name) not in accept:
+        raise CacheError("its configuration does not match its signature")
+    if not isinstance(config.get("quick"), bool) or not isinstance(entry["finished"], str):
+        raise CacheError("bad configuration")
+    if not isinstance(entry["time"], (int, float)) or isinstance(entry["time"], bool):
+        raise CacheError("bad run time")
+    data = _header(QUICK)
+    _add_section(data, name, entry)
+    with tempfile.TemporaryDirectory() as tmp:
+        _plots(data, Path(tmp))
+    render_report(data)
+
+
+def load_section(cache: Path, name: str, then: str = "the section is left out of the report") -> dict | None:
+    """The cached entry of section ``name`` made under the FULL or the QUICK plan, or ``None``
+    (with one stderr line when a file was there but is not usable)."""
+    accept = [section_signature(FULL, name), section_signature(QUICK, name)]
+    return read_entry(cache / f"{name}.json", accept, lambda e: check_cached_section(name, e, accept), then=then)
+
+
+def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = True,
+            sections: tuple[str, ...] = SECTIONS, jobs: int = 1, resume: bool = False) -> dict:
+    """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``.
+
+    Each section's data is also saved as JSON in ``output/.experiments-cache/<section>.json``
+    (git-ignored; :mod:`.datafile`: data only, never code, with the section's plan as
+    signature, :func:`section_signature`). When only some ``sections`` are run, the other
+    sections are taken from that cache if a valid file made under the FULL or QUICK plan is
+    there (anything else is ignored with one line on stderr), so a long run can be done in
+    pieces; the report states each section's mode. The peer comparison runs in ``jobs``
+    processes and, with ``resume``, reuses the chunks of episodes an earlier, interrupted run
+    left in ``output/.experiments-cache/peers-chunks``.
+    """
+    cfg = QUICK if quick else FULL
+    output = Path(output)
+    img = output / "img"
+    img.mkdir(parents=True, exist_ok=True)
+    cache = _cache_dir(output)
+    _warn_pickles(cache)
+    runners = {"fig1": lambda: run_fig1(cfg, img), "fig3": lambda: run_fig3(cfg, img),
+               "table2": lambda: run_table2(cfg, progress), "model_check": lambda: run_model_check(cfg, progress),
+               "table3": lambda: run_table3(cfg, progress),
+               "peers": lambda: run_peers(cfg, progress, cache, jobs, resume)}
+    data = _header(cfg)
+    for name in SECTIONS:
+        if name in sections:
+            t0 = time.perf_counter()
+            if progress:
+                print(f"[experiments] {name} ...", file=sys.stderr, flush=True)
+            entry = {"data": runners[name](), "config": asdict(cfg), "time": time.perf_counter() - t0,
+                     "finished": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+            try:
+                write_entry(cache / f"{name}.json", section_signature(cfg, name), entry)
+            except (CacheError, OSError) as exc:  # the report is still written from memory
+                print(f"pomdp-planner: could not cache section {name}: {exc}", file=sys.stderr, flush=True)
+        else:
+            entry = load_section(cache, name)
+            if entry is None:
+                continue
+        _add_section(data, name, entry)
+    _plots(data, img)
     write_report(output / "RESULTS.md", data)
     return data
 
 
-__all__ = ["FULL", "QUICK", "SECTIONS", "ExperimentConfig", "run_all", "shipped_model"]
+__all__ = ["FULL", "QUICK", "SECTIONS", "ExperimentConfig", "load_section", "run_all", "section_signature",
+           "shipped_model"]

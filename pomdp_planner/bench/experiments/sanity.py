@@ -35,6 +35,7 @@ import numpy as np
 
 from ...core.model import POMDP
 from ...core.reference import alpha_vector_value_iteration, certified_actions
+from .datafile import register
 from .pbvi import single_action_optimal
 from .peer_policies import BUDGETED, ReferenceSpec, make_peer
 from .pouct import POMDP_PY_DEFAULTS, POUCTSettings
@@ -99,6 +100,7 @@ def known_optimum(model: POMDP, beliefs: np.ndarray, horizon: int | None = None)
                         float(gap[cert].min()) if cert.any() else float("nan"), Q)
 
 
+@register
 @dataclass
 class SanityResult:
     """One peer (at one budget) on one check model."""
