@@ -230,27 +230,33 @@ def _check_stochastic(name: str, M: np.ndarray, row_label: str, col_label: str) 
         )
 
 
+def per_action_vector(field: str, value: object, A: int, noun: str = "value") -> np.ndarray:
+    """A per-action quantity: one number for all ``A`` actions, or ``A`` numbers (finite reals;
+    bools and strings refused). Errors are :class:`ModelError` naming ``field`` (and ``noun``)."""
+    if isinstance(value, (list, tuple)):
+        for i, x in enumerate(value):
+            if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real):
+                raise ModelError(f"{field}: must be numbers, got {kind_of(x)} at index {i}")
+    elif isinstance(value, (str, dict, bool, np.bool_)):
+        raise ModelError(f"{field}: must be numbers, got {kind_of(value)}")
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ModelError(f"{field}: must be numbers, got {short_repr(value)}") from None
+    if arr.ndim == 0:
+        arr = np.full(A, float(arr))
+    if arr.shape != (A,):
+        raise ModelError(f"{field}: expected {A} {noun}s (one per action), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ModelError(f"{field}[{int(np.argmax(~np.isfinite(arr)))}]: {noun} is not finite")
+    return arr
+
+
 def _weights(w: object, A: int) -> np.ndarray:
     """The weights ``w_a`` of Eq. 3: ``None`` (zeros), one number for all actions, or ``A`` numbers."""
     if w is None:
         return np.zeros(A)
-    if isinstance(w, (list, tuple)):
-        for i, x in enumerate(w):
-            if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real):
-                raise ModelError(f"uncertainty.weights: must be numbers, got {kind_of(x)} at index {i}")
-    elif isinstance(w, (str, dict, bool, np.bool_)):
-        raise ModelError(f"uncertainty.weights: must be numbers, got {kind_of(w)}")
-    try:
-        arr = np.asarray(w, dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        raise ModelError(f"uncertainty.weights: must be numbers, got {short_repr(w)}") from None
-    if arr.ndim == 0:
-        arr = np.full(A, float(arr))
-    if arr.shape != (A,):
-        raise ModelError(f"uncertainty.weights: expected {A} weights (one per action), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ModelError(f"uncertainty.weights[{int(np.argmax(~np.isfinite(arr)))}]: weight is not finite")
-    return arr
+    return per_action_vector("uncertainty.weights", w, A, "weight")
 
 
 def _names(field_name: str, names: Sequence[str] | None, n: int) -> tuple[str, ...] | None:

@@ -66,7 +66,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.special import ndtr
 
-from ..model import POMDP, ModelError
+from ..model import POMDP, ModelError, per_action_vector
 
 __all__ = [
     "PRESETS",
@@ -115,17 +115,8 @@ def inertia_limit(S: int, process_sd: float) -> float:
 
 
 def _per_action(name: str, value: float | Sequence[float], A: int) -> np.ndarray:
-    try:
-        v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ModelError(f"generator.{name}: must be a number or {A} numbers, got {value!r}") from None
-    if v.ndim == 0:
-        v = np.full(A, float(v))
-    if v.shape != (A,):
-        raise ModelError(f"generator.{name}: expected one value per priority ({A}), got shape {v.shape}")
-    if not np.all(np.isfinite(v)):
-        raise ModelError(f"generator.{name}: values must be finite, got {v.tolist()}")
-    return v
+    """``generator.<name>``: one number, or one per priority (:func:`~..model.per_action_vector`)."""
+    return per_action_vector(f"generator.{name}", value, A)
 
 
 def _check_sizes(S: int, A: int) -> None:
