@@ -9,10 +9,10 @@ import pytest
 from scipy import stats
 
 from pomdp_planner.bench.experiments.pbvi import pbvi, single_action_optimal
-from pomdp_planner.bench.experiments.peers import mean_ci
 from pomdp_planner.bench.experiments.progress import Progress
 from pomdp_planner.bench.experiments.pruning import pruned_percentages
 from pomdp_planner.bench.experiments.sampling import reachable_beliefs
+from pomdp_planner.bench.stats import mean_ci
 from pomdp_planner.core.domains.comparison import comparison_model, comparison_y
 from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.reference import alpha_vector_value_iteration

@@ -65,7 +65,7 @@ from ..core.reference import ReferencePolicy, reference_policy
 from ..core.search import Planner
 from ..core.simulate import simulate
 from ..core.structure import check_assumptions
-from .experiments.peers import mean_ci
+from .stats import mean_ci
 
 #: Where ``--write-models`` writes: the source tree's ``config/models``.
 MODELS_DIR = Path(__file__).resolve().parents[2] / "config" / "models"

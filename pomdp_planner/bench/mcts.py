@@ -58,7 +58,7 @@ from ..core.io.paths import shipped_model_path
 from ..core.model import POMDP
 from ..core.policies import MyopicPolicy
 from ..core.simulate import simulate
-from .experiments.peers import mean_ci
+from .stats import mean_ci
 
 DEFAULT_MODELS = ("tracking_s3_info", "tracking_s8_info")
 #: Configurations of the throughput table: (label, BeliefMCTS keyword arguments).
@@ -182,7 +182,7 @@ def tune_table(rows: Sequence[dict[str, Any]]) -> str:
 
 # ------------------------------------------------------------------ closed loop
 def _mean_ci(x: Sequence[float]) -> tuple[float, float]:
-    """Mean and half-width of its 95 % Student-t interval (:func:`.experiments.peers.mean_ci`)."""
+    """Mean and half-width of its 95 % Student-t interval (:func:`.stats.mean_ci`)."""
     m, (lo, hi) = mean_ci(np.asarray(x, dtype=float))
     return m, (hi - lo) / 2.0
 

@@ -27,7 +27,6 @@ signature matches; any other file is ignored with one line on stderr and the chu
 
 from __future__ import annotations
 
-import math
 import multiprocessing
 import os
 import time
@@ -37,26 +36,16 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import t as student_t
 
 from ...core.model import POMDP
 from ...core.simulate import simulate
+from ..stats import mean_ci
 from .datafile import CacheError, read_entry, register, write_entry
 from .peer_policies import BUDGETED, UNBUDGETED, ProbeConfig, ReferenceSpec, SearchPeer, make_peer
 from .pouct import TUNED, POUCTSettings, pouct_available, tree_depth
 
 __all__ = ["PeerChunk", "PeerPlan", "PeerResult", "aggregate", "compare_peers", "mean_ci", "pouct_available",
            "run_chunk", "tree_depth"]
-
-
-def mean_ci(x: np.ndarray) -> tuple[float, tuple[float, float]]:
-    """Mean and 95 % Student-t confidence interval."""
-    x = np.asarray(x, dtype=float)
-    m = float(np.mean(x))
-    if x.size < 2:
-        return m, (m, m)
-    half = float(student_t.ppf(0.975, x.size - 1)) * float(np.std(x, ddof=1)) / math.sqrt(x.size)
-    return m, (m - half, m + half)
 
 
 @register
