@@ -199,6 +199,23 @@ def _newest(rec) -> dict[str, int]:
                 "belief": int(rec.beliefs[-1].layout.dim[1].label.split("=")[1]) if rec.beliefs else -1}
 
 
+def _actions_sent(rec) -> dict[int, set[int]]:
+    """The priorities the recorder saw on ``action`` for each epoch (a restarted planner may send two)."""
+    sent: dict[int, set[int]] = {}
+    with rec.cond:
+        for t, p in rec.actions:
+            sent.setdefault(t, set()).add(p)
+    return sent
+
+
+def _paired(rec) -> list[tuple[int, int]]:
+    """(epoch, priority applied) of the recorded observations whose epoch the recorder also saw an action for."""
+    sent = _actions_sent(rec)
+    with rec.cond:
+        observations = list(rec.observations["observation"])
+    return [(t, p) for t, p, _ in observations if t in sent]
+
+
 @pytest.mark.parametrize("mode", ["free", "timer"])
 def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
     """Restarts are a designed feature: each node in turn is killed (SIGKILL, no clean-up) and
@@ -223,7 +240,12 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
     try:
         for name in ("belief_filter", "planner", "target_simulator"):
             start(name)
-        assert _spin_until(executor, lambda: min(_newest(rec).values()) > 120, 90), f"loop did not run: {_newest(rec)}"
+        # the recorder joins a loop that is already running (discovery takes 0.1-3.5 s here, the free-running loop
+        # ~100 epochs/s, a late reader gets the last 100 samples of each topic): wait until it has recorded the
+        # same 100+ epochs on both ``observation`` and ``action``, so that the pairing checked at the end has data
+        need = (lambda: len(_paired(rec)) > 100) if mode == "free" else (lambda: True)
+        assert _spin_until(executor, lambda: min(_newest(rec).values()) > 120 and need(), 90), \
+            f"loop did not run: {_newest(rec)}, {len(_paired(rec))} epochs recorded on both observation and action"
         for name in ("target_simulator", "belief_filter", "planner"):
             others = {n: p for n, (p, _) in procs.items() if n != name}
             p = procs[name][0]
@@ -275,11 +297,6 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
     assert "joined a running loop at epoch" in filter_log, filter_log[-2000:]
     assert filter_log.count("lost (no reading)") <= 1, "the restarted filter walked the epochs it missed"
     if mode == "free":  # pairing: each observation carries an action the planner sent for its epoch
-        with rec.cond:
-            sent: dict[int, set[int]] = {}
-            for t, p in rec.actions:
-                sent.setdefault(t, set()).add(p)
-            observations = list(rec.observations["observation"])
-        checked = [(t, p) for t, p, _ in observations if t in sent]
+        sent, checked = _actions_sent(rec), _paired(rec)
         assert len(checked) > 100
         assert all(p in sent[t] for t, p in checked)
