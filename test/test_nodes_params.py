@@ -24,6 +24,7 @@ from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.processes import PARAMETER_SETS, parameter_set_model
 from pomdp_planner.nodes.qos import LATCHED_QOS
 from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.target_simulator import TargetSimulator
@@ -124,11 +125,22 @@ def test_bad_startup_parameters_refuse_to_start(harness):
             Parameter("observation_model_files", value=["", "", ""])])
 
 
-def test_shipped_yaml_files_exist_for_both_models():
+def test_shipped_yaml_files_exist_for_every_parameter_set():
+    """Every parameter set (the demo's ``--model``) has a file per node and a closed-loop file, and
+    all their sections name the same model, the one ``parameter_set_model`` (the demo's monitor)
+    reads; the perimeter sets (issue 12) run the perimeter models."""
     names = {p.name for p in PARAM_FILES}
-    for node in NODE_CLASSES:
-        assert {f"{node}_s3.yaml", f"{node}_s8.yaml"} <= names
-    assert {"closed_loop_s3.yaml", "closed_loop_s8.yaml"} <= names
+    assert PARAMETER_SETS == ("s3", "s8", "perimeter_s3", "perimeter_s8")
+    for key in PARAMETER_SETS:
+        files = [f"{node}_{key}.yaml" for node in NODE_CLASSES] + [f"closed_loop_{key}.yaml"]
+        assert set(files) <= names, key
+        models = {section["ros__parameters"]["model_file"] for f in files
+                  for section in yaml.safe_load((REPO / "config" / f).read_text()).values()}
+        assert len(models) == 1, (key, models)
+        model = parameter_set_model(key)
+        assert model == (REPO / models.pop()).resolve() and model.is_file()
+        if key.startswith("perimeter_"):
+            assert model.name == f"{key}.yaml"
 
 
 @pytest.mark.parametrize("path", PARAM_FILES, ids=lambda p: p.name)
@@ -190,7 +202,7 @@ def test_shipped_files_step_the_simulator_at_a_sensor_rate():
     """Realistic defaults (issue 13): the shipped files run the simulator as a 10 Hz sensor, not free
     (which used about 1.4 cores doing nothing a tracker needs), and give the planner a budget that
     fits in a sensor period."""
-    for model in ("s3", "s8"):
+    for model in PARAMETER_SETS:
         for name in (f"target_simulator_{model}.yaml", f"closed_loop_{model}.yaml"):
             doc = yaml.safe_load((REPO / "config" / name).read_text())
             assert doc["target_simulator"]["ros__parameters"]["step_period"] == 0.1, name
