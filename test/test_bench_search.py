@@ -58,3 +58,27 @@ def test_shipped_models_resolve_by_bare_name() -> None:
     res = run_search_bench(["tracking_s3_info.yaml"], BenchConfig(beliefs=1, deep_beliefs=1, timed=1, depths=(2,),
                                                                   timed_max_depth=2))
     assert res["models"][0]["model"] == "tracking_s3_info"
+
+
+def test_bench_search_constant_is_used_and_reported(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``bench search --constant fosd``: the JSON and the report name the constant, and the pruning
+    counted is that of the chosen bounds (on the natural S = 8 model, whose FOSD constraints are
+    stricter, FOSD bounds prune less than the MLR-exact default)."""
+    for constant in ("mlr", "fosd"):
+        out = tmp_path / f"{constant}.json"
+        assert main(["bench", "search", "--model", S3, "--beliefs", "2", "--timed", "1", "--constant", constant,
+                     "--json", str(out)]) == 0
+        assert f"bounds: tight, constant {constant}," in capsys.readouterr().out
+        data = json.loads(out.read_text())
+        m = data["models"][0]
+        assert data["config"]["constant"] == m["constant"] == m["gate"]["constant"] == constant
+    model = load_model(REPO / "config" / "models" / "tracking_s8_natural.yaml")
+    b = np.random.default_rng(0).dirichlet(np.ones(8), size=3)
+    nodes = {}
+    for constant in ("mlr", "fosd"):
+        cfg = BenchConfig(beliefs=3, deep_beliefs=3, timed=1, depths=(2, 3), timed_max_depth=2, constant=constant)
+        row = next(p for p in bench_model(model, cfg)["pruning"] if p["depth"] == 3)
+        planner = build_planner(model, constant=constant).planner
+        nodes[constant] = np.mean([sum(planner.count_nodes(x, 3)) for x in b])
+        assert row["bnb_nodes_mean"] == pytest.approx(nodes[constant])
+    assert nodes["mlr"] < nodes["fosd"]

@@ -115,6 +115,9 @@ CASES: list[tuple[list[str], str]] = [
     (["simulate", S2, "--policy", "random", "--option", "seed=1.5"], "option seed"),
     (["simulate", S2, "--policy", "bnb", "--option", "seed=abc"], "option seed"),
     (["simulate", S2, "--policy", "lower", "--option", "variant=x"], "option variant"),
+    (["simulate", S2, "--policy", "upper", "--option", "constant=paper"], "option constant"),
+    (["simulate", S2, "--policy", "bnb", "--option", "constant=1"], "option constant"),
+    (["simulate", S2, "--policy", "exhaustive", "--option", "constant=fosd"], "'constant'"),  # no bounds: no constant
     (["simulate", S2, "--policy", "bnb", "--option", "prune_without_guarantee=maybe"],
      "option prune_without_guarantee"),
     (["simulate", S2, "--policy", "exhaustive", "--option", "no_limit=2"], "option no_limit"),
@@ -146,6 +149,7 @@ CASES: list[tuple[list[str], str]] = [
     (["bounds", S2, "--samples", "1e11"], "--samples"),
     (["bounds", S2, "--seed", "-1"], "--seed"),
     (["bounds", S2, "--variant", "x"], "--variant"),
+    (["bounds", S2, "--constant", "x"], "--constant"),
     (["bounds", S2, "--beliefs", "{binary}"], "--beliefs"),
     (["bounds", S2, "--beliefs", "{latin1}"], "--beliefs"),
     (["bounds", S2, "--beliefs", "{empty}"], "--beliefs"),
@@ -182,6 +186,7 @@ CASES: list[tuple[list[str], str]] = [
     (["plan", S2, "--belief", "0.5,0.6"], "--belief"),
     (["plan", S2, "--belief", ""], "--belief"),
     (["plan", S2, "--variant", "x"], "--variant"),
+    (["plan", S2, "--constant", "MLR"], "--constant"),
     # ------------------------------------------------------------------ bench search
     (["bench", "search", "--beliefs", "0"], "--beliefs"),
     (["bench", "search", "--beliefs", "10001"], "--beliefs"),
@@ -189,6 +194,7 @@ CASES: list[tuple[list[str], str]] = [
     (["bench", "search", "--timed", "0"], "--timed"),
     (["bench", "search", "--seed", "-1"], "--seed"),
     (["bench", "search", "--variant", "x"], "--variant"),
+    (["bench", "search", "--constant", "x"], "--constant"),
     (["bench", "search", "--model", "{dir}"], "--model"),
     (["bench", "search", "--model", "/dev/zero"], "--model"),
     (["bench", "search", "--model", "{missing}"], "--model"),

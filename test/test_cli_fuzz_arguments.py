@@ -41,8 +41,9 @@ def values(*valid: str) -> st.SearchStrategy[str]:
 
 
 def option_values(*valid: str) -> st.SearchStrategy[str]:
-    keys = st.sampled_from(["depth", "time_budget", "max_depth", "seed", "variant", "prune_without_guarantee",
-                            "no_limit", "simulations", "rollout_depth", "reuse", "leaf", "bogus", ""])
+    keys = st.sampled_from(["depth", "time_budget", "max_depth", "seed", "variant", "constant",
+                            "prune_without_guarantee", "no_limit", "simulations", "rollout_depth", "reuse", "leaf",
+                            "bogus", ""])
     vals = st.sampled_from(list(valid) + NASTY)
     return st.builds(lambda k, v: f"{k}={v}", keys, vals) | TEXT
 
@@ -55,18 +56,21 @@ COMMANDS: dict[str, tuple[list[str], dict[str, st.SearchStrategy[str] | None]]] 
                       "--json": None}),
     "simulate": ([S2], {"--steps": values(*SMALL), "--seed": values(*SMALL),
                         "--policy": values("myopic", "random", "bnb", "exhaustive", "lower", "upper", "mcts"),
-                        "--option": option_values("0.01", "tight", "feasible", *SMALL),
+                        "--option": option_values("0.01", "tight", "feasible", "mlr", "fosd", *SMALL),
                         "--belief": values("uniform", "0.5,0.5", "1,0", "0.5,0.6"),
                         "--initial-state": values("0", "1"), "--json": None}),
     "bounds": ([S2], {"--samples": values(*SMALL), "--seed": values(*SMALL), "--variant": values("tight", "feasible"),
+                      "--constant": values("mlr", "fosd"),
                       "--beliefs": values("beliefs.csv", "/dev/zero", "."), "--json": None}),
     "plan": ([S3], {"--belief": values("uniform", "0.2,0.5,0.3"), "--depth": values(*SMALL),
                     "--time-budget": values("0.01", "0.05"), "--max-depth": values(*SMALL),
                     "--memory-budget": values("1", "0.5", "1024"), "--exhaustive": None, "--no-limit": None,
-                    "--variant": values("tight", "feasible"), "--prune-without-guarantee": None, "--json": None}),
+                    "--variant": values("tight", "feasible"), "--constant": values("mlr", "fosd"),
+                    "--prune-without-guarantee": None, "--json": None}),
     "bench search": ([ "--quick", "--model", S2, "--beliefs", "2", "--timed", "1"],
                      {"--beliefs": values(*SMALL), "--timed": values(*SMALL), "--seed": values(*SMALL),
-                      "--variant": values("tight", "feasible"), "--model": values(S2, "/dev/zero", "."),
+                      "--variant": values("tight", "feasible"), "--constant": values("mlr", "fosd"),
+                      "--model": values(S2, "/dev/zero", "."),
                       "--json": values("bench.json", "."), "--full": None, "--prune-without-guarantee": None}),
     "bench all": (["--report-only", "--output", "empty"],
                   {"--output": values("empty", "/dev/null", "beliefs.csv/sub"), "--jobs": values("1"),

@@ -174,3 +174,50 @@ def test_bad_arguments_name_the_field(s3: POMDP) -> None:
         build_planner(s3, variant="loose")
     with pytest.raises(ModelError, match="on_assumption_failure"):
         build_planner(s3, on_assumption_failure="ignore")
+
+
+S8_NATURAL = REPO / "config" / "models" / "tracking_s8_natural.yaml"
+
+
+def _worst_step_margin(model: POMDP, g: np.ndarray, C: float) -> float:
+    """min over actions and state pairs of ``Delta_i (r_a + (I - gamma P[a]) g) - 2 C |w_a|``: the
+    lower-bound constraint of the Renyi LP with constant ``C`` (docs/THEORY.md), from its formula."""
+    worst = np.inf
+    for a in range(model.A):
+        phi = model.r[:, a] + g - model.gamma * model.P[a] @ g
+        worst = min(worst, float(np.min(np.diff(phi) - 2.0 * C * abs(model.w[a]))))
+    return worst
+
+
+@pytest.mark.parametrize("constant", ["mlr", "fosd"])
+def test_the_gate_records_the_constant_its_bounds_satisfy(constant: str) -> None:
+    """The constant is recorded (setup, to_dict, reason) and is the one the vectors satisfy: on the
+    natural S = 8 model the MLR-exact vector (C = 1) breaks the FOSD constraints (C_S = 1.82)."""
+    model = load_model(S8_NATURAL)
+    setup = build_planner(model, constant=constant)
+    assert setup.mode == "prune" and setup.guaranteed
+    assert setup.constant == constant and setup.bounds.constant == constant
+    d = json.loads(json.dumps(setup.to_dict()))
+    assert d["constant"] == constant and d["bounds"]["constant"] == constant
+    assert d["bounds"]["why"].startswith(constant + ":")
+    assert f"constant {constant}" in setup.describe()
+    c_s = (1 + np.sqrt(model.S - 1)) / 2
+    tol = 1e-7 * (1 + float(np.abs(setup.bounds.g).sum()))
+    assert _worst_step_margin(model, setup.bounds.g, 1.0) >= -tol
+    fosd_margin = _worst_step_margin(model, setup.bounds.g, c_s)
+    assert fosd_margin >= -tol if constant == "fosd" else fosd_margin < -0.1
+
+
+def test_the_default_constant_is_mlr_and_no_lp_records_none(s3: POMDP, failing: POMDP) -> None:
+    assert build_planner(s3).constant == "mlr" and build_planner(s3).to_dict()["constant"] == "mlr"
+    assert build_planner(s3, use_bounds=False, constant="fosd").constant is None  # nothing solved
+    assert build_planner(failing, constant="fosd").constant is None  # exhaustive: the LP is not solved
+    forced = build_planner(failing, constant="fosd", prune_without_guarantee=True)
+    assert forced.constant == "fosd" and "constant fosd" in forced.reason
+
+
+@pytest.mark.parametrize("bad", ["paper", "MLR", "", None, 1])
+def test_a_bad_constant_is_refused_naming_the_field_and_the_choices(s3: POMDP, bad: object) -> None:
+    for use_bounds in (True, False):
+        with pytest.raises(ModelError, match=r"constant: expected one of mlr, fosd"):
+            build_planner(s3, constant=bad, use_bounds=use_bounds)

@@ -139,18 +139,24 @@ def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
         np.testing.assert_allclose(beliefs[t], b, rtol=1e-9, atol=1e-12)
 
 
-def test_demo_runs_and_exits_cleanly(domain):
-    """``make demo`` in small: three processes, the table, the summary, exit code 0."""
-    proc = subprocess.run([sys.executable, "-m", "pomdp_planner.nodes.demo", "--steps", "5", "--model", "s3",
+@pytest.mark.parametrize("model", ["s3", "perimeter_s8"])
+def test_demo_runs_and_exits_cleanly(domain, model):
+    """``make demo`` in small: three processes, the table (with the greedy action beside the
+    planner's), the summary, exit code 0; on the paper's S = 3 model and on the perimeter model of
+    the README's node-loop example (its own parameter files, ``config/<node>_perimeter_s8.yaml``)."""
+    proc = subprocess.run([sys.executable, "-m", "pomdp_planner.nodes.demo", "--steps", "5", "--model", model,
                            "--time-budget", "0.02", "--domain-id", str(domain)],
                           capture_output=True, text=True, timeout=90, cwd=REPO)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     lines = proc.stdout.splitlines()
+    name = "tracking_s3_info" if model == "s3" else model
+    assert lines[0].startswith(f"pomdp_planner demo: {name}: S=")
     header = next(i for i, line in enumerate(lines) if line.split()[:2] == ["step", "true"])
+    assert lines[header].split()[5:7] == ["action", "greedy"]
     rows = [line.split() for line in lines[header + 2: header + 7]]
     assert [int(r[0]) for r in rows] == [0, 1, 2, 3, 4]
-    assert all(1 <= int(r[5]) <= 3 for r in rows)
-    assert "summary over 5 steps: mean reward" in proc.stdout
+    assert all(1 <= int(r[5]) <= 3 and 1 <= int(r[6]) <= 3 for r in rows)
+    assert "summary over 5 steps: mean reward" in proc.stdout and "other than greedy's on" in proc.stdout
     assert "Traceback" not in proc.stderr
 
 

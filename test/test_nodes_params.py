@@ -19,9 +19,12 @@ from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64MultiArray
 from test_nodes_closed_loop import start_loop
 
+from pomdp_planner.core.bounds import BOUND_CONSTANTS, DEFAULT_CONSTANT, sample_beliefs, solve_bounds
+from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.processes import PARAMETER_SETS, parameter_set_model
 from pomdp_planner.nodes.qos import LATCHED_QOS
 from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.target_simulator import TargetSimulator
@@ -80,6 +83,9 @@ def test_set_parameters_while_running_take_effect_at_next_decision(harness):
     ("max_depth", 2.5, "type"),
     ("use_bounds", 1, "type"),
     ("bound_variant", "loose", "bound_variant"),  # not a known variant (custom validation)
+    ("bound_constant", "paper", "bound_constant"),  # not a known constant (custom validation)
+    ("bound_constant", "MLR", "bound_constant"),
+    ("bound_constant", 1, "type"),
     ("model_file", "other.yaml", "read-only"),   # needs a restart
 ])
 def test_invalid_parameter_values_rejected_with_reason(harness, name, value, reason):
@@ -107,6 +113,9 @@ def test_bad_startup_parameters_refuse_to_start(harness):
     with pytest.raises(NodeConfigError, match="bound_variant"):
         PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
                                                             Parameter("bound_variant", value="loose")])
+    with pytest.raises(NodeConfigError, match=r"bound_constant: 'paper' is not one of \['mlr', 'fosd'\]"):
+        PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
+                                                            Parameter("bound_constant", value="paper")])
     with pytest.raises(NodeConfigError, match="initial_state"):
         TargetSimulator(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
                                                                 Parameter("initial_state", value=3)])
@@ -116,11 +125,22 @@ def test_bad_startup_parameters_refuse_to_start(harness):
             Parameter("observation_model_files", value=["", "", ""])])
 
 
-def test_shipped_yaml_files_exist_for_both_models():
+def test_shipped_yaml_files_exist_for_every_parameter_set():
+    """Every parameter set (the demo's ``--model``) has a file per node and a closed-loop file, and
+    all their sections name the same model, the one ``parameter_set_model`` (the demo's monitor)
+    reads; the perimeter sets (issue 12) run the perimeter models."""
     names = {p.name for p in PARAM_FILES}
-    for node in NODE_CLASSES:
-        assert {f"{node}_s3.yaml", f"{node}_s8.yaml"} <= names
-    assert {"closed_loop_s3.yaml", "closed_loop_s8.yaml"} <= names
+    assert PARAMETER_SETS == ("s3", "s8", "perimeter_s3", "perimeter_s8")
+    for key in PARAMETER_SETS:
+        files = [f"{node}_{key}.yaml" for node in NODE_CLASSES] + [f"closed_loop_{key}.yaml"]
+        assert set(files) <= names, key
+        models = {section["ros__parameters"]["model_file"] for f in files
+                  for section in yaml.safe_load((REPO / "config" / f).read_text()).values()}
+        assert len(models) == 1, (key, models)
+        model = parameter_set_model(key)
+        assert model == (REPO / models.pop()).resolve() and model.is_file()
+        if key.startswith("perimeter_"):
+            assert model.name == f"{key}.yaml"
 
 
 @pytest.mark.parametrize("path", PARAM_FILES, ids=lambda p: p.name)
@@ -182,7 +202,7 @@ def test_shipped_files_step_the_simulator_at_a_sensor_rate():
     """Realistic defaults (issue 13): the shipped files run the simulator as a 10 Hz sensor, not free
     (which used about 1.4 cores doing nothing a tracker needs), and give the planner a budget that
     fits in a sensor period."""
-    for model in ("s3", "s8"):
+    for model in PARAMETER_SETS:
         for name in (f"target_simulator_{model}.yaml", f"closed_loop_{model}.yaml"):
             doc = yaml.safe_load((REPO / "config" / name).read_text())
             assert doc["target_simulator"]["ros__parameters"]["step_period"] == 0.1, name
@@ -215,3 +235,51 @@ def test_an_integer_is_accepted_for_a_float_parameter(harness):
     assert not res.successful and "type" in res.reason.lower()
     (res,) = _set(client, max_depth=3.0)  # the other way round stays refused: 3.0 is not an integer depth
     assert not res.successful
+
+
+def test_bound_constant_set_at_run_time_re_solves_the_bounds_for_the_next_decision(harness):
+    """``bound_constant`` (issue 10): declared with the core's choices and default; set at run time,
+    the bounds are re-solved at the next decision, and that decision's diagnostics show it. On the
+    natural S = 8 model, at a belief where the MLR-exact bounds agree and the FOSD ones do not, the
+    decision is certified with ``mlr`` and not with ``fosd``; back to ``mlr``, certified again."""
+    h = harness
+    path = str(REPO / "config" / "models" / "tracking_s8_natural.yaml")
+    model = load_model(path)
+    B = sample_beliefs(model, 200, seed=5)
+    lo_m, up_m = solve_bounds(model, constant="mlr").myopic.actions(B)
+    lo_f, up_f = solve_bounds(model, constant="fosd").myopic.actions(B)
+    belief = B[int(np.flatnonzero((lo_m == up_m) & (lo_f < up_f))[0])]
+    planner = h.add(PlannerNode(context=h.context, parameter_overrides=[
+        Parameter("model_file", value=path), Parameter("time_budget", value=0.05), Parameter("max_depth", value=2)]))
+    desc = planner.describe_parameter("bound_constant")
+    assert planner.get_parameter("bound_constant").value == DEFAULT_CONSTANT == "mlr"
+    assert all(c in desc.additional_constraints for c in BOUND_CONSTANTS) and not desc.read_only
+    rec = h.recorder()
+    pub = rec.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
+    client = AsyncParameterClient(rec, "planner")
+    h.start()
+    assert client.wait_for_services(timeout_sec=10.0)
+    solved = planner._planner
+
+    def decision(epoch: int, constant: str, certified: bool) -> None:
+        pub.publish(encode_belief(epoch, belief))
+        n0 = len(rec.diagnostics)
+
+        def shown():
+            return [d for d in rec.diag_values("planner")[n0:] if d.get("last.belief_epoch") == str(epoch)]
+        assert h.wait_until(shown, timeout=15)  # diagnostics come about once a second
+        d = shown()[0]
+        assert d["param.bound_constant"] == d["last.bound_constant"] == constant, d
+        assert d["bounds"] == f"tight, constant {constant}: feasible", d
+        assert d["last.certified"] == ("true" if certified else "false"), d
+        assert planner.setup.constant == planner.setup.bounds.constant == constant
+
+    decision(0, "mlr", True)
+    (res,) = _set(client, bound_constant="fosd")
+    assert res.successful, res.reason
+    assert planner._planner is solved  # nothing re-solved before the next decision
+    decision(1, "fosd", False)
+    assert planner._planner is not solved
+    (res,) = _set(client, bound_constant="mlr")
+    assert res.successful, res.reason
+    decision(2, "mlr", True)

@@ -101,3 +101,35 @@ def test_mcts_by_name_is_the_core_planner_and_its_option_errors_name_the_option(
         make_policy("mcts", model, max_depth=0)
     with pytest.raises(ModelError, match=r"^policy mcts: unknown option 'depth'"):
         make_policy("mcts", model, depth=3)
+
+
+def test_the_bound_policies_take_the_constant_option(capsys: pytest.CaptureFixture[str]) -> None:
+    """``bnb``, ``lower``, ``upper`` take ``constant=mlr|fosd``: the policies act with that constant's
+    bounds (on the natural S = 8 model, where the two differ), the gate records it, ``simulate --json``
+    reports it, and a bad value is an error naming the option."""
+    import json
+
+    from pomdp_planner.cli import main
+    from pomdp_planner.core.bounds import sample_beliefs, solve_bounds
+
+    path = str(REPO / "config" / "models" / "tracking_s8_natural.yaml")
+    model = load_model(path)
+    B = sample_beliefs(model, 200, seed=5)
+    bounds = {c: solve_bounds(model, constant=c).myopic.actions(B) for c in ("mlr", "fosd")}
+    (lo_m, up_m), (lo_f, _) = bounds["mlr"], bounds["fosd"]
+    k = int(np.flatnonzero((lo_m == up_m) & (lo_f < lo_m))[0])  # the lower bounds differ, MLR certifies
+    for c, (lo, up) in bounds.items():
+        assert make_policy("lower", model, constant=c).act(B[k]) == lo[k]
+        assert make_policy("upper", model, constant=c).act(B[k]) == up[k]
+        bnb = make_policy("bnb", model, depth=2, constant=c)
+        assert bnb.setup.constant == c and bnb.act(B[k]) == make_policy("exhaustive", model, depth=2).act(B[k])
+        assert bnb.last.certified == (c == "mlr")
+    assert make_policy("bnb", model, depth=2).setup.constant == "mlr"  # the default
+    assert main(["simulate", path, "--steps", "2", "--policy", "upper", "--option", "constant=fosd", "--json"]) == 0
+    planner = json.loads(capsys.readouterr().out)["planner"]
+    assert planner["constant"] == planner["bounds"]["constant"] == "fosd"
+    for name in ("bnb", "lower", "upper"):
+        with pytest.raises(ModelError, match=r"option constant: expected one of mlr, fosd, got 'paper'"):
+            make_policy(name, model, constant="paper")
+    with pytest.raises(ModelError, match=r"policy exhaustive: unknown option 'constant'"):
+        make_policy("exhaustive", model, constant="fosd")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pomdp_planner.cli import main
-from pomdp_planner.core.bounds import BOUND_VARIANTS
+from pomdp_planner.core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT, sample_beliefs, solve_bounds
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.search import (
@@ -22,6 +22,7 @@ from pomdp_planner.core.search import (
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 S3 = str(MODELS / "tracking_s3_info.yaml")
+S8_NATURAL = str(MODELS / "tracking_s8_natural.yaml")
 
 
 def run_json(capsys: pytest.CaptureFixture[str], *argv: str) -> dict:
@@ -92,6 +93,8 @@ def test_variant_choices_come_from_the_core() -> None:
     for command in ("plan", "bounds"):
         variant = next(a for a in sub.choices[command]._actions if a.dest == "variant")
         assert tuple(variant.choices) == BOUND_VARIANTS
+        constant = next(a for a in sub.choices[command]._actions if a.dest == "constant")
+        assert tuple(constant.choices) == BOUND_CONSTANTS and constant.default == DEFAULT_CONSTANT == "mlr"
 
 
 def test_core_validators_are_the_last_guard() -> None:
@@ -105,3 +108,32 @@ def test_core_validators_are_the_last_guard() -> None:
             check_time_budget(bad)
     with pytest.raises(ValueError, match=r"in 1\.\.50"):
         check_depth(51, allowed=MAX_DEPTH_RANGE)
+
+
+def test_plan_constant_fosd_vs_mlr_on_the_natural_s8_model(capsys: pytest.CaptureFixture[str]) -> None:
+    """``plan --constant``: on the natural S = 8 model the MLR-exact bounds (C = 1) are tighter than the
+    FOSD ones (C_S = 1.82). At a reachable belief where the MLR bounds agree and the FOSD bounds do
+    not, the JSON root bounds differ accordingly (the MLR interval inside the FOSD one), MLR certifies
+    and FOSD does not, and both choose the action of exhaustive search (both bounds are valid)."""
+    model = load_model(S8_NATURAL)
+    B = sample_beliefs(model, 200, seed=5)
+    lo_m, up_m = solve_bounds(model, constant="mlr").myopic.actions(B)
+    lo_f, up_f = solve_bounds(model, constant="fosd").myopic.actions(B)
+    assert np.all((lo_f <= lo_m) & (up_m <= up_f))  # fewer constraints, tighter bounds at every belief
+    where = np.flatnonzero((lo_m == up_m) & (lo_f < up_f))
+    assert where.size, "no sampled belief where the two constants' bounds differ"
+    b = B[where[0]]
+    text = ",".join(repr(float(x)) for x in b)
+    out = {c: run_json(capsys, "plan", S8_NATURAL, "--belief", text, "--depth", "2", "--constant", c, "--json")
+           for c in ("mlr", "fosd")}
+    rm, rf = out["mlr"]["root_bounds"], out["fosd"]["root_bounds"]
+    assert rm != rf and rf[0] <= rm[0] <= rm[1] <= rf[1]
+    assert rm == [int(lo_m[where[0]]) + 1, int(up_m[where[0]]) + 1]  # priorities, 1-based
+    assert rf == [int(lo_f[where[0]]) + 1, int(up_f[where[0]]) + 1]
+    assert out["mlr"]["certified"] and not out["fosd"]["certified"]
+    exhaustive = build_planner(model, use_bounds=False).planner.search(b, 2).priority
+    assert out["mlr"]["action"] == out["fosd"]["action"] == exhaustive
+    for c, d in out.items():
+        assert d["bounds"]["constant"] == d["gate"]["constant"] == c and d["bounds"]["why"].startswith(c + ":")
+    assert main(["plan", S8_NATURAL, "--belief", text, "--depth", "2", "--constant", "fosd"]) == 0
+    assert "constant fosd" in capsys.readouterr().out  # the text output says which constant

@@ -18,7 +18,9 @@ problem stretched with the generator's defaults, and a second one with a steeper
   under 50 ms), the speed-up (ratio of the medians), how often both choose the same action,
   and throughput in belief nodes per second (tree nodes / median time).
 
-The planner comes from the assumption gate (:func:`pomdp_planner.core.gate.build_planner`): a
+The bounds are solved with ``--variant`` and ``--constant`` (default ``tight``, ``mlr``; the report
+and the JSON name both). The planner comes from the assumption gate
+(:func:`pomdp_planner.core.gate.build_planner`): a
 model whose bounds are not valid (Assumption 1 fails, LP infeasible, Shannon guarantee covering
 no domain) is skipped with the gate's reason, unless ``--prune-without-guarantee`` asks to
 measure pruning anyway; the report then says that no guarantee holds and that agreeing root
@@ -42,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.bounds import BOUND_VARIANTS
+from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.gate import build_planner
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file, write_text_file
@@ -72,6 +74,7 @@ class BenchConfig:
     timed_max_depth: int = 5
     seed: int = 0
     variant: str = "tight"
+    constant: str = DEFAULT_CONSTANT  # the bound LP's belief-independent constant (core.bounds.BOUND_CONSTANTS)
     prune_without_guarantee: bool = False  # measure pruning on a model whose bounds are not valid (said so)
 
     @classmethod
@@ -96,13 +99,15 @@ def bench_model(model: POMDP, config: BenchConfig, log: Callable[[str], None] = 
     """Pruning and timing figures for one model (a JSON-ready dict)."""
     A, Z, S = model.A, model.Z, model.S
     t0 = time.perf_counter()
-    setup = build_planner(model, variant=config.variant, prune_without_guarantee=config.prune_without_guarantee,
+    setup = build_planner(model, variant=config.variant, constant=config.constant,
+                          prune_without_guarantee=config.prune_without_guarantee,
                           override_name="--prune-without-guarantee")
     gate_time = time.perf_counter() - t0
     sol = setup.bounds
     out: dict[str, Any] = {
         "model": model.name, "S": S, "A": A, "Z": Z, "uncertainty": model.uncertainty.name,
-        "variant": config.variant, "bounds_feasible": bool(sol is not None and sol.feasible),
+        "variant": config.variant, "constant": config.constant,
+        "bounds_feasible": bool(sol is not None and sol.feasible),
         "bounds_message": setup.reason if sol is None else sol.message,
         "bounds_solve_time": None if sol is None else sol.solve_time, "gate_time": gate_time,
         "gate": setup.to_dict(), "beliefs": config.beliefs, "seed": config.seed,
@@ -209,7 +214,8 @@ def format_report(result: dict[str, Any]) -> str:
         gate = m.get("gate", {})
         solved = "not solved" if m["bounds_solve_time"] is None else f"solved in {m['bounds_solve_time']:.2f} s"
         lines.append(f"== {m['model']} (S={m['S']}, A={m['A']}, Z={m['Z']}, {m['uncertainty']}), "
-                     f"bounds: {m['variant']}, {solved}, {cfg['beliefs']} beliefs (seed {cfg['seed']})")
+                     f"bounds: {m['variant']}, constant {m.get('constant', DEFAULT_CONSTANT)}, {solved}, "
+                     f"{cfg['beliefs']} beliefs (seed {cfg['seed']})")
         if "pruning" not in m:
             lines.append(f"   skipped: {gate.get('reason', m['bounds_message'])}")
             continue
@@ -255,6 +261,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the random beliefs (0)")
     p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
                    help=f"bound variant ({BOUND_VARIANTS[0]})")
+    p.add_argument("--constant", default=DEFAULT_CONSTANT, choices=BOUND_CONSTANTS,
+                   help=f"belief-independent constant of the bound LP ({DEFAULT_CONSTANT}; fosd: the first-order "
+                        "dominance constant C_S)")
     p.add_argument("--prune-without-guarantee", action="store_true",
                    help="measure pruning also on a model whose bounds the gate finds not valid (NO GUARANTEE; "
                         "the report says so)")
@@ -266,6 +275,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace) -> BenchConfig:
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     changes: dict[str, Any] = {"seed": check_seed(args.seed, "--seed"), "variant": args.variant,
+                               "constant": args.constant,
                                "prune_without_guarantee": args.prune_without_guarantee}
     if args.beliefs is not None:
         if not 1 <= args.beliefs <= MAX_BELIEFS:

@@ -9,11 +9,13 @@ the root bounds agree (certified optimal action) and the time used.
 ``--depth D`` searches exactly depth D; ``--time-budget S`` runs the anytime planner
 (iterative deepening up to ``--max-depth``, stopped by the deadline, returning the deepest
 completed depth). ``--exhaustive`` searches all actions (no bounds are solved). The bounds come
-from the LP of Theorem 2 (``--variant``) through the assumption gate
+from the LP of Theorem 2 (``--variant``, ``--constant``) through the assumption gate
 (:func:`pomdp_planner.core.gate.build_planner`): if the model fails Assumption 1, the LP is
 infeasible or the Shannon guarantee covers no domain, the search is exhaustive and the output
-says why. ``--prune-without-guarantee`` prunes anyway; the output then says that no guarantee
-holds, and no decision is certified. Crossed root bounds (lower > upper) are reported as such.
+says why; the text (``search:``) and JSON (``bounds``, ``gate``) outputs name the variant and
+the constant the bounds were solved with. ``--prune-without-guarantee`` prunes anyway; the
+output then says that no guarantee holds, and no decision is certified. Crossed root bounds
+(lower > upper) are reported as such.
 
 Resource guards (checked before the search starts; a refusal is exit code 2 with the figures):
 a fixed depth whose complete tree has more than ``MAX_TREE_NODES`` (1e10) belief nodes is
@@ -27,7 +29,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..core.bounds import BOUND_VARIANTS
+from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.gate import build_planner
 from ..core.search import (
     DEFAULT_MEMORY_BUDGET,
@@ -80,6 +82,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "refused by default: it would take minutes to hours)")
     p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
                    help=f"bound variant of the LP (default {BOUND_VARIANTS[0]})")
+    p.add_argument("--constant", default=DEFAULT_CONSTANT, choices=BOUND_CONSTANTS,
+                   help=f"belief-independent constant of the LP (default {DEFAULT_CONSTANT}): 'mlr' is exact for the "
+                        "MLR monotonicity Corollary 1 needs, 'fosd' the stronger first-order dominance constant C_S "
+                        "(see 'pomdp-planner bounds --help')")
     p.add_argument("--prune-without-guarantee", action="store_true",
                    help="prune with the bounds even where the gate finds them not valid (Assumption 1 fails or "
                         "is unproven, or the Shannon guarantee covers no domain): NO GUARANTEE, nothing certified")
@@ -110,14 +116,15 @@ def run(args: argparse.Namespace) -> int:
             capped, max_depth = max_depth, fits
             cap_note = (f"--max-depth capped at {fits} (asked {capped}): a deeper search needs more than the "
                         f"memory budget of {args.memory_budget:g} MiB")
-    setup = build_planner(model, use_bounds=not args.exhaustive, variant=args.variant,
+    setup = build_planner(model, use_bounds=not args.exhaustive, variant=args.variant, constant=args.constant,
                           prune_without_guarantee=args.prune_without_guarantee,
                           override_name="--prune-without-guarantee", memory_budget=memory)
     planner = setup.planner
     assert planner is not None  # the gate refuses only when asked to (on_assumption_failure="refuse")
     sol = setup.bounds
-    bounds_info = None if sol is None else {"variant": args.variant, "feasible": bool(sol.feasible),
-                                            "message": sol.message}
+    bounds_info = None if sol is None else {"variant": sol.variant, "constant": sol.constant,
+                                            "feasible": bool(sol.feasible), "message": sol.message,
+                                            "why": sol.constants.get("why")}
     if args.json and not args.exhaustive and not setup.guaranteed:  # the text output has a "search:" line
         print(f"pomdp-planner plan: {setup.describe()}", file=sys.stderr)
     use_bounds = setup.pruning

@@ -11,7 +11,8 @@ policies, the benchmarks and experiments, the planner node) builds its planner w
 2. Assumption 1 (:func:`assumption_report`, cached per model content): if it fails or is
    unproven, ``on_assumption_failure="exhaustive"`` falls back to exhaustive search with the
    reason, ``"refuse"`` gives no planner at all (``mode="refuse"``).
-3. The LP (:func:`~.bounds.solve_bounds`): infeasible -> exhaustive search with the LP's message.
+3. The LP (:func:`~.bounds.solve_bounds`, with the chosen ``variant`` and ``constant``):
+   infeasible -> exhaustive search with the LP's message.
 4. Shannon bounds whose guarantee covers no domain (``covers`` starts with ``"none"``) ->
    exhaustive search with the reason.
 5. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
@@ -36,7 +37,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 from weakref import WeakKeyDictionary
 
-from .bounds import BOUND_VARIANTS, BoundsSolution, solve_bounds
+from .bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT, BoundsSolution, solve_bounds
 from .model import POMDP, ModelError, array_digest
 from .myopic import MyopicBounds
 from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner
@@ -93,7 +94,9 @@ class PlannerSetup:
     root bounds certify it; ``False`` for exhaustive search (nothing pruned, nothing certified),
     for a refusal and for pruning forced by ``prune_without_guarantee``. ``reason`` is one line
     for people. ``report`` is the Assumption 1 report (``None`` if bounds were disabled),
-    ``bounds`` the LP solution (``None`` if the LP was not solved).
+    ``bounds`` the LP solution (``None`` if the LP was not solved). ``variant`` and ``constant``
+    are the bound variant and the belief-independent constant the LP was solved with
+    (:data:`~.bounds.BOUND_CONSTANTS`; both ``None`` when no LP was solved).
     """
 
     planner: Planner | None
@@ -104,6 +107,7 @@ class PlannerSetup:
     bounds: BoundsSolution | None
     variant: str | None
     forced: bool = False
+    constant: str | None = None
 
     @property
     def pruning(self) -> bool:
@@ -128,23 +132,28 @@ class PlannerSetup:
         sol = self.bounds
         return {
             "mode": self.mode, "guaranteed": bool(self.guaranteed), "forced": bool(self.forced),
-            "reason": self.reason, "variant": self.variant,
+            "reason": self.reason, "variant": self.variant, "constant": self.constant,
             "assumptions_hold": None if self.report is None else bool(self.report.holds),
             "assumptions": None if self.report is None else dict(self.report.status),
-            "bounds": None if sol is None else {"variant": sol.variant, "feasible": bool(sol.feasible),
-                                                "covers": sol.covers, "message": sol.message},
+            "bounds": None if sol is None else {"variant": sol.variant, "constant": sol.constant,
+                                                "feasible": bool(sol.feasible), "covers": sol.covers,
+                                                "message": sol.message, "why": sol.constants.get("why")},
         }
 
 
-def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tight", constant: str | None = None,
+def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tight", constant: str = DEFAULT_CONSTANT,
                   on_assumption_failure: str = "exhaustive", prune_without_guarantee: bool = False,
                   chunk_bytes: int = DEFAULT_CHUNK_BYTES, memory_budget: int = DEFAULT_MEMORY_BUDGET,
                   report: AssumptionReport | None = None, override_name: str = "prune_without_guarantee"
                   ) -> PlannerSetup:
     """Check Assumption 1, solve the bounds and build the planner (module docstring).
 
-    ``variant`` (and ``constant``, passed to :func:`~.bounds.solve_bounds` only when given)
-    choose the LP's bounds. ``report``: an Assumption 1 report already computed for ``model``
+    ``variant`` (:data:`~.bounds.BOUND_VARIANTS`) and ``constant`` (:data:`~.bounds.BOUND_CONSTANTS`:
+    ``"mlr"``, the default, exact for the MLR monotonicity Corollary 1 needs, or ``"fosd"``, the
+    stronger first-order dominance constant ``C_S``) choose the LP's bounds; both are checked first
+    (a ``ModelError`` naming the field and the choices), also when ``use_bounds`` is off; the
+    result records both (``variant``, ``constant``, in :meth:`PlannerSetup.to_dict` and in the
+    reason). ``report``: an Assumption 1 report already computed for ``model``
     (else :func:`assumption_report`). ``override_name`` is how the caller's user spells the
     override (``--prune-without-guarantee``, ``prune_without_guarantee=1``), quoted in the reason.
     ``chunk_bytes`` and ``memory_budget`` (bytes, checked before every search) go to the
@@ -152,6 +161,8 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     """
     if variant not in BOUND_VARIANTS:
         raise ModelError(f"variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
+    if constant not in BOUND_CONSTANTS:
+        raise ModelError(f"constant: expected one of {', '.join(BOUND_CONSTANTS)}, got {constant!r}")
     if on_assumption_failure not in ON_ASSUMPTION_FAILURE:
         raise ModelError(f"on_assumption_failure: expected one of {', '.join(ON_ASSUMPTION_FAILURE)}, "
                          f"got {on_assumption_failure!r}")
@@ -161,8 +172,9 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
 
     def exhaustive(reason: str, rep: AssumptionReport | None = None, sol: BoundsSolution | None = None
                    ) -> PlannerSetup:
+        solved = sol is not None
         return PlannerSetup(planner(None, False), "exhaustive", False, reason, rep, sol,
-                            variant if sol is not None else None)
+                            variant if solved else None, constant=constant if solved else None)
 
     if not use_bounds:
         return exhaustive("bounds disabled by the user")
@@ -174,18 +186,19 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
             if on_assumption_failure == "refuse":
                 return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
             return exhaustive(unguaranteed, rep)
-    options = {} if constant is None else {"constant": constant}
-    sol = solve_bounds(model, variant, **options)
+    sol = solve_bounds(model, variant, constant=constant)
+    lp = f"the bound LP ({variant}, constant {constant})"
     if not sol.feasible or sol.myopic is None:
-        return exhaustive(f"the bound LP ({variant}) is infeasible: {sol.message}", rep, sol)
+        return exhaustive(f"{lp} is infeasible: {sol.message}", rep, sol)
     if sol.covers.startswith("none") and not unguaranteed:
         unguaranteed = sol.covers.removeprefix("none: ")
         if not prune_without_guarantee:
-            return exhaustive(unguaranteed, rep, sol)
+            return exhaustive(f"{unguaranteed} ({lp} is feasible but not used)", rep, sol)
     if unguaranteed:
-        reason = (f"forced by {override_name} although {unguaranteed}; no guarantee holds: the bounds may "
-                  "exclude the optimal action, and they certify nothing")
-        return PlannerSetup(planner(sol.myopic, False), "prune", False, reason, rep, sol, variant, forced=True)
+        reason = (f"forced by {override_name} although {unguaranteed}; pruning with {lp}: no guarantee holds, "
+                  "the bounds may exclude the optimal action, and they certify nothing")
+        return PlannerSetup(planner(sol.myopic, False), "prune", False, reason, rep, sol, variant, forced=True,
+                            constant=constant)
     covers = "the simplex" if sol.covers == "simplex" else sol.covers
-    reason = f"Assumption 1 holds and the bound LP ({variant}) is feasible; the guarantee covers {covers}"
-    return PlannerSetup(planner(sol.myopic, True), "prune", True, reason, rep, sol, variant)
+    reason = f"Assumption 1 holds and {lp} is feasible; the guarantee covers {covers}"
+    return PlannerSetup(planner(sol.myopic, True), "prune", True, reason, rep, sol, variant, constant=constant)

@@ -9,7 +9,10 @@ ones). The planners are imported here, at the top: nothing registers itself at i
 Policies: ``random`` (seeded uniform actions), ``myopic`` (greedy ``argmax_a rho(b, a)``,
 Eq. 3), ``bnb`` (branch-and-bound search, Algorithm 1), ``exhaustive`` (the same search
 without pruning), ``lower`` / ``upper`` (the myopic bound policies of Sec. IV, Theorem 2),
-``mcts`` (information-aware MCTS on exact beliefs, :mod:`.belief_mcts`).
+``mcts`` (information-aware MCTS on exact beliefs, :mod:`.belief_mcts`). The policies that use
+the bounds (``bnb``, ``lower``, ``upper``) take ``variant`` (:data:`~.bounds.BOUND_VARIANTS`) and
+``constant`` (:data:`~.bounds.BOUND_CONSTANTS`, default ``mlr``) and get them through the
+assumption gate (:func:`~.gate.build_planner`).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 
 from .belief_mcts import POLICY_OPTIONS as MCTS_OPTIONS
 from .belief_mcts import make_belief_mcts_policy
-from .bounds import BOUND_VARIANTS
+from .bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from .gate import PlannerSetup, build_planner
 from .model import POMDP, ModelError, short_repr
 from .myopic import MyopicBounds
@@ -157,6 +160,15 @@ def _variant(opts: Mapping[str, Any]) -> str:
     return variant
 
 
+def _constant(opts: Mapping[str, Any]) -> str:
+    """The option ``constant`` (the bound LP's belief-independent constant, ``mlr`` by default)."""
+    constant = opts.get("constant", DEFAULT_CONSTANT)
+    if constant not in BOUND_CONSTANTS:
+        raise ModelError(f"option constant: expected one of {', '.join(BOUND_CONSTANTS)}, "
+                         f"got {short_repr(constant)}")
+    return constant
+
+
 def _flag(opts: Mapping[str, Any], name: str) -> bool:
     """A yes/no option: 1/0, true/false, yes/no (``--option prune_without_guarantee=1``)."""
     value = opts.get(name, False)
@@ -172,7 +184,8 @@ OVERRIDE = "prune_without_guarantee"
 
 
 def _setup(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> PlannerSetup:
-    return build_planner(model, use_bounds=use_bounds, variant=_variant(opts) if use_bounds else BOUND_VARIANTS[0],
+    variant, constant = (_variant(opts), _constant(opts)) if use_bounds else (BOUND_VARIANTS[0], DEFAULT_CONSTANT)
+    return build_planner(model, use_bounds=use_bounds, variant=variant, constant=constant,
                          prune_without_guarantee=_flag(opts, OVERRIDE), override_name=f"the option {OVERRIDE}=1")
 
 
@@ -214,7 +227,8 @@ class PolicyEntry:
 
 
 _SEARCH_OPTIONS = ("seed", "depth", "time_budget", "max_depth", "no_limit")
-_BOUND_OPTIONS = ("variant", OVERRIDE)
+_BOUND_OPTIONS = ("variant", "constant", OVERRIDE)
+_CONSTANTS = "|".join(BOUND_CONSTANTS)
 
 #: Every policy ``simulate`` knows: name -> :class:`PolicyEntry`.
 POLICIES: dict[str, PolicyEntry] = {
@@ -222,17 +236,18 @@ POLICIES: dict[str, PolicyEntry] = {
     "myopic": PolicyEntry(lambda m, o: MyopicPolicy(m), "greedy argmax_a rho(b, a) (Eq. 3)"),
     "bnb": PolicyEntry(lambda m, o: _search_policy(m, o, True),
                        "branch-and-bound search, Algorithm 1; exhaustive (and says why) where the bounds are not "
-                       f"valid (options: depth=3 | time_budget=S, max_depth, no_limit=1, variant, {OVERRIDE}=1)",
+                       f"valid (options: depth=3 | time_budget=S, max_depth, no_limit=1, variant, "
+                       f"constant={_CONSTANTS}, {OVERRIDE}=1)",
                        (*_SEARCH_OPTIONS, *_BOUND_OPTIONS)),
     "exhaustive": PolicyEntry(lambda m, o: _search_policy(m, o, False),
                               "exhaustive tree search (options: depth=3 | time_budget=S, max_depth, no_limit=1)",
                               _SEARCH_OPTIONS),
     "lower": PolicyEntry(lambda m, o: _bound_policy(m, o, "lower"),
                          f"myopic lower-bound policy of Theorem 2; refused where the bounds are not valid (options: "
-                         f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
+                         f"variant, constant={_CONSTANTS}, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
     "upper": PolicyEntry(lambda m, o: _bound_policy(m, o, "upper"),
                          f"myopic upper-bound policy of Theorem 2; refused where the bounds are not valid (options: "
-                         f"variant, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
+                         f"variant, constant={_CONSTANTS}, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
     "mcts": PolicyEntry(_mcts_policy,
                         "UCT on exact Bayes beliefs with the true reward rho (options: time_budget=S | "
                         "simulations=N, max_depth, exploration, exploration_scale, leaf, rollout_depth, tail, "

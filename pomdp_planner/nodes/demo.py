@@ -1,16 +1,22 @@
 """``make demo``: the three nodes as three processes, a live per-step table, a summary, a clean exit.
 
-``python -m pomdp_planner.nodes.demo [--steps 30] [--model s8] [--time-budget 0.1]`` starts
+``python -m pomdp_planner.nodes.demo [--steps 30] [--model perimeter_s8] [--time-budget 0.1]`` starts
 ``target_simulator``, ``belief_filter`` and ``planner`` as separate processes (the installed
 console scripts next to this Python if present, as ``ros2 run`` would start them, else
 ``python -m pomdp_planner.nodes.<name>``) with ``config/<node>_<model>.yaml``, on this machine only
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and a ROS domain of its own (``ROS_DOMAIN_ID``,
-random unless ``--domain-id``). A monitor node prints one row per decision epoch: step, true
-state, belief mode and Shannon entropy (nats), the action chosen from that belief, depth reached,
-certified, decision latency. After ``--steps`` epochs it sends SIGINT to the three processes,
-waits for them, and prints the mean reward ``r(s_t, a_t) - w_a f(b_t)`` (true state, the model's
-uncertainty function), the mean entropy and the deadline misses among the decisions shown (each
-decision's ``plan_info.deadline_miss``: the planner's rule, latency > ``time_budget + deadline_slack``).
+random unless ``--domain-id``). ``--model`` is one of the shipped parameter sets
+(``processes.PARAMETER_SETS``): ``s3``, ``s8`` (the paper's tracking models) or ``perimeter_s3``,
+``perimeter_s8`` (issue 12: greedy loses there and lookahead pays; the default, what ``make demo``
+runs, because there the planner searches and differs from greedy). A monitor node prints one row
+per decision epoch: step, true state, belief mode and Shannon entropy (nats), the action chosen
+from that belief, the greedy action ``argmax_a rho(b, a)`` at the same belief (the core's
+``myopic`` policy), depth reached, certified, decision latency. After ``--steps`` epochs it sends
+SIGINT to the three processes, waits for them, and prints the mean reward
+``r(s_t, a_t) - w_a f(b_t)`` (true state, the model's uncertainty function), the mean entropy, on
+how many steps the planner chose other than greedy, and the deadline misses among the decisions
+shown (each decision's ``plan_info.deadline_miss``: the planner's rule, latency >
+``time_budget + deadline_slack``).
 Exit code 0 if all three processes exited cleanly (code 0, no traceback).
 
 The demo runs the loop free (``step_period`` 0, whatever the parameter files say: each action
@@ -41,10 +47,10 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.io.model_yaml import load_model
-from ..core.io.paths import resolve_path
+from ..core.policies import MyopicPolicy
 from ..core.uncertainty import SHANNON
 from .messages import decode_belief, decode_observation, decode_plan_info, decode_true_state
-from .processes import ros_env, start_nodes, stop_nodes
+from .processes import PARAMETER_SETS, parameter_set_model, ros_env, start_nodes, stop_nodes
 from .qos import RECORDER_QOS
 
 
@@ -119,7 +125,7 @@ class Monitor:
 def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, out=sys.stdout) -> int:
     domain_id = random.randint(1, 101) if domain_id is None else domain_id
     os.environ.update(ros_env(domain_id))
-    model_path = resolve_path(f"config/models/tracking_{model_key}_info.yaml")
+    model_path = parameter_set_model(model_key)
     # free running (step_period 0: one step per decision, so each row pairs a belief with the action
     # chosen from it); min_subscribers 2: the first step waits for the filter and this monitor (docstring)
     extra = {"target_simulator": ["-p", "step_period:=0.0", "-p", "min_subscribers:=2"]}
@@ -128,11 +134,13 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
     log_dir = Path(tempfile.mkdtemp(prefix="pomdp_planner_demo_"))
     monitor = Monitor(model_path)
     model = monitor.model
+    greedy = MyopicPolicy(model)
     print(f"pomdp_planner demo: {model.describe()}; three processes on ROS_DOMAIN_ID={domain_id} "
           f"(localhost only); logs in {log_dir}", file=out)
-    header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'depth':>5} " \
-             f"{'certified':>9} {'latency ms':>10}"
+    header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'greedy':>6} " \
+             f"{'depth':>5} {'certified':>9} {'latency ms':>10}"
     rewards, entropies = [], []
+    not_greedy = 0
     misses = decisions = 0
     t = 0
     code = 0
@@ -171,7 +179,9 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
                                   f"{1e3 * info['latency']:>10.1f}")
                     decisions += 1
                     misses += bool(info["deadline_miss"])
-                print(f"{t:>4} {s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} {extra_cols}",
+                g = greedy.act(b)
+                not_greedy += g != a
+                print(f"{t:>4} {s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} {g + 1:>6} {extra_cols}",
                       file=out, flush=True)
                 t += 1
                 last_progress = time.monotonic()
@@ -194,7 +204,8 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
             print("\n".join(text.splitlines()[-15:]), file=sys.stderr)
     if rewards:
         print(f"\nsummary over {len(rewards)} steps: mean reward {sum(rewards) / len(rewards):.4f}, "
-              f"mean entropy {sum(entropies) / len(entropies):.4f} nats, deadline misses "
+              f"mean entropy {sum(entropies) / len(entropies):.4f} nats, action other than greedy's on "
+              f"{not_greedy} of {len(rewards)} steps, deadline misses "
               f"{misses} of {decisions} decisions shown (the planner's rule: latency > time_budget + "
               f"deadline_slack); "
               f"exit codes {codes}", file=out)
@@ -204,7 +215,9 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pomdp_planner.nodes.demo", description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=30, help="decision epochs to run (default 30)")
-    parser.add_argument("--model", choices=("s3", "s8"), default="s8", help="shipped model (default s8)")
+    parser.add_argument("--model", choices=PARAMETER_SETS, default="perimeter_s8",
+                        help="shipped parameter set config/<node>_<model>.yaml: s3, s8 (the paper's tracking "
+                             "models), perimeter_s3, perimeter_s8 (models where lookahead pays; the default)")
     parser.add_argument("--time-budget", type=float, default=None, help="planner time_budget override (s)")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: random 1..101)")
     args = parser.parse_args(argv)

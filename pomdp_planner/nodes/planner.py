@@ -33,7 +33,8 @@ seconds is WARN / ERROR in diagnostics.
 
 Planning runs in its own ``MutuallyExclusiveCallbackGroup``; parameter services and diagnostics
 are in the default group, so on the ``MultiThreadedExecutor`` they are answered during a search.
-Parameter changes take effect at the next decision (``bound_variant`` re-solves the bounds then).
+Parameter changes take effect at the next decision (``bound_variant`` and ``bound_constant``
+re-solve the bounds then, once per pair: the gate's planners are kept by (variant, constant)).
 
 Structural assumptions: the planner comes from the core's assumption gate
 (``core.gate.build_planner``, the same rule as every other entry point). If the model fails
@@ -55,7 +56,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
-from ..core.bounds import BOUND_VARIANTS
+from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.gate import PlannerSetup, build_planner
 from ..core.io.sensors import load_model_file
 from ..core.liveness import JOIN_DELAY, EpochLine, InputWatch, Level, Resender
@@ -74,7 +75,7 @@ from .params import (
 from .qos import STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
 
-TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "deadline_slack")
+TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "bound_constant", "deadline_slack")
 #: Decisions kept (by epoch) to re-send or re-publish an epoch's action without planning it again.
 DECISION_CACHE = 64
 
@@ -95,6 +96,10 @@ class PlannerNode(Node):
         self.declare_parameter("use_bounds", True, d("Prune with the myopic policy bounds (Sec. V)"))
         self.declare_parameter("bound_variant", BOUND_VARIANTS[0], d(
             "Bound vectors g, h to solve for", constraints=f"one of {', '.join(BOUND_VARIANTS)}"))
+        self.declare_parameter("bound_constant", DEFAULT_CONSTANT, d(
+            "Belief-independent constant of the bound LP: mlr (exact for the MLR monotonicity Corollary 1 needs) "
+            "or fosd (the stronger first-order dominance constant C_S)",
+            constraints=f"one of {', '.join(BOUND_CONSTANTS)}"))
         self.declare_parameter("refuse_if_assumptions_fail", False, d(
             "If the model fails the structural assumptions: publish nothing (ERROR) instead of exhaustive search",
             read_only=True))
@@ -119,10 +124,10 @@ class PlannerNode(Node):
         self._chunk_bytes = 1024 * self.get_parameter("chunk_kib").value
         self._on_failure = "refuse" if self.get_parameter("refuse_if_assumptions_fail").value else "exhaustive"
         self._planner: Planner | None = None
-        self._planner_variant: str | None = None
+        self._planner_key: tuple[str, str] | None = None  # (bound_variant, bound_constant) of the planner
         self._bounds_ok = False
         self._bounds_message = ""
-        self._ensure_planner(self.params["bound_variant"])
+        self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
         self.report = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
         self.refusing = self.setup.mode == "refuse"
         if self.refusing:
@@ -179,6 +184,8 @@ class PlannerNode(Node):
     def _check_values(values: dict) -> str:
         if "bound_variant" in values and values["bound_variant"] not in BOUND_VARIANTS:
             return f"bound_variant: {values['bound_variant']!r} is not one of {list(BOUND_VARIANTS)}"
+        if "bound_constant" in values and values["bound_constant"] not in BOUND_CONSTANTS:
+            return f"bound_constant: {values['bound_constant']!r} is not one of {list(BOUND_CONSTANTS)}"
         return ""
 
     def _validate_parameters(self, params) -> SetParametersResult:
@@ -193,24 +200,26 @@ class PlannerNode(Node):
             self.get_logger().info(f"parameters changed {changed}; in force from the next decision")
 
     # ----------------------------------------------------------- planning
-    def _ensure_planner(self, variant: str) -> None:
-        """(Re)build the core planner for ``variant`` through the assumption gate: the bounds are
-        solved once per variant (can take a while), Assumption 1 is checked once per model."""
-        if self._planner_variant == variant:
+    def _ensure_planner(self, variant: str, constant: str) -> None:
+        """(Re)build the core planner for ``variant`` and ``constant`` through the assumption gate:
+        the bounds are solved when the pair changes (can take a while), Assumption 1 is checked once
+        per model."""
+        if self._planner_key == (variant, constant):
             return
-        setup = build_planner(self.model, variant=variant, on_assumption_failure=self._on_failure,
+        setup = build_planner(self.model, variant=variant, constant=constant, on_assumption_failure=self._on_failure,
                               chunk_bytes=self._chunk_bytes)
+        bounds = f"{variant}, constant {constant}"
         if setup.pruning:
-            self._bounds_message = f"{variant}: feasible"
+            self._bounds_message = f"{bounds}: feasible"
         elif setup.report is not None and setup.report.holds:  # the LP, not the model, is the problem
-            self._bounds_message = f"{variant}: {setup.reason}; exhaustive search"
+            self._bounds_message = f"{bounds}: {setup.reason}; exhaustive search"
             self.get_logger().warning(f"bounds {self._bounds_message}")
         else:
             self._bounds_message = "not used (assumptions fail)"
         self.setup: PlannerSetup = setup
         self._bounds_ok = setup.pruning
         self._planner = setup.planner
-        self._planner_variant = variant
+        self._planner_key = (variant, constant)
 
     @callback
     def _on_belief(self, msg: Float64MultiArray) -> None:
@@ -303,7 +312,7 @@ class PlannerNode(Node):
             return
         with self._lock:
             params = dict(self.params)
-        self._ensure_planner(params["bound_variant"])
+        self._ensure_planner(params["bound_variant"], params["bound_constant"])
         use_bounds = bool(params["use_bounds"]) and self._bounds_ok
         self.planning_epoch = bel.epoch  # the belief being planned for (None when idle)
         try:
@@ -376,6 +385,7 @@ class PlannerNode(Node):
                 "last.latency": float(latency), "last.deadline_hit": bool(r.deadline_hit),
                 "last.time_budget": lp.get("time_budget"), "last.max_depth": lp.get("max_depth"),
                 "last.use_bounds": lp.get("use_bounds_effective"),
+                "last.bound_variant": lp.get("bound_variant"), "last.bound_constant": lp.get("bound_constant"),
             })
         recent = {k: counts[k] - n for k, n in self._reported.items()}
         self._reported = {k: counts[k] for k in self._reported}

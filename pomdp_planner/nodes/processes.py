@@ -3,8 +3,8 @@ demo (``nodes/demo.py``), the latency benchmark (``bench/ros/latency.py``) and t
 
 Each process gets this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and the ROS
 domain it is given, its parameter file ``config/<node>_<model>.yaml`` (found by
-``core.io.paths.resolve_path``) and a log file; :func:`stop_nodes` ends them the way Ctrl-C in a
-terminal does (SIGINT), so they exit cleanly.
+``core.io.paths.resolve_path``; ``<model>`` one of :data:`PARAMETER_SETS`) and a log file;
+:func:`stop_nodes` ends them the way Ctrl-C in a terminal does (SIGINT), so they exit cleanly.
 """
 
 from __future__ import annotations
@@ -16,9 +16,23 @@ import sys
 import time
 from pathlib import Path
 
+import yaml
+
 from ..core.io.paths import resolve_path
 
 NODES = ("target_simulator", "belief_filter", "planner")
+#: The shipped parameter sets: ``config/<node>_<key>.yaml`` for every node (and
+#: ``config/closed_loop_<key>.yaml``): the paper's tracking models (``s3``, ``s8``) and the
+#: perimeter models where lookahead pays (issue 12, docs/MODEL_SEARCH.md).
+PARAMETER_SETS = ("s3", "s8", "perimeter_s3", "perimeter_s8")
+
+
+def parameter_set_model(key: str) -> Path:
+    """The model file of parameter set ``key``: the ``model_file`` of ``config/planner_<key>.yaml``
+    (every node of a set names the same model; a test checks it), resolved as the nodes resolve it."""
+    params = resolve_path(f"config/planner_{key}.yaml", "params file")
+    doc = yaml.safe_load(params.read_text(encoding="utf-8"))
+    return resolve_path(doc["planner"]["ros__parameters"]["model_file"], "model_file")
 
 
 def node_command(name: str) -> list[str]:
