@@ -55,12 +55,36 @@ def callback(method):
     return wrapper
 
 
+class _SigintWhileSpinning:
+    """Python's SIGINT handler while the nodes run: no ``KeyboardInterrupt`` inside the executor.
+
+    ``rclpy.init`` installs a C-level SIGINT handler that shuts the context down (which wakes and
+    ends the executor's spin) and then calls the handler that was there before: by default
+    Python's, which raises ``KeyboardInterrupt`` at whatever bytecode the main thread is running.
+    Inside the executor's wait loop that can be the middle of ``rclpy.task.Future.__init__``, and
+    the half-built task then prints "Exception ignored in: Future.__del__ ... AttributeError:
+    '_exception'" at exit (seen once in CI, rclpy 7.1.6). So this handler is installed *before*
+    ``rclpy.init`` (installing it after would replace rclpy's C handler): while the nodes spin it
+    does nothing, since rclpy's handler has already ended the spin; before (building the nodes)
+    it raises ``KeyboardInterrupt`` as usual, so Ctrl-C during start-up still stops the process.
+    """
+
+    def __init__(self) -> None:
+        self.spinning = False
+
+    def __call__(self, signum, frame) -> None:
+        if not self.spinning:
+            raise KeyboardInterrupt
+
+
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
     """The Jazzy idiom: init, build nodes, spin a :class:`NodeExecutor`, clean exit on Ctrl-C/SIGTERM.
 
     Returns the process exit code: 0 on a normal or signalled shutdown, 1 if a node could not
     start (bad parameter or model file; the reason is printed, without traceback).
     """
+    sigint = _SigintWhileSpinning()
+    signal.signal(signal.SIGINT, sigint)  # before rclpy.init, which chains to it (see the class)
     rclpy.init(args=args)
     nodes: list[Node] = []
     executor = None
@@ -71,6 +95,7 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         executor = NodeExecutor()
         for n in nodes:
             executor.add_node(n)
+        sigint.spinning = True
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
