@@ -15,13 +15,17 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import pytest
 
-pytest.importorskip("rclpy")
+rclpy = pytest.importorskip("rclpy")
+from rclpy.context import Context  # noqa: E402
+from rclpy.node import Node  # noqa: E402
 
-from pomdp_planner.nodes.runtime import _SigintWhileSpinning
+from pomdp_planner.nodes.executor import NodeExecutor  # noqa: E402
+from pomdp_planner.nodes.runtime import _SigintWhileSpinning  # noqa: E402
 
 NODE = textwrap.dedent("""
     import signal, sys, time
@@ -64,12 +68,49 @@ def _wait_for_line(proc: subprocess.Popen, prefix: str, timeout: float = 30.0) -
     raise AssertionError(f"no line {prefix!r}: {proc.stderr.read()[-2000:]}")
 
 
-def test_handler_is_silent_while_spinning_and_raises_before():
+class _FakeExecutor:
+    def __init__(self):
+        self.woken = 0
+
+    def wake(self):
+        self.woken += 1
+
+
+def test_handler_raises_before_the_spin_and_requests_a_stop_during_it():
     handler = _SigintWhileSpinning()
     with pytest.raises(KeyboardInterrupt):
         handler(signal.SIGINT, None)
-    handler.spinning = True
+    handler.executor = fake = _FakeExecutor()
     assert handler(signal.SIGINT, None) is None
+    assert handler.stop() and fake.woken == 1
+    handler(signal.SIGINT, None)  # a second Ctrl-C changes nothing
+    assert fake.woken == 1
+    handler.fallback.cancel()
+
+
+def test_spin_until_returns_on_stop_and_wake_while_the_context_is_ok():
+    """The mechanism the handler relies on: ``spin_until`` returns after ``stop`` is set and the
+    executor woken, although nothing shut the context down (a plain ``spin()`` would wait on)."""
+    context = Context()
+    rclpy.init(context=context)
+    node = Node("spin_until_probe", context=context)
+    executor = NodeExecutor(num_threads=2, context=context)
+    executor.add_node(node)
+    flag = {"stop": False}
+    stop = lambda: flag["stop"]  # noqa: E731
+    done = threading.Event()
+    thread = threading.Thread(target=lambda: (executor.spin_until(stop), done.set()), daemon=True)
+    thread.start()
+    try:
+        assert not done.wait(0.3)  # nothing to do, context ok: it waits
+        flag["stop"] = True
+        executor.wake()
+        assert done.wait(10), "spin_until did not return after stop + wake"
+        assert context.ok()
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
 
 
 def test_sigint_while_spinning_stops_cleanly_without_keyboardinterrupt():

@@ -6,7 +6,9 @@ queued in a ``MultiThreadedExecutor``'s thread pool, in a loop that never blocks
 :class:`NodeExecutor` hands each task to the pool once; ``test/test_nodes_executor.py`` proves
 both the fix and that the stock executor still re-submits, so it fails when a fixed rclpy
 arrives and this module can go. Built on private attributes of rclpy's executor
-(``_executor``, ``_futures``, ``_is_shutdown``, ``_context``), which is why it is kept apart.
+(``_executor``, ``_futures``, ``_is_shutdown``, ``_context``, ``_spin_once_impl``), which is why
+it is kept apart. :meth:`NodeExecutor.spin_until` is how a node process stops on Ctrl-C
+(``runtime.run_nodes``).
 
 :func:`shutdown_executor` stops such an executor so that callbacks still running finish before
 nodes are destroyed (Jazzy's ``Executor.shutdown`` does not wait for them).
@@ -64,6 +66,15 @@ class NodeExecutor(MultiThreadedExecutor):
         self._queued: set = set()  # tasks submitted to the pool that no worker has started yet
         self._queued_cv = threading.Condition()
         self._executor = _StartReportingPool(workers, self._task_started)
+
+    def spin_until(self, stop: Callable[[], bool]) -> None:
+        """``spin()`` that also returns once ``stop()`` is true: rclpy's wait condition (the one
+        ``spin_once_until_future_complete`` uses, private ``_spin_once_impl``) is checked after every
+        wake-up, so ``stop`` set and :meth:`wake` called from a signal handler end the spin at
+        once, whatever the context's state. Pass the same ``stop`` object every time (rclpy then
+        reuses its wait generator)."""
+        while self._context.ok() and not self._is_shutdown and not stop():
+            self._spin_once_impl(None, stop)
 
     def _task_started(self, task) -> None:
         with self._queued_cv:

@@ -8,9 +8,11 @@ the parameter) into it, and ``run_nodes`` prints it as one ``[FATAL]`` line, exi
 
 from __future__ import annotations
 
+import _thread
 import functools
 import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
@@ -55,26 +57,44 @@ def callback(method):
     return wrapper
 
 
-class _SigintWhileSpinning:
-    """Python's SIGINT handler while the nodes run: no ``KeyboardInterrupt`` inside the executor.
+#: Seconds after a Ctrl-C before the old way (``KeyboardInterrupt`` in the main thread) is used
+#: after all, should the spin not have ended (never needed in our tests: a safety net).
+SIGINT_FALLBACK_SECONDS = 3.0
 
-    ``rclpy.init`` installs a C-level SIGINT handler that shuts the context down (which wakes and
-    ends the executor's spin) and then calls the handler that was there before: by default
-    Python's, which raises ``KeyboardInterrupt`` at whatever bytecode the main thread is running.
-    Inside the executor's wait loop that can be the middle of ``rclpy.task.Future.__init__``, and
-    the half-built task then prints "Exception ignored in: Future.__del__ ... AttributeError:
-    '_exception'" at exit (seen once in CI, rclpy 7.1.6). So this handler is installed *before*
-    ``rclpy.init`` (installing it after would replace rclpy's C handler): while the nodes spin it
-    does nothing, since rclpy's handler has already ended the spin; before (building the nodes)
-    it raises ``KeyboardInterrupt`` as usual, so Ctrl-C during start-up still stops the process.
+
+class _SigintWhileSpinning:
+    """Python's SIGINT handler for a node process: stop the spin without a ``KeyboardInterrupt``.
+
+    ``rclpy.init`` installs a C-level SIGINT handler that first calls the handler that was there
+    before (by default Python's, which raises ``KeyboardInterrupt`` at whatever bytecode the main
+    thread runs next) and then wakes the executors. Inside the executor's wait loop that can be
+    the middle of ``rclpy.task.Future.__init__``: the half-built task then prints "Exception
+    ignored in: Future.__del__ ... AttributeError: '_exception'" at exit (seen once in CI, rclpy
+    7.1.6). Ending the spin on the context's shutdown alone is not enough either: the wake-up can
+    come before the shutdown, and the executor then waits again (a node that never stopped, once
+    in CI). So this handler, installed *before* ``rclpy.init`` so that rclpy chains to it, asks
+    the spin to stop (:meth:`NodeExecutor.spin_until`: a wait condition checked after every
+    wake-up) and wakes the executor itself. Before the spin (building the nodes) it raises
+    ``KeyboardInterrupt`` as usual; and should the spin not end within
+    :data:`SIGINT_FALLBACK_SECONDS`, the old way is used after all (``_thread.interrupt_main``).
     """
 
     def __init__(self) -> None:
-        self.spinning = False
+        self.executor: NodeExecutor | None = None
+        self.requested = False
+        self.fallback: threading.Timer | None = None
+        self.stop = lambda: self.requested  # one object: the executor reuses its wait generator
 
     def __call__(self, signum, frame) -> None:
-        if not self.spinning:
+        if self.executor is None:
             raise KeyboardInterrupt
+        if self.requested:
+            return
+        self.requested = True
+        self.executor.wake()
+        self.fallback = threading.Timer(SIGINT_FALLBACK_SECONDS, _thread.interrupt_main)
+        self.fallback.daemon = True
+        self.fallback.start()
 
 
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
@@ -95,8 +115,8 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         executor = NodeExecutor()
         for n in nodes:
             executor.add_node(n)
-        sigint.spinning = True
-        executor.spin()
+        sigint.executor = executor
+        executor.spin_until(sigint.stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except _rclpy_impl.RCLError:
@@ -110,6 +130,8 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     finally:
         # A second Ctrl-C during teardown must not print a traceback either.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if sigint.fallback is not None:
+            sigint.fallback.cancel()
         if executor is not None:
             shutdown_executor(executor)
         for n in nodes:
