@@ -8,7 +8,8 @@ Exit codes: 0 success, 1 a negative answer (``check``: Assumption 1 fails; ``bou
 is infeasible), 2 bad input: a bad argument, file or option value, or a request the guards
 refuse (too deep, too large). Every error is one line on stderr naming the option or field;
 :func:`main` returns the code instead of raising ``SystemExit``, so it can be called in-process.
-An interrupt (Ctrl-C) ends with code 130 and one line; a closed output pipe (``| head``) ends
+An interrupt (Ctrl-C), also while the command is still starting (``pomdp_planner.__main__``), ends
+with code 130 and one line; a closed output pipe (``| head``) ends
 quietly with code 0.
 """
 
@@ -19,6 +20,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from ..__main__ import EXIT_INTERRUPTED, INTERRUPTED
 from ..core.belief import BeliefError
 from ..core.model import ModelError
 from . import bench, bounds, check, export, plan, simulate
@@ -43,11 +45,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
-    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or a bad argument (2, one line already printed)
         return exc.code if isinstance(exc.code, int) else 2
+    except KeyboardInterrupt:
+        return _interrupted()
     try:
         return int(args.func(args) or 0)
     except (ModelError, BeliefError) as exc:  # bad input: the message names the field
@@ -60,8 +63,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"pomdp-planner: error: cannot print the output: {exc.reason} ({exc.encoding})", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("pomdp-planner: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
+
+
+def _interrupted() -> int:
+    print(INTERRUPTED, file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def _silence_stdout() -> None:

@@ -31,6 +31,7 @@ import sys
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.gate import build_planner
+from ..core.io.numbers import integer, number
 from ..core.search import (
     DEFAULT_MEMORY_BUDGET,
     MAX_DEPTH_RANGE,
@@ -65,11 +66,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_belief_argument(p)
     g = p.add_mutually_exclusive_group()
     depths, budgets = "..".join(map(str, MAX_DEPTH_RANGE)), "..".join(f"{x:g}" for x in TIME_BUDGET_RANGE)
-    g.add_argument("--depth", type=int, default=None, metavar="D",
+    g.add_argument("--depth", type=integer, default=None, metavar="D",
                    help=f"search exactly this depth, {depths} (default {DEFAULT_DEPTH} unless --time-budget is given)")
-    g.add_argument("--time-budget", type=float, default=None, metavar="S",
+    g.add_argument("--time-budget", type=number, default=None, metavar="S",
                    help=f"anytime search: iterative deepening for at most S seconds, {budgets}")
-    p.add_argument("--max-depth", type=int, default=DEFAULT_MAX_DEPTH, metavar="D",
+    p.add_argument("--max-depth", type=integer, default=DEFAULT_MAX_DEPTH, metavar="D",
                    help=f"deepest depth of the anytime search, {depths} (default {DEFAULT_MAX_DEPTH})")
     p.add_argument("--exhaustive", action="store_true", help="search all actions (no myopic bounds)")
     lo, hi = MEMORY_BUDGET_RANGE_MIB

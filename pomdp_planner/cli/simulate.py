@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator, Sequence
 
+from ..core.io.numbers import parse_float, parse_int
 from ..core.model import POMDP, ModelError, short_repr
 from ..core.policies import POLICIES, make_policy, policy_names
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
@@ -37,17 +38,17 @@ from ._common import (
 
 
 def _option(text: str) -> tuple[str, object]:
-    """``KEY=VALUE``; the value as an int, else a float, else the text (the policy checks it)."""
+    """``KEY=VALUE``; the value as an int, else a float (ASCII only: ``core.io.numbers``), else the
+    text (the policy checks it: ``depth=1_0`` is refused as not an integer)."""
     key, sep, value = text.partition("=")
     if not sep or not key.strip():
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {short_repr(text)}")
-    key = key.strip()
-    for conv in (int, float):
-        try:
-            return key, conv(value)
-        except ValueError:
-            pass
-    return key, value
+    key, v = key.strip(), value.strip()
+    as_int = parse_int(v)
+    if as_int is not None:
+        return key, as_int
+    as_float = parse_float(v)
+    return key, value if as_float is None else as_float
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -77,11 +78,9 @@ def _initial_state(text: str | None, model: POMDP) -> int | None:
         return None
     if model.state_names is not None and text in model.state_names:
         return model.state_names.index(text)
-    t = text.strip()
-    digits = t[1:] if t[:1] in "+-" else t
-    if not (digits.isascii() and digits.isdigit() and len(digits) <= 30):
+    s = parse_int(text.strip())
+    if s is None:
         raise ModelError(f"--initial-state: {short_repr(text)} is neither a state name nor an index")
-    s = int(t)
     if not 0 <= s < model.S:
         raise ModelError(f"--initial-state: index {s} out of range 0..{model.S - 1}")
     return s
