@@ -188,15 +188,19 @@ class PlannerSetup:
         return f"{head}: {self.reason}"
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (the report and LP solution as short dictionaries)."""
+        """JSON-ready summary (the report and LP solution as short dictionaries). Without the guarantee,
+        ``bounds.covers`` starts with ``none`` (the LP's own domain is no guarantee then)."""
         sol = self.bounds
+        covers = None if sol is None else sol.covers
+        if covers is not None and not self.guaranteed and not covers.startswith("none"):
+            covers = f"none: not guaranteed ({self.reason})"
         return {
             "mode": self.mode, "guaranteed": bool(self.guaranteed), "forced": bool(self.forced),
             "reason": self.reason, "variant": self.variant, "constant": self.constant,
             "assumptions_hold": None if self.report is None else bool(self.report.holds),
             "assumptions": None if self.report is None else dict(self.report.status),
             "bounds": None if sol is None else {"variant": sol.variant, "constant": sol.constant,
-                                                "feasible": bool(sol.feasible), "covers": sol.covers,
+                                                "feasible": bool(sol.feasible), "covers": covers,
                                                 "message": sol.message, "why": sol.constants.get("why")},
         }
 
