@@ -71,6 +71,7 @@ from typing import Any
 import numpy as np
 
 from .belief import ETA_MIN, check_belief
+from .io.numbers import parse_float
 from .model import POMDP, ModelError, format_bytes, priority_of
 from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
 
@@ -129,11 +130,11 @@ def check_time_budget(seconds: Any, field: str = "time_budget",
     planner's own guard is ``>= 0`` (0: depth 1 only); user-facing edges pass :data:`TIME_BUDGET_RANGE`.
     Raises :class:`~.model.ModelError` naming ``field``."""
     lo, hi = allowed
-    try:
-        t = float(seconds)
+    try:  # text as a user types a number (core.io.numbers: ASCII, no "0_1")
+        t = float(seconds) if not isinstance(seconds, str) else parse_float(seconds.strip())
     except (TypeError, ValueError):
         t = math.nan
-    if isinstance(seconds, bool) or not math.isfinite(t) or t < lo or (hi is not None and t > hi):
+    if t is None or isinstance(seconds, bool) or not math.isfinite(t) or t < lo or (hi is not None and t > hi):
         want = f">= {lo:g}" if hi is None else f"in {lo:g}..{hi:g}"
         raise ModelError(f"{field}: must be a number of seconds {want}, got {seconds!r}")
     return t
