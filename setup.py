@@ -60,26 +60,33 @@ def _config_files() -> list[tuple[str, list[str]]]:
     return sorted(groups.items())
 
 
-def _wheel_forwarders(executables) -> list[tuple[str, list[str]]]:
-    """``lib/<pkg>/<exe>`` forwarders, for wheel builds only (see the module docstring).
+WHEEL_BUILD = bool({"bdist_wheel", "editable_wheel"} & set(sys.argv))
 
-    They are written at build time into ``build/ros_forwarders`` rather than committed, so the
-    list above is the only place an executable is named. Only for ``bdist_wheel`` and
-    ``editable_wheel``: colcon runs ``setup.py develop``/``install``, which already put the real
-    scripts into ``lib/<pkg>`` (setup.cfg), and a forwarder installed as data would overwrite
-    them. (``pip install -e .`` installs no data files at all: use ``pip install .``.)
-    """
-    if not {"bdist_wheel", "editable_wheel"} & set(sys.argv):
-        return []
-    out = HERE / FORWARDER_DIR
+
+def _forwarders(text: str, folder: Path, install_dir: str, executables) -> list[tuple[str, list[str]]]:
+    """Executable scripts ``text``, one per executable, written into ``build/ros_forwarders/<folder>``
+    at build time (never committed, so the lists above are the only place an executable is named)
+    and installed as data into ``install_dir``."""
+    out = HERE / FORWARDER_DIR / folder
     out.mkdir(parents=True, exist_ok=True)
     files = []
     for exe in sorted(executables):
         path = out / exe
-        path.write_text(FORWARDER)
+        path.write_text(text)
         path.chmod(0o755)  # the executable bit survives the wheel
-        files.append(str(FORWARDER_DIR / exe))
-    return [(f"lib/{PACKAGE}", files)]
+        files.append(str(FORWARDER_DIR / folder / exe))
+    return [(install_dir, files)]
+
+
+def _wheel_forwarders(executables) -> list[tuple[str, list[str]]]:
+    """``lib/<pkg>/<exe>`` forwarders, for wheel builds only (see the module docstring).
+
+    Only for ``bdist_wheel`` and ``editable_wheel``: colcon runs ``setup.py develop``/``install``,
+    which already put the real scripts into ``lib/<pkg>`` (setup.cfg), and a forwarder installed
+    as data would overwrite them. (``pip install -e .`` installs no data files at all: use
+    ``pip install .``.)
+    """
+    return _forwarders(FORWARDER, Path(), f"lib/{PACKAGE}", executables) if WHEEL_BUILD else []
 
 
 def _colcon_bin_forwarders(executables) -> list[tuple[str, list[str]]]:
@@ -90,17 +97,7 @@ def _colcon_bin_forwarders(executables) -> list[tuple[str, list[str]]]:
     ``<prefix>/bin`` on ``PATH`` when it exists, so the command line is then ``pomdp-planner`` as
     after a pip install (where the real scripts are already in ``bin``: no forwarder).
     """
-    if {"bdist_wheel", "editable_wheel"} & set(sys.argv):
-        return []
-    out = HERE / FORWARDER_DIR / "bin"
-    out.mkdir(parents=True, exist_ok=True)
-    files = []
-    for exe in sorted(executables):
-        path = out / exe
-        path.write_text(BIN_FORWARDER)
-        path.chmod(0o755)
-        files.append(str(FORWARDER_DIR / "bin" / exe))
-    return [("bin", files)]
+    return [] if WHEEL_BUILD else _forwarders(BIN_FORWARDER, Path("bin"), "bin", executables)
 
 
 EXECUTABLES = {**CLI_EXECUTABLES, **NODE_EXECUTABLES}
