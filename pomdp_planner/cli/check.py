@@ -46,9 +46,9 @@ def _text(model: POMDP, report) -> str:
         f"  uncertainty: {s['uncertainty']}, weights per priority [{weights}]",
         "  validation: OK (shapes, probabilities, rows sum to 1, 0 <= gamma <= 1)",
     ]
-    horizon = infinite_horizon_refusal(model, "the myopic bounds (Theorem 2)")
+    horizon = infinite_horizon_refusal(model, "the bound LP (Theorem 2)")
     if horizon:
-        lines.append(f"  {horizon}: plan and simulate search exhaustively, whatever the assumptions below")
+        lines.append(f"  {horizon}; plan and simulate search exhaustively")
     lines += [
         "",
         report.summary(),
