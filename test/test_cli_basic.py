@@ -15,9 +15,9 @@ import yaml
 from pomdp_planner.cli import main
 from pomdp_planner.cli._common import emit_json, format_table, parse_belief, to_jsonable
 from pomdp_planner.core.belief import BeliefError
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.cassandra import parse_pomdp
 from pomdp_planner.core.io.model_yaml import load_model, model_from_dict
-from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from pomdp_planner.core import gate
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.gate import assumption_report, build_planner
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.search import Planner
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 import io
 import math
 import warnings
-from fractions import Fraction
 from contextlib import redirect_stderr, redirect_stdout
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -96,7 +96,8 @@ def test_a_huge_weight_is_refused_naming_it(tmp_path):
 
 
 def test_weights_and_rewards_at_their_limits_are_handled(tmp_path):
-    text = TRACKING.replace("shannon", "renyi2").replace("weights: [1, 1, 1]", f"weights: [{MAX_WEIGHT_MAGNITUDE:g}, 1, 1]")
+    text = TRACKING.replace("shannon", "renyi2")
+    text = text.replace("weights: [1, 1, 1]", f"weights: [{MAX_WEIGHT_MAGNITUDE:g}, 1, 1]")
     text = text.replace("[0.5, 0.2, 0.0]", f"[{MAX_REWARD_MAGNITUDE:g}, 0.2, {-MAX_REWARD_MAGNITUDE:g}]")
     handled_by_every_entry_point(write(tmp_path, text))
 
@@ -181,7 +182,8 @@ def test_cassandra_files_of_any_size_get_the_default_epsilon():
 def test_cassandra_epsilon_from_the_comment_or_the_option():
     m = parse_pomdp(_cassandra(1000, '# pomdp_planner: {"epsilon": 1e-5}\n'), "c.POMDP")
     assert m.epsilon == 1e-5
-    assert parse_pomdp(_cassandra(1000, '# pomdp_planner: {"epsilon": 1e-5}\n'), "c.POMDP", epsilon=2e-4).epsilon == 2e-4
+    commented = _cassandra(1000, '# pomdp_planner: {"epsilon": 1e-5}\n')
+    assert parse_pomdp(commented, "c.POMDP", epsilon=2e-4).epsilon == 2e-4  # the option wins
     with pytest.raises(ModelError, match=r"^c\.POMDP: uncertainty\.epsilon: must satisfy 0 < epsilon < 1/S = 0\.001"):
         parse_pomdp(_cassandra(1000, '# pomdp_planner: {"epsilon": 0.01}\n'), "c.POMDP")
     with pytest.raises(ModelError, match=r"^c\.POMDP: epsilon \(# pomdp_planner: comment\): must be a number"):

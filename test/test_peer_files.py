@@ -93,7 +93,7 @@ def test_rows_within_the_models_own_tolerance_load_unchanged_and_silently():
 
 
 def test_the_command_line_prints_the_renormalisation_as_one_warning_line():
-    code, out, err = _cli("check", str(ROWS))
+    code, _, err = _cli("check", str(ROWS))
     assert code in (0, 1) and "Traceback" not in err
     lines = [line for line in err.splitlines() if line]
     assert len(lines) == 1 and lines[0].startswith(f"pomdp-planner: warning: {ROWS}: line 10: T: transition row")

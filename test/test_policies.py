@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.policies import POLICIES, make_policy, policy_names
 from pomdp_planner.core.simulate import simulate
 

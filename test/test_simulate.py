@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from pomdp_planner.core.belief import update
-from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.errors import OptionError
+from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.policies import MyopicPolicy, RandomPolicy, make_policy, policy_names
 from pomdp_planner.core.simulate import simulate

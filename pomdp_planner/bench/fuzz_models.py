@@ -141,20 +141,22 @@ def reencode(data: bytes, kind: str, rnd: random.Random) -> bytes:
     return data.replace(b"\n", b"\r", rnd.randint(1, 50))
 
 
-def odd_number(data: bytes, kind: str, rnd: random.Random) -> bytes:
-    matches = list(_NUMBER.finditer(data))
+def _replace(data: bytes, pattern: re.Pattern, group: int, choices: list[str], rnd: random.Random) -> bytes | None:
+    """``data`` with group ``group`` of one match of ``pattern`` replaced by one of ``choices``
+    (``None`` if nothing matches)."""
+    matches = list(pattern.finditer(data))
     if not matches:
-        return data
+        return None
     m = rnd.choice(matches)
-    return data[:m.start()] + rnd.choice(ODD_NUMBERS).encode() + data[m.end():]
+    return data[:m.start(group)] + rnd.choice(choices).encode() + data[m.end(group):]
+
+
+def odd_number(data: bytes, kind: str, rnd: random.Random) -> bytes:
+    return _replace(data, _NUMBER, 0, ODD_NUMBERS, rnd) or data
 
 
 def blow_size(data: bytes, kind: str, rnd: random.Random) -> bytes:
-    matches = list(_SIZE.finditer(data))
-    if not matches:
-        return odd_number(data, kind, rnd)
-    m = rnd.choice(matches)
-    return data[:m.start(3)] + rnd.choice(ODD_SIZES).encode() + data[m.end(3):]
+    return _replace(data, _SIZE, 3, ODD_SIZES, rnd) or odd_number(data, kind, rnd)
 
 
 def shuffle_lines(data: bytes, kind: str, rnd: random.Random) -> bytes:
@@ -275,15 +277,8 @@ def hostile_value(data: bytes, kind: str, rnd: random.Random) -> bytes:
 
 def yaml11_number(data: bytes, kind: str, rnd: random.Random) -> bytes:
     """A number (or a size) written in a YAML 1.1 form, or with non-ASCII digits."""
-    matches = list(_SIZE.finditer(data)) if rnd.random() < 0.5 else []
-    if matches:
-        m = rnd.choice(matches)
-        return data[:m.start(3)] + rnd.choice(YAML11_NUMBERS).encode() + data[m.end(3):]
-    matches = list(_NUMBER.finditer(data))
-    if not matches:
-        return data
-    m = rnd.choice(matches)
-    return data[:m.start()] + rnd.choice(YAML11_NUMBERS).encode() + data[m.end():]
+    size = _replace(data, _SIZE, 3, YAML11_NUMBERS, rnd) if rnd.random() < 0.5 else None
+    return size or _replace(data, _NUMBER, 0, YAML11_NUMBERS, rnd) or data
 
 
 def duplicate_key(data: bytes, kind: str, rnd: random.Random) -> bytes:
