@@ -12,10 +12,24 @@ documents it: the header (``discount``, ``values: reward|cost``, ``states``/``ac
 a single state, ``start include: ...``, ``start exclude: ...``), ``T:``/``O:`` entries in
 element, row and matrix form (with ``uniform`` and ``identity``), ``R:`` entries in element,
 row and matrix form, wildcards ``*``, names or 0-based indices, and ``#`` comments. Later
-entries overwrite earlier ones. The file's ``R(s, a, s', z)`` is reduced to our ``r(s, a)``
-by expectation, ``r(s,a) = sum_{s',z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``; ``values: cost``
-negates it. The model has no uncertainty term (``function: none``). Errors are
-:class:`~pomdp_planner.core.model.ModelError` with the line number and what is wrong.
+entries overwrite earlier ones. ``discount: 1`` is accepted (a finite horizon: see
+:class:`~pomdp_planner.core.model.POMDP`). A row of ``T:`` or ``O:`` must sum to 1 within
+pomdp-solve's tolerance, :data:`PEER_ROW_TOLERANCE`; a row off by more than the model's
+``STOCHASTIC_ATOL`` (and within it) is divided by its sum, with one
+:class:`~pomdp_planner.core.errors.InputWarning` that names the first such row. The file's
+``R(s, a, s', z)`` is reduced to our ``r(s, a)`` by expectation,
+``r(s,a) = sum_{s',z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``, as pomdp-solve computes it: with the
+rows as written, before renormalising (``R: a : s : * : * v`` gives ``v`` times the mass of its
+rows); ``values: cost`` negates it. The model has no uncertainty term (``function: none``).
+Errors are :class:`~pomdp_planner.core.model.ModelError` with the line number and what is wrong,
+after the file name.
+
+Epsilon. The format has no ``epsilon`` (the Shannon bounds' domain, unused without an
+uncertainty term but part of every model): it is ``model.default_epsilon(S)`` (``1e-3``, or
+``1/(2S)`` when smaller, so a file of any size loads), or the ``"epsilon"`` of a
+``# pomdp_planner: {...}`` comment line, or the ``epsilon`` argument of :func:`parse_pomdp` and
+:func:`load_pomdp_file`, which wins. Export writes it in that comment when the model's differs
+from the default.
 
 Import is bounded (issue 13): the file is read by
 :func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8 file of at most

@@ -27,7 +27,10 @@ A model file is untrusted input, so loading is bounded by design (issue 13):
   integers longer than :data:`MAX_INT_CHARS` characters, more than :data:`MAX_YAML_NODES` values
   (parsing time grows with them), and the tags PyYAML's safe loader would
   turn into bytes, dates, sets or ordered pairs. It composes without recursion, so no input
-  reaches Python's recursion limit. As in YAML 1.2, ``1e-3`` is a number;
+  reaches Python's recursion limit. Scalars are YAML 1.2's: ``1e-3`` is a number, while YAML
+  1.1's other number forms (``0b11``, ``017``, ``0x1f``, ``1_000``, ``1:00``) and booleans
+  (``yes``, ``no``) are strings, which a numeric field refuses naming it; a key given twice in
+  one mapping is an error;
 * values are typed strictly: a number is an int or a float, never a bool or a string
   (``discount: "0.5"`` is an error); a count (``states``, ``generator.S``) is an integer, never
   a float (``S: 3.9`` and ``S: 3.0`` are errors: counts are written as integers); NaN and
