@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.outputs import STDOUT, check_output_file, write_text_file
-from pomdp_planner.core.model import ModelError
 
 
 def test_checking_an_existing_file_changes_nothing(tmp_path: Path) -> None:
@@ -39,17 +39,17 @@ def test_what_is_not_a_regular_file_is_refused_by_name(tmp_path: Path, make: str
         s = socket.socket(socket.AF_UNIX)
         s.bind(str(p))
     kind = {"fifo": "a FIFO (named pipe)", "dir": "a directory", "socket": "a socket"}[make]
-    with pytest.raises(ModelError, match=rf"^--json: cannot write {re.escape(str(p))}: it is {re.escape(kind)}, not a "
+    with pytest.raises(OptionError, match=rf"^--json: cannot write {re.escape(str(p))}: it is {re.escape(kind)}, not a "
                                          "regular file"):
         check_output_file(p, "--json")
     if make != "dir":  # the write itself never blocks either (a FIFO without a reader)
-        with pytest.raises(ModelError, match=rf"^--json: cannot write {re.escape(str(p))}"):
+        with pytest.raises(OptionError, match=rf"^--json: cannot write {re.escape(str(p))}"):
             write_text_file(p, "x", "--json")
 
 
 @pytest.mark.skipif(not Path("/proc/version").is_file(), reason="needs /proc")
 def test_a_pseudo_file_that_cannot_be_written_is_refused_before_the_work() -> None:
-    with pytest.raises(ModelError, match=r"^-o: cannot write /proc/version: "):
+    with pytest.raises(OptionError, match=r"^-o: cannot write /proc/version: "):
         check_output_file("/proc/version", "-o")
 
 

@@ -29,10 +29,10 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
+from ..core.checks import integer
 from ..core.domains.comparison import comparison_model
 from ..core.gate import bounds_verdict
 from ..core.io.model_yaml import load_model
-from ..core.io.numbers import integer
 from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP

@@ -53,8 +53,8 @@ from typing import Any
 import numpy as np
 
 from ..core.belief_mcts import BeliefMCTS, BeliefMCTSPolicy, rho_range
+from ..core.checks import integer, number
 from ..core.io.model_yaml import load_model
-from ..core.io.numbers import integer, number
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
 from ..core.policies import MyopicPolicy

@@ -45,9 +45,9 @@ from typing import Any
 import numpy as np
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
+from ..core.checks import integer
 from ..core.gate import build_planner
 from ..core.io.model_yaml import load_model
-from ..core.io.numbers import integer
 from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP

@@ -4,13 +4,14 @@ Each subcommand is a module ``pomdp_planner.cli.<name>`` (listed in :data:`SUBCO
 exposing ``register(subparsers)``, which adds its parser and sets ``func`` (called with the
 parsed arguments, returning an exit code). Pure core only: nothing here imports rclpy.
 
-Exit codes: 0 success, 1 a negative answer (``check``: Assumption 1 fails; ``bounds``: the LP
-is infeasible), 2 bad input: a bad argument, file or option value, or a request the guards
+Exit codes: 0 success, 1 a negative answer (``check``: Assumption 1 fails; ``bounds``: the bounds
+are not guaranteed or the LP is infeasible), 2 bad input: a bad argument, file or option value, or a request the guards
 refuse (too deep, too large). Every error is one line on stderr naming the option or field;
 :func:`main` returns the code instead of raising ``SystemExit``, so it can be called in-process.
 An interrupt (Ctrl-C), also while the command is still starting (``pomdp_planner.__main__``), ends
-with code 130 and one line; a closed output pipe (``| head``) ends
-quietly with code 0.
+with code 130 and one line; a closed output pipe (``| head``) ends quietly with code 0. A warning
+(e.g. a model file accepted with a change, which the loader says) is one line on stderr:
+``pomdp-planner: warning: ...``.
 """
 
 from __future__ import annotations
@@ -18,11 +19,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from collections.abc import Sequence
 
 from ..__main__ import EXIT_INTERRUPTED, INTERRUPTED
-from ..core.belief import BeliefError
-from ..core.model import ModelError
+from ..core.errors import InputError, InputWarning
 from . import bench, bounds, check, export, plan, simulate
 from ._common import Parser, one_line
 
@@ -52,8 +53,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         return _interrupted()
     try:
-        return int(args.func(args) or 0)
-    except (ModelError, BeliefError) as exc:  # bad input: the message names the field
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", InputWarning)
+            warnings.showwarning = _one_line_warning
+            return int(args.func(args) or 0)
+    except InputError as exc:  # bad input: the message names the field
         print(f"pomdp-planner: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader went away (| head): stop quietly
@@ -69,6 +73,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _interrupted() -> int:
     print(INTERRUPTED, file=sys.stderr)
     return EXIT_INTERRUPTED
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Show a warning as one line on stderr (``pomdp-planner: warning: ...``), without Python's
+    location and source line: e.g. a model file accepted with a change (``InputWarning``)."""
+    print(f"pomdp-planner: warning: {one_line(str(message))}", file=sys.stderr)
 
 
 def _silence_stdout() -> None:

@@ -5,7 +5,7 @@ Every subcommand module uses the same conventions, so that the commands look ali
 * ``add_model_argument(parser)`` adds the positional ``MODEL`` (a YAML model file or a
   Cassandra ``.POMDP`` file, or a shipped model's name); ``load_model_arg(args)`` finds it as the
   nodes do (``core.io.paths.resolve_path``) and loads it (errors are
-  :class:`~pomdp_planner.core.model.ModelError`, which ``cli.main`` turns into exit code 2).
+  :class:`~pomdp_planner.core.errors.ModelError`, which ``cli.main`` turns into exit code 2).
 * ``add_json_argument(parser)`` adds ``--json``; ``emit_json(data)`` prints ``data`` as JSON,
   converting numpy scalars/arrays on the way (``to_jsonable``).
 * ``add_belief_argument(parser)`` / ``parse_belief(text, model)``: a belief given on the
@@ -31,11 +31,11 @@ from typing import Any, NoReturn, TextIO
 import numpy as np
 
 from ..core.belief import check_belief, uniform_belief
-from ..core.io.model_yaml import load_model
-from ..core.io.numbers import parse_float, parse_int
-from ..core.io.paths import resolve_path
-from ..core.model import POMDP, ModelError, short_repr
-from ..core.policies import SEED_RANGE, check_seed
+from ..core.checks import option_value
+from ..core.errors import OptionError
+from ..core.io.sensors import load_model_file
+from ..core.model import POMDP, short_repr
+from ..core.options import SEED_RANGE, check_seed
 
 
 def one_line(text: str) -> str:
@@ -53,14 +53,14 @@ class Parser(argparse.ArgumentParser):
 
 
 def int_in(lo: int | None, hi: int | None) -> Callable[[str], int]:
-    """An argparse ``type``: an integer (ASCII digits, optional sign: ``core.io.numbers``) in ``lo..hi``
-    (``None``: open)."""
+    """An argparse ``type``: an integer (ASCII digits, optional sign: ``core.checks.option_value``) in
+    ``lo..hi`` (``None``: open)."""
     want = (f"an integer in {lo}..{hi}" if lo is not None and hi is not None else
             f"an integer >= {lo}" if lo is not None else f"an integer <= {hi}")
 
     def parse(text: str) -> int:
-        value = parse_int(text.strip())
-        if value is None or (lo is not None and value < lo) or (hi is not None and value > hi):
+        value = option_value(text)
+        if not isinstance(value, int) or (lo is not None and value < lo) or (hi is not None and value > hi):
             raise argparse.ArgumentTypeError(f"must be {want}, got {short_repr(text)}")
         return value
 
@@ -69,15 +69,15 @@ def int_in(lo: int | None, hi: int | None) -> Callable[[str], int]:
 
 
 def float_in(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
-    """An argparse ``type``: a finite number (ASCII: ``core.io.numbers``) in ``lo..hi`` (NaN and infinity
-    refused)."""
+    """An argparse ``type``: a finite number (plain ASCII: ``core.checks.option_value``) in ``lo..hi``
+    (NaN and infinity refused)."""
     span = "..".join(f"{x:.0f}" if float(x).is_integer() else f"{x:g}" for x in (lo, hi))
 
     def parse(text: str) -> float:
-        value = parse_float(text.strip())
-        if value is None or not (math.isfinite(value) and lo <= value <= hi):
+        value = option_value(text)
+        if isinstance(value, str) or not (math.isfinite(value) and lo <= value <= hi):
             raise argparse.ArgumentTypeError(f"must be a number{unit} in {span}, got {short_repr(text)}")
-        return value
+        return float(value)
 
     parse.__name__ = "number"
     return parse
@@ -87,7 +87,7 @@ def seed_arg(text: str) -> int:
     """An argparse ``type`` for seeds: an integer in :data:`~pomdp_planner.core.policies.SEED_RANGE`."""
     try:
         return check_seed(int_in(*SEED_RANGE)(text), "seed")
-    except (argparse.ArgumentTypeError, ModelError):
+    except (argparse.ArgumentTypeError, OptionError):
         raise argparse.ArgumentTypeError(f"must be an integer in {SEED_RANGE[0]}..{SEED_RANGE[1]}, "
                                          f"got {short_repr(text)}") from None
 
@@ -111,11 +111,12 @@ def add_json_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def load_model_arg(args: argparse.Namespace) -> POMDP:
-    """Load the model named by ``args.model``, found as the nodes find theirs
-    (:func:`~pomdp_planner.core.io.paths.resolve_path`: absolute, relative to the current directory,
+    """Load the model named by ``args.model`` with the nodes' own function
+    (:func:`~pomdp_planner.core.io.sensors.load_model_file`, through
+    :func:`~pomdp_planner.core.io.paths.resolve_path`: absolute, relative to the current directory,
     under the installed share directory, or a bare shipped name such as ``tracking_s3_info``);
     raises ``ModelError`` naming ``MODEL`` and where it looked, or the file and its field."""
-    return load_model(resolve_path(args.model, "MODEL"))
+    return load_model_file(args.model, "MODEL")
 
 
 def add_belief_argument(parser: argparse.ArgumentParser, default: str = "uniform",
@@ -130,15 +131,15 @@ def parse_belief(text: str, model: POMDP, field: str = "--belief") -> np.ndarray
 
     Only the text is handled here; the belief itself is checked by the core's one rule,
     :func:`~pomdp_planner.core.belief.check_belief` (length S, finite, on the simplex within
-    1e-6). Errors name ``field``: ``ModelError`` for the text, ``BeliefError`` from the core
+    1e-6). Errors name ``field``: ``OptionError`` for the text, ``BeliefError`` from the core
     (``cli.main`` turns both into exit code 2).
     """
     text = text.strip()
     if text.lower() == "uniform":
         return uniform_belief(model)
-    values = [parse_float(x) for x in text.replace(" ", "").split(",")]
-    if None in values:  # an empty item ("0.5,,0.5", a trailing comma) is an error, as any other non-number
-        raise ModelError(f"{field}: expected 'uniform' or comma-separated numbers, got {short_repr(text)}")
+    values = [option_value(x) for x in text.replace(" ", "").split(",")]
+    if any(isinstance(v, str) for v in values):  # an empty item ("0.5,,0.5", a trailing comma), "0_5", ...
+        raise OptionError(f"{field}: expected 'uniform' or comma-separated numbers, got {short_repr(text)}")
     return check_belief(model, np.asarray(values, dtype=float), field=field)
 
 

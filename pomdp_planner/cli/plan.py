@@ -30,8 +30,8 @@ import argparse
 import sys
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
+from ..core.checks import integer
 from ..core.gate import build_planner
-from ..core.io.numbers import integer, number
 from ..core.search import (
     DEFAULT_MEMORY_BUDGET,
     MAX_DEPTH_RANGE,
@@ -68,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     depths, budgets = "..".join(map(str, MAX_DEPTH_RANGE)), "..".join(f"{x:g}" for x in TIME_BUDGET_RANGE)
     g.add_argument("--depth", type=integer, default=None, metavar="D",
                    help=f"search exactly this depth, {depths} (default {DEFAULT_DEPTH} unless --time-budget is given)")
-    g.add_argument("--time-budget", type=number, default=None, metavar="S",
+    g.add_argument("--time-budget", type=float_in(*TIME_BUDGET_RANGE, " of seconds"), default=None, metavar="S",
                    help=f"anytime search: iterative deepening for at most S seconds, {budgets}")
     p.add_argument("--max-depth", type=integer, default=DEFAULT_MAX_DEPTH, metavar="D",
                    help=f"deepest depth of the anytime search, {depths} (default {DEFAULT_MAX_DEPTH})")

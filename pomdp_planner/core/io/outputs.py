@@ -14,7 +14,7 @@ long run is not lost to a typo at its end, and a command never blocks on its out
   folder above it is a folder (it will be created);
 * :func:`write_text_file`: writes UTF-8 text to the file or to standard output; the file is
   opened without blocking and must still be a regular file; any ``OSError`` (no space left, a
-  permission denied) becomes a one-line :class:`~pomdp_planner.core.model.ModelError` naming the
+  permission denied) becomes a one-line :class:`~pomdp_planner.core.errors.OptionError` naming the
   option and the path.
 """
 
@@ -26,7 +26,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ..model import ModelError, short_repr
+from ..errors import OptionError, short_repr
 from .file_text import _file_kind
 
 #: The output name that means standard output.
@@ -40,7 +40,7 @@ def _reason(exc: OSError) -> str:
 def _as_path(path: str | os.PathLike, field: str, what: str) -> Path:
     text = str(path)
     if not text.strip() or "\0" in text:
-        raise ModelError(f"{field}: not a {what} name: {short_repr(text)}")
+        raise OptionError(f"{field}: not a {what} name: {short_repr(text)}")
     return Path(text).expanduser()
 
 
@@ -51,7 +51,7 @@ def is_stdout(path: str | os.PathLike) -> bool:
 
 def check_output_file(path: str | os.PathLike, field: str) -> Path:
     """``path`` as a :class:`~pathlib.Path` if a regular file can be written there, or ``Path("-")``
-    for standard output (module docstring); ``ModelError`` naming ``field`` otherwise."""
+    for standard output (module docstring); ``OptionError`` naming ``field`` otherwise."""
     if is_stdout(path):
         return Path(STDOUT)
     p = _as_path(path, field, "file")
@@ -59,7 +59,7 @@ def check_output_file(path: str | os.PathLike, field: str) -> Path:
         if p.exists():
             mode = p.stat().st_mode
             if not stat.S_ISREG(mode):
-                raise ModelError(f"{field}: cannot write {p}: it is {_file_kind(mode)}, not a regular file "
+                raise OptionError(f"{field}: cannot write {p}: it is {_file_kind(mode)}, not a regular file "
                                  f"(write to a file, or '{STDOUT}' for standard output)")
             fd = os.open(p, os.O_WRONLY | os.O_APPEND | os.O_NONBLOCK)
             try:
@@ -68,14 +68,14 @@ def check_output_file(path: str | os.PathLike, field: str) -> Path:
                 os.close(fd)
             return p
         if not p.parent.exists():
-            raise ModelError(f"{field}: cannot write {p}: the folder {p.parent} does not exist")
+            raise OptionError(f"{field}: cannot write {p}: the folder {p.parent} does not exist")
         if not p.parent.is_dir():
-            raise ModelError(f"{field}: cannot write {p}: {p.parent} is not a folder")
+            raise OptionError(f"{field}: cannot write {p}: {p.parent} is not a folder")
         fd, probe = tempfile.mkstemp(dir=p.parent, prefix=".pomdp_planner-write-probe-")
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:  # a permission denied, a read-only file system, a folder that may not be searched
-        raise ModelError(f"{field}: cannot write {p}: {_reason(exc)}") from None
+        raise OptionError(f"{field}: cannot write {p}: {_reason(exc)}") from None
     return p
 
 
@@ -85,19 +85,19 @@ def check_output_dir(path: str | os.PathLike, field: str) -> Path:
     try:
         if p.exists():
             if not p.is_dir():
-                raise ModelError(f"{field}: {p} exists and is not a folder")
+                raise OptionError(f"{field}: {p} exists and is not a folder")
             return p
         above = next((a for a in p.parents if a.exists()), None)
         if above is not None and not above.is_dir():
-            raise ModelError(f"{field}: cannot create {p}: {above} is not a folder")
+            raise OptionError(f"{field}: cannot create {p}: {above} is not a folder")
     except OSError as exc:
-        raise ModelError(f"{field}: cannot use {p}: {_reason(exc)}") from None
+        raise OptionError(f"{field}: cannot use {p}: {_reason(exc)}") from None
     return p
 
 
 def write_text_file(path: str | os.PathLike, text: str, field: str) -> None:
     """Write ``text`` (UTF-8) to ``path``, or to standard output if it is :data:`STDOUT`; the file
-    is opened without blocking and must be a regular file; an ``OSError`` becomes a ``ModelError``
+    is opened without blocking and must be a regular file; an ``OSError`` becomes a ``OptionError``
     naming ``field``."""
     if is_stdout(path):
         sys.stdout.write(text)
@@ -107,8 +107,8 @@ def write_text_file(path: str | os.PathLike, text: str, field: str) -> None:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             mode = os.fstat(fd).st_mode
             if not stat.S_ISREG(mode):
-                raise ModelError(f"{field}: cannot write {path}: it is {_file_kind(mode)}, not a regular file")
+                raise OptionError(f"{field}: cannot write {path}: it is {_file_kind(mode)}, not a regular file")
             fh.truncate(0)
             fh.write(text)
     except OSError as exc:
-        raise ModelError(f"{field}: cannot write {path}: {_reason(exc)}") from None
+        raise OptionError(f"{field}: cannot write {path}: {_reason(exc)}") from None
