@@ -38,6 +38,7 @@ from ...core.model import POMDP, model_digest
 from ...core.policies import POLICIES, make_policy
 from ...core.reference import ReferencePolicy, reference_policy
 from ...core.search import complete_tree_nodes
+from ..references import GridReferencePolicy
 from .pouct import POUCTPolicy, POUCTSettings
 
 #: The clock decision times are recorded on (module docstring).
@@ -175,10 +176,6 @@ class ReferenceSpec:
 
 def _reference_decider(model: POMDP, spec: ReferenceSpec) -> Callable[[np.ndarray], tuple[int, dict]]:
     if spec.kind == "grid":
-        # the reference policy of the model search (bench/lookahead_models.py); imported here
-        # because that module imports this package
-        from ..lookahead_models import GridReferencePolicy
-
         pol = GridReferencePolicy(grid_reference(model, spec.param))
 
         def decide(b: np.ndarray) -> tuple[int, dict]:

@@ -1,4 +1,4 @@
-"""Run every experiment of issue 6 and write ``RESULTS.md`` and ``img/*.png`` (``run_all``).
+"""Run every experiment of the paper and write ``RESULTS.md`` and ``img/*.png`` (``run_all``).
 
 ``quick=True`` shrinks every experiment (a CI smoke test, < 2 minutes); the report then says
 so at the top. Sizes of both modes are in :data:`FULL` and :data:`QUICK` and are printed into
@@ -388,7 +388,7 @@ def load_section(cache: Path, name: str, then: str = "the section is left out of
     return read_entry(cache / f"{name}.json", accept, lambda e: check_cached_section(name, e, accept), then=then)
 
 
-def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = True,
+def run_all(output: str | Path = ".", quick: bool = False, progress: bool = True,
             sections: tuple[str, ...] = SECTIONS, jobs: int = 1, resume: bool = False) -> dict:
     """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``.
 
