@@ -63,10 +63,9 @@ upper bound): the ``tight`` variant returns them.
 **Solvers** (:data:`BOUND_SOLVERS`). ``"structured"`` (default): the least element wherever
 its conditions hold and it answers the question; otherwise HiGHS dual simplex
 (``scipy.optimize.linprog``), with row generation on large systems (start with one row per
-state pair, add the most violated action of each pair per round). ``"clarabel"``: the
-previous path, kept for cross-checks and the LP benchmark (``pomdp_planner.bench.lp``):
-Clarabel's interior point for every LP, row generation over whole actions, hinge-LP
-tightening whatever the structure.
+state pair, add the most violated action of each pair per round). ``"clarabel"``, for
+cross-checks and the LP benchmark (``pomdp_planner.bench.lp``): Clarabel's interior point for
+every LP, row generation over whole actions, hinge-LP tightening whatever the structure.
 
 Every returned vector is re-checked against the exact constraints of the chosen constant; a
 vector is reported feasible only if its worst margin is ``>= -tol``

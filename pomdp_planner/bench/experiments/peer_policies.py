@@ -1,4 +1,4 @@
-"""The planners of the peer comparison (issue 12), each wrapped to record what the tables report.
+"""The planners of the peer comparison, each wrapped to record what the tables report.
 
 Every peer is built by :func:`make_peer` from its name, the model, the budget per decision and
 the plan; the table :data:`PEERS` says which are budgeted. Planners and policies come from the
@@ -85,7 +85,7 @@ DESCRIPTIONS = {
 
 
 def mcts_available() -> bool:
-    """Whether the belief MCTS is in the policy table (``core/policies.py``; issue 12)."""
+    """Whether the belief MCTS is in the policy table (``core/policies.py``)."""
     return "mcts" in POLICIES
 
 

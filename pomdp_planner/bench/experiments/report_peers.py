@@ -1,4 +1,4 @@
-"""Markdown for the peer comparison and the "when to use what" section of docs/RESULTS.md (issue 12).
+"""Markdown for the peer comparison and the "when to use what" section of docs/RESULTS.md.
 
 Every sentence of "when to use what" is generated from the measured rows and names the table
 it comes from (Table P<i> per model, Table S for the sanity check, Table X for B&B against
@@ -59,7 +59,7 @@ def _sanity_flag(d: dict, r) -> str:
 
 # ------------------------------------------------------------------------------ the section
 def section_peers(d: dict, data: dict) -> list[str]:
-    if "facts" not in d:  # a cache written before issue 12
+    if "facts" not in d:  # a cache of an older format of this section
         return ["## Against peers: return and regret at equal time budgets", "",
                 "The cached peer data predates the current comparison; rerun `pomdp-planner bench all --only peers`.",
                 ""]

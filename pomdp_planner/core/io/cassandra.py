@@ -17,7 +17,7 @@ by expectation, ``r(s,a) = sum_{s',z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``; ``value
 negates it. The model has no uncertainty term (``function: none``). Errors are
 :class:`~pomdp_planner.core.model.ModelError` with the line number and what is wrong.
 
-Import is bounded (issue 13): the file is read by
+Import is bounded, since a model file is untrusted input: the file is read by
 :func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8 file of at most
 ``MAX_MODEL_FILE_BYTES``); a token longer than :data:`MAX_TOKEN_CHARS` is refused; the declared
 sizes are checked against ``MAX_MODEL_BYTES`` as soon as each header line is read, before any
