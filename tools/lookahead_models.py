@@ -636,9 +636,10 @@ def format_evaluation(ev: ModelEvaluation) -> str:
                      f"{100 * ref['decided_fraction_grid']:.1f} % of the grid beliefs and on "
                      f"{100 * ref['certified_decisions']:.1f} % of the closed-loop decisions.")
     else:
-        lines.append(f"Reference: exhaustive search to depth {ref['depth']} at every step (median "
-                     f"{ref['median_ms']:.1f} ms, p99 {ref['p99_ms']:.1f} ms per decision).")
-    lines.append(f"Value range max V* - min V*: {vr['simplex']:.4f} over the simplex ({vr['simplex_how']}), "
+        lines.append(f"Reference: exhaustive search to depth {ref['depth']} at every step, a finite lookahead, not "
+                     f"the optimum (median {ref['median_ms']:.1f} ms, p99 {ref['p99_ms']:.1f} ms per decision).")
+    v = "V*" if ref["kind"].startswith("grid") else f"V_{ref['depth']}"
+    lines.append(f"Value range max {v} - min {v}: {vr['simplex']:.4f} over the simplex ({vr['simplex_how']}), "
                  f"{vr['reachable']:.4f} over reachable beliefs ({vr['reachable_how']})"
                  + (f"; the depth-search estimate over the simplex is {vr['search_depth_simplex']:.4f} "
                     f"({vr['search_depth_how']})." if "search_depth_simplex" in vr else "."))
