@@ -77,29 +77,30 @@ def test_no_placeholder_or_html_comment(path):
     assert not problems, "\n".join(problems)
 
 
+def prose_matches(path: Path, pattern: re.Pattern) -> list[tuple[int, str]]:
+    """(line number, match) of ``pattern`` in the prose of ``path``."""
+    return [(n, m) for n, line in prose_lines(path.read_text(encoding="utf-8")) for m in pattern.findall(line)]
+
+
 @pytest.mark.parametrize("path", DOCS, ids=rel)
 def test_relative_links_resolve(path):
     broken = []
-    for n, line in prose_lines(path.read_text(encoding="utf-8")):
-        for target in LINK.findall(line):
-            if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto:
-                continue
-            file_part, _, anchor = target.partition("#")
-            dest = path if not file_part else (path.parent / file_part).resolve()
-            if not dest.exists():
-                broken.append(f"{rel(path)}:{n}: {target}: no such file")
-            elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
-                broken.append(f"{rel(path)}:{n}: {target}: no heading with anchor #{anchor} in {rel(dest)}")
+    for n, target in prose_matches(path, LINK):
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto:
+            continue
+        file_part, _, anchor = target.partition("#")
+        dest = path if not file_part else (path.parent / file_part).resolve()
+        if not dest.exists():
+            broken.append(f"{rel(path)}:{n}: {target}: no such file")
+        elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
+            broken.append(f"{rel(path)}:{n}: {target}: no heading with anchor #{anchor} in {rel(dest)}")
     assert not broken, "\n".join(broken)
 
 
 @pytest.mark.parametrize("path", DOCS, ids=rel)
 def test_repository_paths_named_exist(path):
-    missing = []
-    for n, line in prose_lines(path.read_text(encoding="utf-8")):
-        for name in REPO_PATH.findall(line):
-            if not (REPO / name).exists():
-                missing.append(f"{rel(path)}:{n}: `{name}` does not exist")
+    missing = [f"{rel(path)}:{n}: `{name}` does not exist" for n, name in prose_matches(path, REPO_PATH)
+               if not (REPO / name).exists()]
     assert not missing, "\n".join(missing)
 
 

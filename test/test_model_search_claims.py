@@ -24,6 +24,7 @@ import pytest
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.structure import check_assumptions
+from tools.lookahead_models import birth_death_transitions
 
 REPO = Path(__file__).resolve().parent.parent
 FIXTURE = REPO / "test" / "models" / "birth_death_s2.yaml"
@@ -33,16 +34,7 @@ UP_SHARE = (0.25, 0.5, 0.75)  # share of the 0.02 move that goes up, priorities 
 
 def birth_death(S: int) -> np.ndarray:
     """``P[a]``: one state up or down per step, stay 0.98; a blocked move stays put."""
-    P = np.zeros((len(UP_SHARE), S, S))
-    for a, share in enumerate(UP_SHARE):
-        up, down = (1 - STAY) * share, (1 - STAY) * (1 - share)
-        for s in range(S):
-            if s + 1 < S:
-                P[a, s, s + 1] = up
-            if s > 0:
-                P[a, s, s - 1] = down
-            P[a, s, s] = 1.0 - P[a, s].sum()
-    return P
+    return birth_death_transitions(S, [((1 - STAY) * share, (1 - STAY) * (1 - share)) for share in UP_SHARE])
 
 
 def sensor(S: int) -> np.ndarray:

@@ -442,17 +442,23 @@ def _drift_walk(S: int) -> POMDP:
     return _with_dynamics(S, P, name="drift_walk")
 
 
-def _birth_death(S: int) -> POMDP:
-    """Tridiagonal walk: one band in or out per step, rates by priority."""
-    P = np.zeros((3, S, S))
-    for a, (up, down) in enumerate(((0.05, 0.3), (0.15, 0.15), (0.3, 0.05))):
+def birth_death_transitions(S: int, rates: Sequence[tuple[float, float]]) -> np.ndarray:
+    """``P[a]`` of a tridiagonal walk: one band up or down per step with ``rates[a] = (up, down)``;
+    a move the chain cannot make (beyond an end band) keeps it where it is."""
+    P = np.zeros((len(rates), S, S))
+    for a, (up, down) in enumerate(rates):
         for s in range(S):
             if s + 1 < S:
                 P[a, s, s + 1] = up
             if s > 0:
                 P[a, s, s - 1] = down
             P[a, s, s] = 1.0 - P[a, s].sum()
-    return _with_dynamics(S, P, name="birth_death")
+    return P
+
+
+def _birth_death(S: int) -> POMDP:
+    """Tridiagonal walk: one band in or out per step, rates by priority."""
+    return _with_dynamics(S, birth_death_transitions(S, ((0.05, 0.3), (0.15, 0.15), (0.3, 0.05))), name="birth_death")
 
 
 def _dash(S: int) -> POMDP:
