@@ -86,8 +86,9 @@ FULL = ExperimentConfig(
     peers_models=PEER_MODELS, peers_budgets=(0.01, 0.05, 0.2, 1.0),
     peers_cheap_episodes=100, peers_episodes=(50, 50, 50, 20), peers_steps=50, peers_max_depth=12,
     peers_references=PEER_REFERENCES,
-    # The compute plan (README, "Results"): the 1 s cells are three quarters of the cost, so they
-    # run 20 episodes on the perimeter models and 10 on the paper's, where lookahead is worth nothing.
+    # The compute plan (docs/benchmarks.md, "The peer comparison"): the 1 s cells are three quarters of
+    # the cost, so they run 20 episodes on the perimeter models and 10 on the paper's, where lookahead
+    # is worth nothing.
     peers_model_episodes=(("tracking_s3_info", 1.0, 10), ("tracking_s8_info", 1.0, 10)),
 )
 

@@ -1,4 +1,4 @@
-"""YAML model files (schema in README.md, "Model files").
+"""YAML model files (schema in docs/models.md).
 
 Field names are fixed so that files written by others load::
 
