@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pomdp_planner.core import structure
-from pomdp_planner.core.domains.perimeter import _SHIPPED_PHYSICS, perimeter_model
+from pomdp_planner.core.domains.perimeter import PRESETS, perimeter_model
 from pomdp_planner.core.domains.tracking import tracking_transitions
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.model import POMDP
@@ -96,7 +96,7 @@ def test_every_shipped_and_test_model_keeps_its_verdicts(path):
 def test_dominance_decides_shared_sensor_models_from_one_matrix_per_pair(S):
     """One sensor for all priorities: beta = alpha for every z, so each D^{j,a,z} is a positive
     multiple of one matrix; only that one goes through the exact test."""
-    model = perimeter_model(S, **_SHIPPED_PHYSICS)
+    model = perimeter_model(**(PRESETS["perimeter_s8"] | {"S": S}))
     new, old = assert_same_verdicts(model)
     counts = new.counts()
     assert new.holds and old.holds
@@ -113,7 +113,7 @@ def test_dominance_decides_shared_sensor_models_from_one_matrix_per_pair(S):
 
 
 def test_dominance_does_not_depend_on_the_block_size(monkeypatch):
-    model = perimeter_model(16, **_SHIPPED_PHYSICS)
+    model = perimeter_model(**(PRESETS["perimeter_s8"] | {"S": 16}))
     whole = check_copositivity(model)
     monkeypatch.setattr(structure, "_D_BLOCK", 300)  # one matrix per block
     blocked = check_copositivity(model)

@@ -27,6 +27,7 @@ from typing import Any
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
 from ..core.domains.comparison import comparison_model
+from ..core.domains.perimeter import PRESETS, perimeter_model
 from ..core.io.model_yaml import load_model
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
@@ -37,10 +38,14 @@ NEW, OLD = BOUND_SOLVERS  # "structured", "clarabel"
 
 
 def load_bench_model(spec: str) -> POMDP:
-    """``comparison:S,A`` or a model file (shipped name or path)."""
+    """``comparison:S,A`` (the Sec. VI-B model), ``perimeter:S`` (the shipped perimeter physics at
+    ``S`` bands) or a model file (shipped name or path)."""
     m = re.fullmatch(r"comparison:(\d+),(\d+)", spec.strip())
     if m:
         return comparison_model(int(m.group(1)), int(m.group(2)))
+    m = re.fullmatch(r"perimeter:(\d+)", spec.strip())
+    if m:
+        return perimeter_model(**(PRESETS["perimeter_s8"] | {"S": int(m.group(1))}), name=f"perimeter_s{m.group(1)}")
     return load_model(resolve_path(spec, field="--models"))
 
 

@@ -18,10 +18,11 @@ policy, the search guards) is checked before the first step is printed.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Iterator, Sequence
 
 from ..core.model import POMDP, ModelError, short_repr
-from ..core.policies import POLICIES, make_policy, policy_names
+from ..core.policies import POLICIES, make_policy, policy_names, setup_notice_for
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
 from ._common import (
     add_belief_argument,
@@ -95,6 +96,9 @@ def run(args: argparse.Namespace) -> int:
     initial_state = _initial_state(args.initial_state, model)
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.
     options = {"seed": args.seed + 1, **dict(args.option)}
+    notice = setup_notice_for(args.policy, model, options)
+    if notice is not None:
+        print(f"pomdp-planner simulate: {notice}", file=sys.stderr, flush=True)
     policy = make_policy(args.policy, model, **options)
     sim = Simulation(model, policy, args.steps, seed=args.seed, initial_state=initial_state, initial_belief=belief)
     setup = getattr(policy, "setup", None)  # the assumption gate's decision, for the planners

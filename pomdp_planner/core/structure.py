@@ -957,6 +957,8 @@ COST_SEARCH = (0.05, 5e-6)
 COST_SDP = 0.1
 #: How many (j, a) pairs :func:`estimate_check` samples to predict how many ``D`` must be built.
 ESTIMATE_SAMPLE_PAIRS = 32
+#: Fixed part of the check's memory in :func:`estimate_check` (the reports, small temporaries).
+CHECK_OVERHEAD_BYTES = 256 * 2**10
 
 
 @dataclass(frozen=True)
@@ -1022,13 +1024,13 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
     :class:`CheckEstimate` for what ``seconds`` and ``seconds_max`` assume.
     """
     S, A, Z = model.S, model.A, model.Z
-    seconds, peak = 0.0, 8 * 4 * A * S * Z  # (A3): P @ O and its cumulative sums
+    seconds, peak = 0.0, 8 * 4 * A * S * Z + CHECK_OVERHEAD_BYTES  # (A3): P @ O and its cumulative sums
     for stack in (model.P, model.O):  # (A1), one matrix per distinct action (identical ones are cached)
         for a in range(stack.shape[0]):
             if a and np.array_equal(stack[a], stack[a - 1]):
                 continue
             t, b = _tp2_cost(stack[a])
-            seconds, peak = seconds + t, max(peak, b)
+            seconds, peak = seconds + t, max(peak, b + CHECK_OVERHEAD_BYTES)
     seconds += A * S * S * Z * COST_FLOP + 4 * A * S * Z * COST_ELEMENT
     pairs, sample = 0, []
     for a in range(max(A - 1, 0)):
@@ -1048,7 +1050,7 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
     if not pairs:
         return CheckEstimate(seconds, seconds, peak, 0, 0)
     seconds += pairs * S * S * COST_RATIO
-    peak = max(peak, 8 * 5 * min(_D_BLOCK, pairs * 3 * S * S))
+    peak = max(peak, 8 * 5 * min(_D_BLOCK, pairs * 3 * S * S) + CHECK_OVERHEAD_BYTES)
     rng = np.random.default_rng(0)
     picked = [sample[k] for k in rng.choice(len(sample), min(ESTIMATE_SAMPLE_PAIRS, len(sample)), replace=False)]
     dirty_z, dirty_j = 0, 0
@@ -1070,10 +1072,11 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
     else:
         hard += COST_SDP if S <= sdp_max_states else 0.0
         hard += (COST_SEARCH[0] + COST_SEARCH[1] * S * S) if search else 0.0
-    peak = max(peak, 8 * 6 * min(_D_BLOCK, dirty * S * S))
+    peak = max(peak, 8 * 6 * min(_D_BLOCK, dirty * S * S) + CHECK_OVERHEAD_BYTES)
     # dominance needs a proven worst D: only the exact test (S <= exact_max_states) proves these
     alone = dirty if not reduce or S > exact_max_states else worst
     if S <= exact_max_states:  # one block of (matrix, triple) pairs: about 20 arrays of that size
-        peak = max(peak, 8 * 20 * min(_TRIPLE_BLOCK, min(alone, kstep) * (S * (S - 1) * (S - 2) // 6)))
+        peak = max(peak, 8 * 20 * min(_TRIPLE_BLOCK, min(alone, kstep) * (S * (S - 1) * (S - 2) // 6))
+                   + CHECK_OVERHEAD_BYTES)
     expected = seconds + dirty * build + alone * hard
     return CheckEstimate(expected, seconds + dirty * (build + hard), peak, pairs, dirty)
