@@ -101,6 +101,7 @@ setup(
         "test": ["pytest", "hypothesis", "ruff"],
         # issue 6 (README, "Optional extras"): plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
+        "plot": ["matplotlib"],  # pomdp-planner plot
         "bench": ["pomdp-py"],
     },
     zip_safe=True,
