@@ -123,7 +123,7 @@ def run_from_args(args: argparse.Namespace, prog: str) -> int:
         print(format_table(rows))
         if args.json is not None:
             write_text_file(args.json, json.dumps(rows, indent=2) + "\n", "--json")
-    except (ValueError, OSError) as exc:  # ModelError included: a bad model spec or file, an unwritable --json
+    except (ValueError, OSError) as exc:  # InputError included: a bad model spec or file, an unwritable --json
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     return 0 if all(r["same"] is not False for r in rows) else 1

@@ -23,9 +23,9 @@ import argparse
 
 import numpy as np
 
+from ..core.errors import OptionError
 from ..core.io.outputs import check_output_file
 from ..core.io.run_record import RunRecord, read_run_record
-from ..core.model import ModelError
 from ._common import float_in
 
 #: Output formats (by suffix) the command writes.
@@ -50,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     out = check_output_file(args.output, "--output")
     if out.suffix.lower() not in FORMATS:
-        raise ModelError(f"--output: the suffix must be one of {', '.join(FORMATS)}, got {out.name!r}")
+        raise OptionError(f"--output: the suffix must be one of {', '.join(FORMATS)}, got {out.name!r}")
     rec = read_run_record(args.record)
     try:
         import matplotlib
@@ -58,12 +58,12 @@ def run(args: argparse.Namespace) -> int:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise ModelError(INSTALL_HINT) from None
+        raise OptionError(INSTALL_HINT) from None
     fig = draw(plt, rec, (args.width, args.height), args.title)
     try:
         fig.savefig(out, dpi=args.dpi, format=out.suffix.lower().lstrip("."))
     except OSError as exc:
-        raise ModelError(f"--output: cannot write {out}: {exc.strerror or type(exc).__name__}") from None
+        raise OptionError(f"--output: cannot write {out}: {exc.strerror or type(exc).__name__}") from None
     finally:
         plt.close(fig)
     print(f"wrote {out} ({len(rec.epoch)} decisions of {rec.model})")

@@ -11,16 +11,18 @@ policies, the benchmarks and experiments, the planner node) builds its planner w
 2. Assumption 1 (:func:`assumption_report`, cached per model content): if it fails or is
    unproven, ``on_assumption_failure="exhaustive"`` falls back to exhaustive search with the
    reason, ``"refuse"`` gives no planner at all (``mode="refuse"``).
-3. The LP (:func:`~.bounds.solve_bounds`, with the chosen ``variant`` and ``constant``):
+3. A discount of 1 (a finite-horizon model): Theorem 2 needs ``gamma < 1``, so there are no
+   bounds -> exhaustive search with that reason (also with the override below).
+4. The LP (:func:`~.bounds.solve_bounds`, with the chosen ``variant`` and ``constant``):
    infeasible -> exhaustive search with the LP's message.
-4. Shannon bounds whose guarantee covers no domain (``covers`` starts with ``"none"``) ->
+5. Shannon bounds whose guarantee covers no domain (``covers`` starts with ``"none"``) ->
    exhaustive search with the reason.
-5. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
+6. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
    bounds certify it (Proposition 1).
 
-``prune_without_guarantee=True`` is the explicit override: where 2 or 4 would stop pruning, the
+``prune_without_guarantee=True`` is the explicit override: where 2 or 5 would stop pruning, the
 planner prunes anyway with ``guaranteed=False``, and every output says that no guarantee holds
-(an infeasible LP gives no bounds to prune with, so 3 still falls back). A planner built
+(a discount of 1 or an infeasible LP gives no bounds to prune with, so 3 and 4 still fall back). A planner built
 without the guarantee never reports a decision as certified and, in the anytime search, does
 not stop early when the root bounds agree (:class:`~.search.Planner`).
 
@@ -51,14 +53,16 @@ from typing import Any
 from weakref import WeakKeyDictionary
 
 from .bounds import (
-    BOUND_CONSTANTS,
-    BOUND_VARIANTS,
     DEFAULT_CONSTANT,
     BoundsSolution,
+    check_constant,
+    check_variant,
     estimate_solve_bounds,
     solve_bounds,
 )
-from .model import POMDP, ModelError, array_digest, format_bytes
+from .checks import check_choice
+from .errors import OptionError
+from .model import POMDP, array_digest, format_bytes, infinite_horizon_refusal
 from .myopic import MyopicBounds
 from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner, planner_table_bytes
 from .structure import AssumptionReport, CheckEstimate, check_assumptions, estimate_check, seconds_text
@@ -131,9 +135,9 @@ def available_memory() -> int | None:
     return min(found) if found else None
 
 
-class SetupCostError(ModelError):
+class SetupCostError(OptionError):
     """A planner set-up that would exceed the available memory or the set-up time limit (the message
-    gives the figures); a :class:`~.model.ModelError`, so the command line reports it as exit 2."""
+    gives the figures): a request the planner refuses, an :class:`~.errors.OptionError` (exit code 2)."""
 
 
 @dataclass(frozen=True)
@@ -141,8 +145,8 @@ class SetupEstimate:
     """The predicted cost of :func:`build_planner` for one model (module docstring).
 
     ``check`` is ``None`` when no assumption check runs (bounds disabled, or its report is
-    already cached); ``lp_seconds``/``lp_bytes`` are zero when no LP is solved (bounds disabled;
-    when the check fails no LP is solved either, but that is not known in advance). ``seconds``
+    already cached); ``lp_seconds``/``lp_bytes`` are zero when no LP is solved (bounds disabled, a
+    discount of 1; when the check fails no LP is solved either, but that is not known in advance). ``seconds``
     is the expected total, ``seconds_max`` the most it may take (:class:`~.structure.CheckEstimate`),
     ``bytes`` the peak of the temporaries and tables (they do not coexist: the check's and the
     LP's are freed before the tables are built).
@@ -197,7 +201,8 @@ def estimate_setup(model: POMDP, *, use_bounds: bool = True, variant: str = "tig
     est = _estimates.get(key)
     if est is None:
         check = estimate_check(model) if use_bounds and not cached else None
-        lp_seconds, lp_bytes = estimate_solve_bounds(model, variant) if use_bounds else (0.0, 0)
+        solves_lp = use_bounds and not infinite_horizon_refusal(model, "the bound LP")
+        lp_seconds, lp_bytes = estimate_solve_bounds(model, variant) if solves_lp else (0.0, 0)
         est = SetupEstimate(model.S, model.A, model.Z, check, lp_seconds, lp_bytes,
                             planner_table_bytes(model.S, model.A, model.Z))
         _estimates[key] = est
@@ -314,7 +319,7 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     ``variant`` (:data:`~.bounds.BOUND_VARIANTS`) and ``constant`` (:data:`~.bounds.BOUND_CONSTANTS`:
     ``"mlr"``, the default, exact for the MLR monotonicity Corollary 1 needs, or ``"fosd"``, the
     stronger first-order dominance constant ``C_S``) choose the LP's bounds; both are checked first
-    (a ``ModelError`` naming the field and the choices), also when ``use_bounds`` is off; the
+    (an ``OptionError`` naming the field and the choices), also when ``use_bounds`` is off; the
     result records both (``variant``, ``constant``, in :meth:`PlannerSetup.to_dict` and in the
     reason). ``report``: an Assumption 1 report already computed for ``model``
     (else :func:`assumption_report`). ``override_name`` is how the caller's user spells the
@@ -327,13 +332,9 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     lift that limit, ends the message), and announced through ``progress`` (one line) when it
     is expected to be long.
     """
-    if variant not in BOUND_VARIANTS:
-        raise ModelError(f"variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
-    if constant not in BOUND_CONSTANTS:
-        raise ModelError(f"constant: expected one of {', '.join(BOUND_CONSTANTS)}, got {constant!r}")
-    if on_assumption_failure not in ON_ASSUMPTION_FAILURE:
-        raise ModelError(f"on_assumption_failure: expected one of {', '.join(ON_ASSUMPTION_FAILURE)}, "
-                         f"got {on_assumption_failure!r}")
+    check_variant(variant)
+    check_constant(constant)
+    check_choice(on_assumption_failure, ON_ASSUMPTION_FAILURE, "on_assumption_failure")
 
     est = estimate_setup(model, use_bounds=use_bounds, variant=variant, report=report)
     check_setup_cost(est, max_setup_seconds, setup_hint)
@@ -356,10 +357,13 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     unguaranteed = ""  # why the guarantee is lost, if it is
     if not rep.holds:
         unguaranteed = f"{assumption_failure(rep)}: the myopic bounds are not valid for this model"
-        if not prune_without_guarantee:
-            if on_assumption_failure == "refuse":
-                return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
-            return exhaustive(unguaranteed, rep)
+        if not prune_without_guarantee and on_assumption_failure == "refuse":
+            return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
+    horizon = infinite_horizon_refusal(model, "the bound LP (Theorem 2)")
+    if horizon:  # no bounds to prune with, forced or not
+        return exhaustive(horizon + (f"; also, {unguaranteed}" if unguaranteed else ""), rep)
+    if unguaranteed and not prune_without_guarantee:
+        return exhaustive(unguaranteed, rep)
     sol = solve_bounds(model, variant, constant=constant)
     lp = f"the bound LP ({variant}, constant {constant})"
     if not sol.feasible or sol.myopic is None:

@@ -24,7 +24,7 @@ latency    seconds the decision took; empty where not measured
 :class:`RunRecordWriter` writes and flushes one row at a time, so a long run (or a node) can
 stream its record and a reader sees every finished decision. :func:`read_run_record` checks
 every line and refuses a malformed file with one line naming the line and the column
-(:class:`RunRecordError`, a :class:`~..model.ModelError`).
+(:class:`RunRecordError`, an :class:`~..errors.OptionError`: a bad argument file).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from typing import TextIO
 
 import numpy as np
 
-from ..model import ModelError, short_repr
+from ..errors import OptionError, short_repr
 
 FORMAT = "pomdp_planner run record"
 VERSION = 1
@@ -49,7 +49,7 @@ TAIL_COLUMNS = ("action", "lower", "upper", "depth", "certified", "latency")
 BELIEF_ATOL = 1e-6
 
 
-class RunRecordError(ModelError):
+class RunRecordError(OptionError):
     """A malformed run record: the message names the file, the line and the column."""
 
 
