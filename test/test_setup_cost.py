@@ -13,11 +13,11 @@ it is long (core/gate.py, core/structure.py, core/bounds.py, core/search.py; the
 
 from __future__ import annotations
 
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
+from test_simulate_streaming import traced_peak  # tracemalloc peak of a call (after a warm-up call)
 
 from pomdp_planner.cli import main
 from pomdp_planner.core import gate
@@ -35,15 +35,6 @@ S8 = str(ROOT / "config/models/tracking_s8_info.yaml")
 GIB = 2**30
 
 
-def peak_bytes(fn) -> int:
-    tracemalloc.start()
-    try:
-        fn()
-        return tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-
-
 def random_model(S: int, A: int, Z: int, seed: int = 0) -> POMDP:
     rng = np.random.default_rng(seed)
     return POMDP(P=rng.dirichlet(np.ones(S), size=(A, S)), O=rng.dirichlet(np.ones(Z), size=(A, S)),
@@ -58,7 +49,7 @@ def perimeter(S: int) -> POMDP:
 @pytest.mark.parametrize("S,A,Z", [(3, 3, 3), (8, 3, 8), (40, 12, 30), (64, 16, 64), (20, 2, 50)])
 def test_planner_table_estimate_is_an_upper_estimate_of_the_real_peak(S, A, Z):
     model = random_model(S, A, Z)
-    peak = peak_bytes(lambda: Planner(model))
+    peak = traced_peak(lambda: Planner(model))
     est = planner_table_bytes(S, A, Z)
     assert peak <= est <= 1.5 * peak + 16 * 2**10
     assert est >= 8 * A * (A + 1) * Z * S  # the fused leaf table alone (core/search.py module docstring)
@@ -68,7 +59,7 @@ def test_planner_table_estimate_is_an_upper_estimate_of_the_real_peak(S, A, Z):
                                    load_model(S8)], ids=lambda m: m.name)
 def test_check_estimate_bounds_the_check_memory_and_counts_the_matrices_it_builds(model):
     est = estimate_check(model)
-    assert peak_bytes(lambda: check_assumptions(model)) <= est.bytes
+    assert traced_peak(lambda: check_assumptions(model)) <= est.bytes
     rep = check_copositivity(model)
     built = int(np.count_nonzero(~np.isnan(rep.min_entry)))
     if est.pairs <= 32:  # every undecided (j, a) sampled: the count is exact
@@ -80,7 +71,7 @@ def test_check_estimate_bounds_the_check_memory_and_counts_the_matrices_it_build
                          ids=lambda m: m.name)
 def test_lp_estimate_bounds_the_lp_memory(model):
     _, est = estimate_solve_bounds(model)
-    assert peak_bytes(lambda: solve_bounds(model, "tight")) <= est
+    assert traced_peak(lambda: solve_bounds(model, "tight")) <= est
 
 
 def test_available_memory_is_read():

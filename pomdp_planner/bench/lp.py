@@ -92,8 +92,14 @@ def run_lp_bench(models: Sequence[str] = DEFAULT_MODELS, repeat: int = 1, old: b
     return rows
 
 
-def _f(x: Any, spec: str) -> str:
+def cell(x: Any, spec: str) -> str:
+    """``x`` formatted with ``spec``, ``-`` for ``None`` (a figure not measured)."""
     return "-" if x is None else format(x, spec)
+
+
+def old_over_new(row: dict[str, Any]) -> float | None:
+    """The speed-up of a row with ``old_time`` and ``new_time`` (``None`` without the old path)."""
+    return row["old_time"] / row["new_time"] if row["old_time"] is not None and row["new_time"] > 0 else None
 
 
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
@@ -101,11 +107,11 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
             f"{'old/new':>8} {'new margin':>11} {'old margin':>11} {'agree new':>9} {'agree old':>9}")
     lines = [head, "-" * len(head)]
     for r in rows:
-        ratio = r["old_time"] / r["new_time"] if r["old_time"] is not None and r["new_time"] > 0 else None
+        ratio = old_over_new(r)
         lines.append(f"{r['model']:<22} {r['S']:>4} {r['A']:>3} {r['variant']:<8} {r['constant']:<5} "
-                     f"{r['new_time']:>8.3f} {_f(r['old_time'], '>8.3f')} {_f(ratio, '>7.1f') + 'x':>8} "
-                     f"{_f(r['new_worst_margin'], '>11.2e')} {_f(r['old_worst_margin'], '>11.2e')} "
-                     f"{_f(r['new_agreement'], '>9.3f')} {_f(r['old_agreement'], '>9.3f')}")
+                     f"{r['new_time']:>8.3f} {cell(r['old_time'], '>8.3f')} {cell(ratio, '>7.1f') + 'x':>8} "
+                     f"{cell(r['new_worst_margin'], '>11.2e')} {cell(r['old_worst_margin'], '>11.2e')} "
+                     f"{cell(r['new_agreement'], '>9.3f')} {cell(r['old_agreement'], '>9.3f')}")
     lines.append("new: solver='structured' (least element / HiGHS); old: solver='clarabel' (the previous path). "
                  "Times: best of the repeats, wall clock. Margins: worst exact constraint margin of g and h "
                  "(>= 0: feasible). Agreement: lower == upper on the 400 fitting samples.")

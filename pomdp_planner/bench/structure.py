@@ -33,7 +33,7 @@ import numpy as np
 from ..core.io.outputs import check_output_file, write_text_file
 from ..core.model import POMDP
 from ..core.structure import REFUTED, AssumptionReport, check_assumptions, estimate_check, is_proven
-from .lp import load_bench_model
+from .lp import cell, load_bench_model, old_over_new
 
 DEFAULT_MODELS = ("comparison:256,64", "perimeter:32", "perimeter_s8.yaml", "tracking_s8_natural.yaml",
                   "tracking_s3_info.yaml")
@@ -82,19 +82,15 @@ def run_structure_bench(models: Sequence[str] = DEFAULT_MODELS, repeat: int = 1,
     return rows
 
 
-def _f(x: Any, spec: str) -> str:
-    return "-" if x is None else format(x, spec)
-
-
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
     head = (f"{'model':<22} {'S':>4} {'A':>3} {'Z':>4} {'old s':>8} {'new s':>8} {'old/new':>8} {'est. s':>8} "
             f"{'verdict old':<17} {'verdict new':<17} {'same':<4}")
     lines = [head, "-" * len(head)]
     for r in rows:
-        ratio = r["old_time"] / r["new_time"] if r["old_time"] is not None and r["new_time"] > 0 else None
+        ratio = old_over_new(r)
         same = "-" if r["same"] is None else ("yes" if r["same"] else "NO")
-        lines.append(f"{r['model']:<22} {r['S']:>4} {r['A']:>3} {r['Z']:>4} {_f(r['old_time'], '>8.3f')} "
-                     f"{r['new_time']:>8.3f} {_f(ratio, '>7.1f') + 'x':>8} {r['estimate']:>8.2f} "
+        lines.append(f"{r['model']:<22} {r['S']:>4} {r['A']:>3} {r['Z']:>4} {cell(r['old_time'], '>8.3f')} "
+                     f"{r['new_time']:>8.3f} {cell(ratio, '>7.1f') + 'x':>8} {r['estimate']:>8.2f} "
                      f"{r['old_verdict'] or '-':<17} {r['new_verdict']:<17} {same:<4}")
     lines.append("new: check_assumptions (separable ratio bound, dominance); old: reduce=False (the previous path). "
                  "Times: best of the repeats, wall clock, cold. est.: estimate_check's prediction. same: every "
