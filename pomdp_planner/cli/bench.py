@@ -4,8 +4,8 @@
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
 ``bench structure`` times the Assumption 1 check, fast path against the previous one
 (``pomdp_planner/bench/structure.py``).
-``bench all`` regenerates docs/RESULTS.md (``pomdp_planner/bench/experiments/``, through
-``pomdp_planner/cli/experiments.py``).
+``bench all`` writes every experiment into ``--output DIR`` (``RESULTS.md``, ``img/*.png``;
+``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=structure_bench.__doc__.split("\n\n")[0])
     structure_bench.add_arguments(t)
     t.set_defaults(func=lambda args: structure_bench.run_from_args(args, "pomdp-planner bench structure"))
-    experiments.add_arguments(sub.add_parser("all", help="all experiments: docs/RESULTS.md and docs/img/*.png",
+    experiments.add_arguments(sub.add_parser("all", help="all experiments: RESULTS.md and img/*.png in --output DIR",
                                              description=experiments.__doc__.split("\n\n")[0]))
 
 

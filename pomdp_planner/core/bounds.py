@@ -19,8 +19,9 @@ Constraints (paper Theorem 2 and Corollary 1, in our convention; docs/THEORY.md)
   - ``"mlr"`` (default): exactly what Corollary 1 needs. For Renyi quadratic entropy
     ``b -> phi.b + w log sum b^2`` is MLR increasing on the whole simplex iff every step of
     ``phi`` is ``>= 2 |w|`` (docs/THEORY.md, the proof and its tightness), so ``K_f = 2``:
-    the paper's constant 1 (Example 3), right for MLR although the paper derives it through
-    first-order dominance, where it is not a bound.
+    the paper's constant 1 (Example 3, whose printed chain has the signs reversed: we use
+    the corrected ``Delta_i phi >= 2 |w|``), right for MLR although the paper derives it
+    through first-order dominance, where it is not a bound.
   - ``"fosd"``: monotone in first-order stochastic dominance, the stronger property Theorem 2's
     proof establishes (gradient non-decreasing in the index at every belief). Its exact
     constant is ``K_f = 2 C_S``, ``C_S = (1 + sqrt(S-1)) / 2`` (:func:`renyi_constant`); the
@@ -63,10 +64,9 @@ upper bound): the ``tight`` variant returns them.
 **Solvers** (:data:`BOUND_SOLVERS`). ``"structured"`` (default): the least element wherever
 its conditions hold and it answers the question; otherwise HiGHS dual simplex
 (``scipy.optimize.linprog``), with row generation on large systems (start with one row per
-state pair, add the most violated action of each pair per round). ``"clarabel"``: the
-previous path, kept for cross-checks and the LP benchmark (``pomdp_planner.bench.lp``):
-Clarabel's interior point for every LP, row generation over whole actions, hinge-LP
-tightening whatever the structure.
+state pair, add the most violated action of each pair per round). ``"clarabel"``, for
+cross-checks and the LP benchmark (``pomdp_planner.bench.lp``): Clarabel's interior point for
+every LP, row generation over whole actions, hinge-LP tightening whatever the structure.
 
 Every returned vector is re-checked against the exact constraints of the chosen constant; a
 vector is reported feasible only if its worst margin is ``>= -tol``
