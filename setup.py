@@ -63,6 +63,12 @@ def _config_files() -> list[tuple[str, list[str]]]:
 WHEEL_BUILD = bool({"bdist_wheel", "editable_wheel"} & set(sys.argv))
 
 
+def _launch_files() -> list[tuple[str, list[str]]]:
+    """Every ``launch/*.launch.xml`` into ``share/<pkg>/launch`` (``ros2 launch <pkg> <file>``)."""
+    files = sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.xml"))
+    return [(str(Path("share", PACKAGE, "launch")), files)] if files else []
+
+
 def _forwarders(text: str, folder: Path, install_dir: str, executables) -> list[tuple[str, list[str]]]:
     """Executable scripts ``text``, one per executable, written into ``build/ros_forwarders/<folder>``
     at build time (never committed, so the lists above are the only place an executable is named)
@@ -112,6 +118,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         *_config_files(),
+        *_launch_files(),
         *_wheel_forwarders(EXECUTABLES),
         *_colcon_bin_forwarders(CLI_EXECUTABLES),
     ],
@@ -121,6 +128,7 @@ setup(
         "test": ["pytest", "hypothesis", "ruff"],
         # docs/benchmarks.md, "Optional extras": plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
+        "plot": ["matplotlib"],  # pomdp-planner plot
         "bench": ["pomdp-py"],
     },
     zip_safe=False,  # PEP 561: a typed package is not zip-safe

@@ -240,6 +240,11 @@ CASES: list[tuple[list[str], str]] = [
     (["export", S2, "-o", "/dev/null"], "-o/--output"),
     (["bench", "search", "--model", S2, "--json", "/proc/version"], "--json"),  # refused before the run
     (["bench", "search", "--model", S2, "--json", "/dev/null"], "--json"),
+    (["bench", "structure", "--models", S2, "--json", "/proc/version"], "--json"),
+    (["bench", "structure", "--repeat", "1_0"], "--repeat"),
+    (["simulate", S2, "--record", "-"], "--record"),  # the steps go to stdout
+    (["simulate", S2, "--record", "/proc/version"], "--record"),
+    (["plot", "{regular}", "-o", "-"], "--output"),
 ]
 
 

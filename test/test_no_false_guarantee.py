@@ -179,3 +179,18 @@ def test_bounds_on_a_valid_model_says_guaranteed_and_exits_0(capsys: pytest.Capt
     d = json.loads(out)
     assert code == 0 and d["guaranteed"] is True and d["covers"] == "simplex"
     assert all(it["certified"] == it["agree"] for it in d["beliefs"])
+
+
+@pytest.mark.parametrize("model", sorted(FAILING))
+@pytest.mark.parametrize("force", [False, True])
+def test_a_run_record_certifies_no_decision(capsys: pytest.CaptureFixture[str], tmp_path: Path, model: str,
+                                            force: bool) -> None:
+    """``simulate --record``: the ``certified`` column (agreeing guaranteed bounds) stays 0."""
+    from pomdp_planner.core.io.run_record import read_run_record
+
+    record = tmp_path / "run.csv"
+    argv = ["simulate", FAILING[model], "--policy", "bnb", "--steps", "6", "--option", "depth=2",
+            "--record", str(record)] + (["--option", "prune_without_guarantee=1"] if force else [])
+    code, out, _ = _run(capsys, cli_main, argv)
+    rec = read_run_record(record)
+    assert code == 0 and len(rec.epoch) == 6 and not rec.certified.any() and not claims(out)

@@ -207,7 +207,7 @@ class PlannerNode(Node):
         if self._planner_key == (variant, constant):
             return
         setup = build_planner(self.model, variant=variant, constant=constant, on_assumption_failure=self._on_failure,
-                              chunk_bytes=self._chunk_bytes)
+                              chunk_bytes=self._chunk_bytes, progress=self.get_logger().info)
         bounds = f"{variant}, constant {constant}"
         if setup.pruning:
             self._bounds_message = f"{bounds}: feasible"

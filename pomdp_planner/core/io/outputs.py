@@ -49,10 +49,13 @@ def is_stdout(path: str | os.PathLike) -> bool:
     return str(path) == STDOUT
 
 
-def check_output_file(path: str | os.PathLike, field: str) -> Path:
+def check_output_file(path: str | os.PathLike, field: str, *, stdout: bool = True) -> Path:
     """``path`` as a :class:`~pathlib.Path` if a regular file can be written there, or ``Path("-")``
-    for standard output (module docstring); ``OptionError`` naming ``field`` otherwise."""
+    for standard output (module docstring; refused if ``stdout`` is false: an output that cannot
+    share standard output); ``OptionError`` naming ``field`` otherwise."""
     if is_stdout(path):
+        if not stdout:
+            raise OptionError(f"{field}: '{STDOUT}' (standard output) is not possible here: give a file")
         return Path(STDOUT)
     p = _as_path(path, field, "file")
     try:
