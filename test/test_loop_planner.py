@@ -14,7 +14,7 @@ import pytest
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.loop import (
     JOIN_DELAY,
-    ActionOut,
+    ActionSample,
     BeliefSample,
     Level,
     Liveness,
@@ -69,7 +69,7 @@ def test_join_plans_the_newest_belief_received_within_the_join_delay():
     job = loop.take(T0 + JOIN_DELAY)
     assert job.epoch == 57 and job.arrived == T0 + JOIN_DELAY  # the deliberate delay is no decision latency
     out = loop.decided(job, loop.search(job), T0 + JOIN_DELAY + 0.01)
-    assert out.actions == [ActionOut(58, out.plan_info.action_priority)] and out.join_at is None
+    assert out.actions == [ActionSample(58, out.plan_info.action_priority)] and out.join_at is None
     assert out.plan_info.latency == pytest.approx(0.01)
 
 
@@ -77,7 +77,7 @@ def test_a_decision_answers_the_belief_of_epoch_t_with_the_action_of_t_plus_1():
     loop = make(use_bounds=False)
     out = joined(loop, 4)
     expected = Planner(S3).search(B, 2, use_bounds=False).priority  # the core's exhaustive search
-    assert out.actions == [ActionOut(5, expected)]
+    assert out.actions == [ActionSample(5, expected)]
     info = out.plan_info
     assert (info.epoch, info.action_priority, info.depth, info.certified) == (5, expected, 2, False)
     assert loop.health.counts["decisions"] == 1 and loop.line.position == 4
@@ -134,7 +134,7 @@ def test_a_stalled_planner_resyncs_to_a_restarted_filters_numbering_and_answers_
     job = loop.take(T0 + 3.0)
     assert job.cached == decided[5]  # decided before: the same action again, no search
     out = loop.decided(job, None, T0 + 3.0)
-    assert out.actions == [ActionOut(5, decided[5])] and out.plan_info is None
+    assert out.actions == [ActionSample(5, decided[5])] and out.plan_info is None
     assert loop.health.counts["cached_decisions"] == 1 and loop.health.counts["decisions"] == 8
 
 
@@ -159,7 +159,7 @@ def test_the_last_action_is_re_sent_every_period_until_its_belief_comes_but_not_
     job = loop.take(t + 2.1)
     assert loop.planning == 4 and loop.watchdog(t + 10.0).actions == []  # answered, and searching
     loop.decided(job, Searched(stub(), True, True), t + 10.0)
-    assert loop.planning is None and loop.watchdog(t + 11.0).actions == [ActionOut(5, 2)]
+    assert loop.planning is None and loop.watchdog(t + 11.0).actions == [ActionSample(5, 2)]
 
 
 def test_a_deadline_miss_is_latency_over_the_budget_plus_the_slack():

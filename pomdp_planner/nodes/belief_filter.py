@@ -23,7 +23,7 @@ from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.loop import FilterLoop, FilterOutput
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, OutOfRangeError, decode_action, decode_observation, encode_belief
+from .messages import MessageError, OutOfRangeError, decode_observation, encode_belief
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -78,15 +78,6 @@ class BeliefFilter(LoopNode):
                     self.loop.buffer.timeout = p.value
                 elif p.name == "max_pending_epochs":
                     self.loop.buffer.max_pending = p.value
-
-    @callback
-    def _on_action(self, msg: Int64MultiArray) -> None:
-        try:
-            act = decode_action(msg, self.model.A)
-        except MessageError as exc:
-            self.call(self.loop.rejected_action, str(exc))
-            return
-        self.call(self.loop.action, act)
 
     @callback
     def _on_observation(self, sensor: int, msg: Int64MultiArray) -> None:

@@ -11,9 +11,11 @@ from collections.abc import Callable, Iterable
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from std_msgs.msg import Int64MultiArray
 
 from ..core.loop import Log
 from .diagnostics import array, status
+from .messages import MessageError, decode_action
 from .params import accept_integers_for_doubles, declare_liveness, declare_model_file
 from .runtime import callback
 
@@ -94,6 +96,16 @@ class LoopNode(Node):
                 logger.warning(line.text)
             else:
                 logger.error(line.text)
+
+    @callback
+    def _on_action(self, msg: Int64MultiArray) -> None:
+        """An ``action`` sample for a loop that takes actions (the filter's and the target's)."""
+        try:
+            act = decode_action(msg, self.loop.model.A)
+        except MessageError as exc:
+            self.call(self.loop.rejected_action, str(exc))
+            return
+        self.call(self.loop.action, act)
 
     @callback
     def _watchdog(self) -> None:

@@ -22,7 +22,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.loop import DEFAULT_JOIN_TIMEOUT, TargetLoop, TargetOutput
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, decode_action, decode_belief, encode_observation, encode_true_state
+from .messages import MessageError, decode_belief, encode_observation, encode_true_state
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -83,15 +83,6 @@ class TargetSimulator(LoopNode):
             self._wait_timer = self.create_timer(0.01, self._check_subscribers)
         self._join = OneShot(self, self._on_join)
         self.run(loop)
-
-    @callback
-    def _on_action(self, msg: Int64MultiArray) -> None:
-        try:
-            act = decode_action(msg, self.model.A)
-        except MessageError as exc:
-            self.call(self.loop.rejected_action, str(exc))
-            return
-        self.call(self.loop.action, act)
 
     @callback
     def _on_belief(self, msg: Float64MultiArray) -> None:

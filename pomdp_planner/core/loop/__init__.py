@@ -69,12 +69,12 @@ from .epoch_buffer import EpochBuffer, EpochReadings
 from .epochs import DEFAULT_JOIN_TIMEOUT, JOIN_DELAY, EpochLine, JoinWait, Liveness, Resender, classify
 from .filter_loop import BeliefOut, FilterLoop, FilterOutput
 from .health import Level, Log, LoopHealth, Report, StallLimits
-from .planner_loop import TUNABLE, ActionOut, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
+from .planner_loop import TUNABLE, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
 from .samples import ActionSample, BeliefSample, ObservationSample
 from .target_loop import Readings, TargetLoop, TargetOutput
 
 __all__ = [
-    "DEFAULT_JOIN_TIMEOUT", "JOIN_DELAY", "TUNABLE", "ActionOut", "ActionSample", "BeliefOut", "BeliefSample",
+    "DEFAULT_JOIN_TIMEOUT", "JOIN_DELAY", "TUNABLE", "ActionSample", "BeliefOut", "BeliefSample",
     "EpochBuffer", "EpochLine", "EpochReadings", "FilterLoop", "FilterOutput", "JoinWait", "Level", "Liveness", "Log",
     "LoopHealth", "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings", "Report",
     "Resender", "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify",

@@ -28,7 +28,7 @@ from ..model import POMDP, ModelError
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
 from .epochs import EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Level, Log, LoopHealth, Report
-from .samples import BeliefSample
+from .samples import ActionSample, BeliefSample
 
 #: Parameters that may change while the loop runs (in force from the next decision).
 TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "bound_constant", "deadline_slack")
@@ -38,14 +38,6 @@ COUNTERS = ("decisions", "deadline_misses", "budget_exhausted", "certified", "ba
             "out_of_window", "resyncs", "resent_actions", "cached_decisions")
 #: Counts that make the report WARN when they grew since the previous one.
 PROBLEMS = ("deadline_misses", "bad_beliefs", "out_of_window", "resyncs")
-
-
-@dataclass(frozen=True)
-class ActionOut:
-    """An action to publish: ``[epoch, priority]``."""
-
-    epoch: int
-    priority: int
 
 
 @dataclass(frozen=True)
@@ -96,7 +88,7 @@ class PlannerOutput:
     ``logs``, wake the planning side (:meth:`PlannerLoop.take`) now if ``plan_now``, and at
     ``join_at`` (``None``: no join pending)."""
 
-    actions: list[ActionOut] = field(default_factory=list)
+    actions: list[ActionSample] = field(default_factory=list)
     plan_info: PlanInfo | None = None
     logs: list[Log] = field(default_factory=list)
     plan_now: bool = False
@@ -155,7 +147,7 @@ class PlannerLoop:
         self._mailbox: tuple[BeliefSample, float] | None = None  # newest belief to plan, its arrival time
         self._join = JoinWait()
         self._decisions: OrderedDict[int, int] = OrderedDict()  # action epoch -> priority (recent ones)
-        self._last_action: ActionOut | None = None
+        self._last_action: ActionSample | None = None
         self.resender = Resender(live.resend_period)
         self.last: SearchResult | None = None
         self.last_params: dict[str, Any] = {}
@@ -281,11 +273,11 @@ class PlannerLoop:
         """The answer to ``job``: its cached action (``searched is None``) or the new decision."""
         if searched is None:
             self.health.count("cached_decisions")
-            return self._send(ActionOut(job.epoch + 1, job.cached), now)
+            return self._send(ActionSample(job.epoch + 1, job.cached), now)
         self.planning = None
         self.health.logs.extend(searched.logs)
         r, p = searched.result, job.params
-        action = ActionOut(job.epoch + 1, int(r.priority))
+        action = ActionSample(job.epoch + 1, int(r.priority))
         self._decisions[action.epoch] = action.priority
         while len(self._decisions) > DECISION_CACHE:
             self._decisions.popitem(last=False)
@@ -309,7 +301,7 @@ class PlannerLoop:
             deadline_hit=bool(r.deadline_hit), deadline_miss=missed)
         return out
 
-    def _send(self, action: ActionOut, now: float) -> PlannerOutput:
+    def _send(self, action: ActionSample, now: float) -> PlannerOutput:
         self._last_action = action
         self.resender.published(now)
         return self._result(now, actions=[action])
