@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.loop import (
     JOIN_DELAY,
@@ -23,7 +24,6 @@ from pomdp_planner.core.loop import (
     check_params,
 )
 from pomdp_planner.core.loop.planner_loop import DECISION_CACHE, Searched
-from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.search import Planner, SearchResult
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -197,10 +197,10 @@ def test_a_silent_belief_stream_is_warn_then_error():
 
 
 def test_parameters_are_checked_and_in_force_from_the_next_job():
-    assert check_params({"bound_variant": "loose"}) == "bound_variant: 'loose' is not one of ['tight', 'feasible']"
-    assert check_params({"bound_constant": "paper"}) == "bound_constant: 'paper' is not one of ['mlr', 'fosd']"
+    assert check_params({"bound_variant": "loose"}) == "bound_variant: expected one of tight, feasible, got 'loose'"
+    assert check_params({"bound_constant": "paper"}) == "bound_constant: expected one of mlr, fosd, got 'paper'"
     assert check_params({"max_depth": 3, "bound_constant": "fosd"}) == ""
-    with pytest.raises(ModelError, match=r"bound_constant: 'paper' is not one of"):
+    with pytest.raises(OptionError, match=r"bound_constant: expected one of mlr, fosd, got 'paper'"):
         make(bound_constant="paper")
     loop = make()
     loop.belief(bel(0), T0)

@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.loop import JOIN_DELAY, ActionSample, Level, Liveness, StallLimits, TargetLoop
-from pomdp_planner.core.model import POMDP, ModelError
+from pomdp_planner.core.model import POMDP
 
 MODEL = load_model_file(str(Path(__file__).resolve().parents[1] / "config" / "models" / "tracking_s3_info.yaml"))
 LIVE = Liveness(epoch_window=50, resend_period=1.0, stall=StallLimits(2.0, 10.0))
@@ -143,9 +144,9 @@ def test_report_and_bad_actions():
 
 
 def test_start_parameters_are_checked():
-    with pytest.raises(ModelError, match=r"initial_state: 3 out of range -1..2"):
+    with pytest.raises(OptionError, match=r"initial_state: must be an integer in -1..2, got 3"):
         TargetLoop(MODEL, [MODEL.O], ["o"], LIVE, now=T0, initial_state=3)
-    with pytest.raises(ModelError, match=r"default_priority: 4 out of range 1..3"):
+    with pytest.raises(OptionError, match=r"default_priority: must be an integer in 1..3, got 4"):
         TargetLoop(MODEL, [MODEL.O], ["o"], LIVE, now=T0, default_priority=4)
 
 

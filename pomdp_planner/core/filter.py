@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .belief import ETA_MIN, BeliefError, check_action, check_belief
+from .checks import check_int
 from .model import POMDP, ModelError
 
 
@@ -104,13 +105,9 @@ class EpochFilter:
         return self.sensors[sensor].shape[2]
 
     def _check_reading(self, sensor: int, z: int) -> tuple[int, int]:
-        if isinstance(sensor, bool) or not isinstance(sensor, (int, np.integer)) \
-                or not 0 <= sensor < self.num_sensors:
-            raise BeliefError(f"sensor: index {sensor!r} out of range 0..{self.num_sensors - 1}")
-        Z = self.num_observations(sensor)
-        if isinstance(z, bool) or not isinstance(z, (int, np.integer)) or not 0 <= z < Z:
-            raise BeliefError(f"observation: index {z!r} of sensor {sensor} out of range 0..{Z - 1}")
-        return int(sensor), int(z)
+        sensor = check_int(sensor, "sensor", 0, self.num_sensors - 1, error=BeliefError)
+        z = check_int(z, f"observation (sensor {sensor})", 0, self.num_observations(sensor) - 1, error=BeliefError)
+        return sensor, z
 
     def step(self, belief: np.ndarray, action: int | None, readings: Mapping[int, int]) -> EpochUpdate:
         """Apply one epoch: ``action`` (0-based; ``None`` = unknown, only for a gap) and

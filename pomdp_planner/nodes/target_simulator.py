@@ -70,7 +70,7 @@ class TargetSimulator(LoopNode):
             sensors = load_observation_models(self.model, optional_array(self, "observation_model_files"), len(topics))
             initial = initial_distribution(self.model, optional_array(self, "initial_distribution")) if s0 < 0 else None
             loop = TargetLoop(self.model, sensors, topics, self.live, now=self.now(), seed=value("seed").value,
-                              initial_state=None if s0 < 0 else s0, initial=initial, step_period=period,
+                              initial_state=s0, initial=initial, step_period=period,
                               default_priority=value("default_priority").value,
                               join_timeout=value("join_timeout").value, outputs_ready=self.min_subscribers == 0)
         self.obs_pubs = [self.create_publisher(Int64MultiArray, t, STREAM_QOS) for t in topics]

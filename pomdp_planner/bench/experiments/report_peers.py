@@ -36,10 +36,6 @@ def _budget(b) -> str:
     return "-" if b is None else f"{b:g}"
 
 
-def _label(r) -> str:
-    return r.planner + ("" if r.budget is None else f" @ {r.budget:g} s")
-
-
 def table_ids(d: dict) -> dict[str, str]:
     """``model -> "P<i>"``: the number of each model's table."""
     return {m: f"P{i + 1}" for i, m in enumerate(d.get("models") or dict.fromkeys(r.model for r in d["results"]))}

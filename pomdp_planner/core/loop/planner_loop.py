@@ -22,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from ..bounds import BOUND_CONSTANTS, BOUND_VARIANTS
+from ..bounds import check_constant, check_variant
+from ..errors import OptionError
 from ..gate import PlannerSetup, build_planner
-from ..model import POMDP, ModelError
+from ..model import POMDP
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
 from .epochs import EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Level, Log, LoopHealth, Report
@@ -97,11 +98,15 @@ class PlannerOutput:
 
 def check_params(values: Mapping[str, Any]) -> str:
     """Why ``values`` (some of :data:`TUNABLE`) cannot be used, or ``""``: the bound variant and
-    constant must be known (ranges and types are the adapters' descriptors)."""
-    if "bound_variant" in values and values["bound_variant"] not in BOUND_VARIANTS:
-        return f"bound_variant: {values['bound_variant']!r} is not one of {list(BOUND_VARIANTS)}"
-    if "bound_constant" in values and values["bound_constant"] not in BOUND_CONSTANTS:
-        return f"bound_constant: {values['bound_constant']!r} is not one of {list(BOUND_CONSTANTS)}"
+    constant must be the core's (:func:`~pomdp_planner.core.bounds.check_variant`,
+    :func:`~pomdp_planner.core.bounds.check_constant`; ranges and types are the adapters' descriptors)."""
+    try:
+        if "bound_variant" in values:
+            check_variant(values["bound_variant"], "bound_variant")
+        if "bound_constant" in values:
+            check_constant(values["bound_constant"], "bound_constant")
+    except OptionError as exc:
+        return str(exc)
     return ""
 
 
@@ -120,7 +125,7 @@ class PlannerLoop:
             raise ValueError(f"params: missing {missing}")
         bad = check_params(params)
         if bad:
-            raise ModelError(bad)
+            raise OptionError(bad)
         self.model = model
         self.live = live
         self.params = {k: params[k] for k in TUNABLE}

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model import POMDP, ModelError, action_of_priority
+from ..checks import check_int
+from ..model import POMDP, action_of_priority
 from .epochs import DEFAULT_JOIN_TIMEOUT, EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Log, LoopHealth, Report
 from .samples import ActionSample
@@ -52,7 +53,7 @@ class TargetOutput:
 class TargetLoop:
     """The target of ``model`` with one observation array per sensor (``sensors``, named ``topics``).
 
-    ``initial_state``: 0-based, or ``None`` to draw it from ``initial`` (a distribution over the
+    ``initial_state``: 0-based, or ``-1`` to draw it from ``initial`` (a distribution over the
     states; uniform if not given) with the seeded generator, before any step. ``step_period > 0``:
     timer-driven, the node calls :meth:`tick` every ``step_period`` seconds (``default_priority``
     until an action comes). ``outputs_ready=False``: no step until :meth:`outputs_matched` (the
@@ -61,23 +62,20 @@ class TargetLoop:
 
     def __init__(self, model: POMDP, sensors: Sequence[np.ndarray], topics: Sequence[str], live: Liveness, *,
                  now: float, seed: int = 0,
-                 initial_state: int | None = None, initial: np.ndarray | None = None, step_period: float = 0.0,
+                 initial_state: int = -1, initial: np.ndarray | None = None, step_period: float = 0.0,
                  default_priority: int = 1, join_timeout: float = DEFAULT_JOIN_TIMEOUT, outputs_ready: bool = True):
         self.model = model
         self.sensors = list(sensors)
         self.topics = list(topics)
         self.live = live
         self.rng = np.random.default_rng(seed)
-        if initial_state is not None and not 0 <= initial_state < model.S:
-            raise ModelError(f"initial_state: {initial_state} out of range -1..{model.S - 1}")
-        if not 1 <= default_priority <= model.A:
-            raise ModelError(f"default_priority: {default_priority} out of range 1..{model.A}")
-        if initial_state is None:
+        initial_state = check_int(initial_state, "initial_state", -1, model.S - 1)
+        self.last_priority = check_int(default_priority, "default_priority", 1, model.A)
+        if initial_state < 0:
             p = np.full(model.S, 1.0 / model.S) if initial is None else initial
             initial_state = int(self.rng.choice(model.S, p=p))
         self.state = initial_state
         self.epoch = 0
-        self.last_priority = default_priority
         self.step_period = step_period
         self.timer_mode = step_period > 0
         self.outputs_ready = outputs_ready
