@@ -10,7 +10,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 # exists, and the first action reach nodes that match later) and so that transient-local readers
 # (recorders, `ros2 topic echo --qos-durability transient_local`) are compatible at all: a
 # volatile writer does not match a transient-local reader. Neither durability nor history depth
-# costs measurable latency (docs/benchmarks.md, "Latency").
+# costs measurable latency (docs/benchmarks.md, "Latency of the node loop").
 
 #: Per-epoch streams where every sample matters (``action``, ``observation``, ``true_state``,
 #: ``belief`` as published, ``plan_info``), for their writers and for the readers that must see
