@@ -20,7 +20,7 @@ SOURCE_LIST := $(VENV)/.package-files
 PIP := $(BIN)/python -m pip --disable-pip-version-check
 
 # Files that end up in the installed package (setup.py: packages, data_files).
-PKG_SOURCES := setup.py setup.cfg package.xml $(sort $(shell find pomdp_planner config resource -type f \
+PKG_SOURCES := setup.py setup.cfg package.xml $(sort $(shell find pomdp_planner config resource launch -type f \
 	! -path '*/__pycache__/*' ! -name '*.pyc' 2>/dev/null))
 
 # The list of those files is rewritten only when it changes, so that deleting or renaming a file
@@ -55,14 +55,14 @@ test: $(PKG_STAMP)
 	$(BIN)/ruff check .
 	$(TEST_ENV) $(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Issue 6: the optional extras `experiments` (matplotlib) and `bench` (pomdp-py) of setup.py, then
-# every experiment (README, "Results"). matplotlib is also in requirements.txt (the smoke test).
+# The optional extras `experiments` (matplotlib) and `bench` (pomdp-py) of setup.py, then every
+# experiment into docs/ (docs/benchmarks.md). matplotlib is also in requirements.txt (the smoke test).
 EXPERIMENTS_EXTRAS := matplotlib pomdp-py
 EXPERIMENTS_ARGS ?=
 
 experiments: $(PKG_STAMP)
 	$(PIP) install $(EXPERIMENTS_EXTRAS)
-	$(BIN)/pomdp-planner bench all $(EXPERIMENTS_ARGS)
+	$(BIN)/pomdp-planner bench all --output docs $(EXPERIMENTS_ARGS)
 
 lint: $(DEPS_STAMP)
 	$(BIN)/ruff check .

@@ -53,6 +53,12 @@ def _config_files() -> list[tuple[str, list[str]]]:
     return sorted(groups.items())
 
 
+def _launch_files() -> list[tuple[str, list[str]]]:
+    """Every ``launch/*.launch.xml`` into ``share/<pkg>/launch`` (``ros2 launch <pkg> <file>``)."""
+    files = sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.xml"))
+    return [(str(Path("share", PACKAGE, "launch")), files)] if files else []
+
+
 def _wheel_forwarders(executables) -> list[tuple[str, list[str]]]:
     """``lib/<pkg>/<exe>`` forwarders, for wheel builds only (see the module docstring).
 
@@ -82,21 +88,24 @@ setup(
     name=PACKAGE,
     version=_version(),
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"], exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["py.typed"]},  # PEP 561: the package is typed
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         *_config_files(),
+        *_launch_files(),
         *_wheel_forwarders(EXECUTABLES),
     ],
     python_requires=">=3.11",
     install_requires=["numpy", "scipy", "clarabel", "PyYAML"],
     extras_require={
         "test": ["pytest", "hypothesis", "ruff"],
-        # issue 6 (README, "Optional extras"): plots of `pomdp-planner bench all`, and its POUCT peer
+        # docs/benchmarks.md, "Optional extras": plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
+        "plot": ["matplotlib"],  # pomdp-planner plot
         "bench": ["pomdp-py"],
     },
-    zip_safe=True,
+    zip_safe=False,  # PEP 561: a typed package is not zip-safe
     maintainer="pomdp_planner maintainers",
     maintainer_email="maintainers@example.com",
     description="Information-acquisition POMDPs with myopic policy bounds (Lauri et al.), with ROS 2 nodes",

@@ -1,7 +1,7 @@
 """Property test: mutated model files load or fail cleanly, never anything else; and a model that
 loads is one the entry points handle.
 
-The mutations are those of the corpus generator ``pomdp_planner/bench/fuzz_models.py`` (byte
+The mutations are those of the corpus generator ``tools/fuzz_models.py`` (byte
 flips, truncation, binary junk, re-encoding, huge and non-finite numbers, blown-up sizes, type
 swaps on the parsed YAML tree, alias bombs, deep nesting, ``.POMDP`` header bombs, long tokens),
 applied to the shipped models, their explicit matrix form and their ``.POMDP`` exports. Every
@@ -25,7 +25,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pomdp_planner.bench.fuzz_models import (
+from pomdp_planner.core import model as model_module
+from pomdp_planner.core.errors import InputError, InputWarning
+from pomdp_planner.core.io import cassandra
+from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.model import ModelError
+from tools.fuzz_models import (
     MUTATIONS,
     VALUE_MUTATIONS,
     classify,
@@ -34,11 +39,6 @@ from pomdp_planner.bench.fuzz_models import (
     mutations_for,
     seeds,
 )
-from pomdp_planner.core import model as model_module
-from pomdp_planner.core.errors import InputError, InputWarning
-from pomdp_planner.core.io import cassandra
-from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.model import ModelError
 
 SEEDS = seeds()
 CASES = [(i, name) for i, s in enumerate(SEEDS) for name in mutations_for(s[1])]

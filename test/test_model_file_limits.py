@@ -1,6 +1,6 @@
 """Hostile model files (issue 13): every case ends in one clean line, in bounded memory.
 
-One test per crash class found by the mutation fuzzer (pomdp_planner/bench/fuzz_models.py) and
+One test per crash class found by the mutation fuzzer (tools/fuzz_models.py) and
 listed in the issue: binary content, non-regular files, oversized files, alias bombs, deep
 nesting, huge numbers, NaN/infinity, strings and bools where numbers are expected, non-integer
 counts, absurd declared sizes (YAML generator and .POMDP headers), long tokens, and the

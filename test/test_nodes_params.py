@@ -24,7 +24,7 @@ from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
-from pomdp_planner.nodes.processes import PARAMETER_SETS, parameter_set_model
+from pomdp_planner.nodes.processes import PARAMETER_SETS, node_parameters, parameter_set_model
 from pomdp_planner.nodes.qos import LATCHED_QOS
 from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.target_simulator import TargetSimulator
@@ -149,9 +149,10 @@ def test_shipped_yaml_loads_and_matches_declared_parameters(harness, path):
     doc = yaml.safe_load(path.read_text())
     assert doc, f"{path.name}: no node section"
     for section in doc:
-        node_name = section.lstrip("/")
+        node_name = section.removeprefix("/**/").lstrip("/")
         assert node_name in NODE_CLASSES, f"{path.name}: unknown node {section!r}"
-        params = parameter_dict_from_yaml_file(str(path), target_nodes=[node_name])
+        assert section == f"/**/{node_name}", f"{path.name}: {section!r} would not apply in a namespace"
+        params = parameter_dict_from_yaml_file(str(path), target_nodes=[section])
         assert params, f"{path.name}: {node_name}: no parameters"
         node = h.add(NODE_CLASSES[node_name](
             context=h.context, cli_args=["--ros-args", "--params-file", str(path)]))
@@ -205,10 +206,10 @@ def test_shipped_files_step_the_simulator_at_a_sensor_rate():
     for model in PARAMETER_SETS:
         for name in (f"target_simulator_{model}.yaml", f"closed_loop_{model}.yaml"):
             doc = yaml.safe_load((REPO / "config" / name).read_text())
-            assert doc["target_simulator"]["ros__parameters"]["step_period"] == 0.1, name
+            assert node_parameters(doc, "target_simulator")["step_period"] == 0.1, name
         for name in (f"planner_{model}.yaml", f"closed_loop_{model}.yaml"):
             doc = yaml.safe_load((REPO / "config" / name).read_text())
-            assert doc["planner"]["ros__parameters"]["time_budget"] < 0.1, name
+            assert node_parameters(doc, "planner")["time_budget"] < 0.1, name
 
 
 def test_an_integer_is_accepted_for_a_float_parameter(harness):

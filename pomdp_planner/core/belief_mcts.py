@@ -3,104 +3,46 @@
 An anytime, information-aware online planner for the discrete POMDPs of this package. Every
 node of the tree is an **exact** Bayes belief (paper Eqs. 1-2), every edge is rewarded with the
 true belief reward ``rho(b, a) = b . r[:, a] - w_a f(b)`` (paper Eq. 3), so the planner sees the
-uncertainty term that a state-sampling planner (POMCP, POUCT) cannot.
+uncertainty term that a state-sampling planner (POMCP, POUCT) cannot. Options, benchmark and how
+the defaults were chosen: docs/benchmarks.md, "Belief-space MCTS".
 
-Tree
-----
-A belief node ``b`` is *expanded* on its second visit: for every action ``a`` and observation
-``z`` at once (one matrix product, then a few vectorised operations) it stores
-``eta(z | b, a) = b^a @ O[a][:, z]`` with ``b^a = b @ P[a]``, the posterior
-``tau(b, a, z) ∝ b^a ∘ O[a][:, z]`` and ``rho(tau, .)`` of every child. With finite, small ``Z``
-the child for ``(a, z)`` is unique, so there is no need for progressive widening on
-observations (PFT-DPW's rule exists for continuous or huge observation spaces, where a new
-sample is almost surely a new child): all ``Z`` posteriors of an action are known exactly and a
-simulation descends by **sampling** ``z ~ eta(. | b, a)``, which spends the simulations on the
-likely observations. Impossible observations (``eta <= ETA_MIN``, as in
-:mod:`~pomdp_planner.core.belief`) are never sampled. Child node objects are created lazily,
-from the stored posterior, when a simulation first reaches them.
+**Tree.** A belief node is expanded on its second visit: for every action ``a`` and observation
+``z`` at once it stores ``eta(z | b, a) = b^a @ O[a][:, z]`` (``b^a = b @ P[a]``), the posterior
+``tau(b, a, z) ∝ b^a ∘ O[a][:, z]`` and ``rho(tau, .)``. With finite, small ``Z`` the child for
+``(a, z)`` is unique, so no progressive widening is needed: a simulation descends by sampling
+``z ~ eta(. | b, a)``; impossible observations (``eta <= ETA_MIN``) are never sampled. Actions
+are chosen by UCB1, ``Q(b, a) + c sqrt(ln N(b) / N(b, a))``, after the untried actions, which are
+tried in greedy order (largest ``rho(b, a)`` first); ties are broken by the seeded generator.
+``c = exploration_scale * (max rho - min rho)`` over the simplex (:func:`rho_range`), unless
+``exploration`` sets it.
 
-Action selection is UCB1, ``Q(b, a) + c sqrt(ln N(b) / N(b, a))``, after the untried actions,
-which are tried in greedy order (largest ``rho(b, a)`` first: a node tried once is then valued
-by its greedy action, consistent with the leaf values below); exact UCB1 ties are broken by the
-seeded generator.
+**Backups** (``backup``). ``"bellman"`` (default): partial Bellman backups with the exact
+observation probabilities (DP-UCT, Keller and Helmert, ICAPS 2013), ``Q(b, a) = rho(b, a) +
+gamma sum_z eta_z V(z) / sum_z eta_z`` over the children visited so far; once every child of a
+finite tree has been visited it is the expectimax value exactly (paper Eqs. 4-6). ``"mean"``:
+the Monte Carlo means of POMCP and PFT-DPW. ``test/test_belief_mcts.py`` checks both against a
+brute-force expectimax recursion.
 
-Statistics (``backup``)
------------------------
-* ``"bellman"`` (default): partial Bellman backups with the exact observation probabilities
-  (DP-UCT, Keller and Helmert, ICAPS 2013): ``Q(b, a) = rho(b, a) + gamma sum_z eta_z V(z) /
-  sum_z eta_z`` over the children ``(a, z)`` visited so far, ``V`` of an expanded node the
-  largest ``Q`` of its tried actions, ``V`` of a leaf the mean of its leaf values. Only the
-  *choice* of observations is sampled, not their weights, so the estimate has no
-  observation-sampling noise; once every possible child of a finite tree has been visited it is
-  the expectimax value exactly (paper Eqs. 4-6).
-* ``"mean"``: the classic Monte Carlo statistics of POMCP and PFT-DPW, ``Q(b, a)`` the mean of
-  the discounted returns ``rho(b, a) + gamma G'`` of the simulations through ``(b, a)``; they
-  converge to the same expectimax values, more slowly.
+**Leaf values** (``leaf``). ``"rollout"`` (default): ``rollout_depth`` greedy steps along one
+sampled observation path with exact Bayes updates, then a tail (``tail``): ``"average"``
+(default, ``gamma^D rho_bar / (1 - gamma)`` with ``rho_bar`` the long-run mean reward of the
+greedy policy, :func:`average_greedy_reward`), ``"leaf"`` (the last greedy reward held forever)
+or ``"none"`` (the truncated return). ``"rho"``: ``max_a rho(b, a)``, the leaf of
+:mod:`~pomdp_planner.core.search`, so the tree estimates the expectimax values of Algorithm 1.
+``"zero"``: 0.
 
-``test/test_belief_mcts.py`` checks both against a brute-force expectimax recursion.
+**Speed.** Tree statistics are plain Python lists; the numerical work is vectorised per node:
+an expansion is one product of the belief with a precomputed ``S x A (Z + Z A + Z S)`` matrix
+holding ``eta``, the linear reward and the unnormalised posterior of every ``(a, z)``; a rollout
+step carries the belief unnormalised. Random numbers are drawn in blocks.
 
-Exploration constant: returns are sums of ``rho`` values, so ``c`` is scaled to the spread of
-``rho``: ``c = exploration_scale * (max rho - min rho)`` over the simplex
-(:func:`rho_range`, on the vertices, the centre and a fixed sample of beliefs). An explicit
-``exploration`` overrides it.
-
-Leaf values (``leaf``)
-----------------------
-* ``"rollout"`` (default): ``rollout_depth`` greedy steps, ``a_t = argmax_a rho(b_t, a)``,
-  along one sampled observation path with exact Bayes updates, then a tail for the rest of the
-  infinite horizon (``tail``):
-
-  - ``"average"`` (default): ``gamma^D rho_bar / (1 - gamma)`` with ``rho_bar`` the long-run
-    mean reward of the greedy policy (:func:`average_greedy_reward`, computed once per model).
-    It adds no variance, and leaves at different depths stay comparable (a truncated return
-    would favour the deeper, more visited subtrees by about one reward per level).
-  - ``"leaf"``: ``gamma^D max_a rho(b_D, a) / (1 - gamma)``, the last greedy reward held
-    forever. It multiplies the spread of ``rho`` between leaves by ``1 / (1 - gamma)`` (100 at
-    ``gamma = 0.99``) and measured much worse.
-  - ``"none"``: the truncated return.
-
-  ``rollout_depth = 1`` is the cheap value estimate ``max_a rho(b, a) + gamma rho_bar / (1 -
-  gamma)``: no belief update at all (``rho`` of every node is cached).
-* ``"rho"``: ``max_a rho(b, a)``, the leaf of :mod:`~pomdp_planner.core.search`: with it the
-  tree estimates the depth-``max_depth`` expectimax values of Algorithm 1.
-* ``"zero"``: 0 (the pure finite-horizon problem).
-
-Defaults
---------
-Chosen from ``python -m pomdp_planner.bench.mcts --tune`` (decisions at 100 grid beliefs of the
-shipped ``S = 3`` model, 16 of them where greedy is not optimal, against the grid
-policy-iteration optimum of ``core/reference.py``, at 0.01, 0.05 and 0.2 s per decision; figures
-in the benchmark's docstring): with Bellman backups and ``max_depth`` 2 or 3 every decision was
-optimal at every budget (greedy: 84 %); Monte Carlo means (98 %), deeper trees (97-99 % at
-0.01-0.05 s), the ``"leaf"`` tail and truncated returns (61-81 %, in an earlier round) lost.
-Rollout depths 0, 1 and 3 and ``exploration_scale`` 0.3, 1 and 3 tied at ``max_depth`` 3;
-rollout depth 1 is the cheapest informative leaf (no belief update) and 1 the middle of the
-flat range of ``c``. Trying the untried actions greedy-first was the largest single
-improvement (before it, with a random order, ``max_depth`` 50 chose optimally at 83-89 % of
-the beliefs, now 98-99 %). This model cannot separate the settings further: on a model where
-lookahead pays beyond three steps, measure ``max_depth`` and ``rollout_depth`` again.
-
-Speed
------
-The tree statistics are plain Python lists (for ``A`` of a few actions, a Python loop beats a
-numpy call), the numerical work is vectorised per node: an expansion is one product of the
-belief with a precomputed ``S x A (Z + Z A + Z S)`` matrix ``K`` holding, for every action and
-observation, ``eta``, the linear reward of the unnormalised posterior and the unnormalised
-posterior itself, then a division and the uncertainty of all ``A Z`` posteriors at once. A
-rollout step is one product with the action's block of ``K`` and, for Renyi's quadratic entropy,
-one dot product: the belief is carried unnormalised and the normaliser of the next belief is the
-sampled observation's unnormalised ``eta``. Random numbers are drawn in blocks.
-
-Anytime and determinism
------------------------
-A search stops after ``simulations`` simulations or when ``time_budget`` seconds have passed
-(the clock, injectable as in :class:`~pomdp_planner.core.search.Planner`, is read after every
-simulation: a call of ~0.1 us next to a simulation's 5-100 us), whichever comes
+**Anytime and determinism.** A search stops after ``simulations`` simulations or when
+``time_budget`` seconds have passed (the clock, injectable as in
+:class:`~pomdp_planner.core.search.Planner`, is read after every simulation), whichever comes
 first; at least one simulation is always run. Given the seed and a number of simulations the
 result is reproducible. Tree reuse (:class:`BeliefMCTSPolicy`): if the next belief is a child
-posterior of the last root under the action taken (equal up to rounding, checked with
-:data:`REUSE_ATOL`), that subtree becomes the new root, so its statistics are kept; otherwise a
-fresh tree is built.
+posterior of the last root under the action taken (equal up to :data:`REUSE_ATOL`), that
+subtree becomes the new root; otherwise a fresh tree is built.
 """
 
 from __future__ import annotations
@@ -141,7 +83,7 @@ TAILS = ("average", "leaf", "none")
 AVERAGE_REWARD_STEPS = 2000
 #: Backups accepted by :class:`BeliefMCTS`: Monte Carlo means or partial Bellman backups.
 BACKUPS = ("mean", "bellman")
-#: Default ``c / (max rho - min rho)`` of UCB1 (measured, module docstring "Defaults").
+#: Default ``c / (max rho - min rho)`` of UCB1 (measured: docs/benchmarks.md, "Belief-space MCTS").
 DEFAULT_EXPLORATION_SCALE = 1.0
 #: Default number of greedy rollout steps before the tail value (measured).
 DEFAULT_ROLLOUT_DEPTH = 1

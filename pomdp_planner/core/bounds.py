@@ -19,8 +19,9 @@ Constraints (paper Theorem 2 and Corollary 1, in our convention; docs/THEORY.md)
   - ``"mlr"`` (default): exactly what Corollary 1 needs. For Renyi quadratic entropy
     ``b -> phi.b + w log sum b^2`` is MLR increasing on the whole simplex iff every step of
     ``phi`` is ``>= 2 |w|`` (docs/THEORY.md, the proof and its tightness), so ``K_f = 2``:
-    the paper's constant 1 (Example 3), right for MLR although the paper derives it through
-    first-order dominance, where it is not a bound.
+    the paper's constant 1 (Example 3, whose printed chain has the signs reversed: we use
+    the corrected ``Delta_i phi >= 2 |w|``), right for MLR although the paper derives it
+    through first-order dominance, where it is not a bound.
   - ``"fosd"``: monotone in first-order stochastic dominance, the stronger property Theorem 2's
     proof establishes (gradient non-decreasing in the index at every belief). Its exact
     constant is ``K_f = 2 C_S``, ``C_S = (1 + sqrt(S-1)) / 2`` (:func:`renyi_constant`); the
@@ -63,10 +64,9 @@ upper bound): the ``tight`` variant returns them.
 **Solvers** (:data:`BOUND_SOLVERS`). ``"structured"`` (default): the least element wherever
 its conditions hold and it answers the question; otherwise HiGHS dual simplex
 (``scipy.optimize.linprog``), with row generation on large systems (start with one row per
-state pair, add the most violated action of each pair per round). ``"clarabel"``: the
-previous path, kept for cross-checks and the LP benchmark (``pomdp_planner.bench.lp``):
-Clarabel's interior point for every LP, row generation over whole actions, hinge-LP
-tightening whatever the structure.
+state pair, add the most violated action of each pair per round). ``"clarabel"``, for
+cross-checks and the LP benchmark (``pomdp_planner.bench.lp``): Clarabel's interior point for
+every LP, row generation over whole actions, hinge-LP tightening whatever the structure.
 
 Every returned vector is re-checked against the exact constraints of the chosen constant; a
 vector is reported feasible only if its worst margin is ``>= -tol``
@@ -823,6 +823,36 @@ def _tighten(sg: _System, sh: _System, solver: str, g: np.ndarray, h: np.ndarray
         if not changed:
             break
     return best_g, best_h, {"method": "hinge LPs on the samples", "rounds": history}
+
+
+#: Unit costs (seconds) of :func:`estimate_solve_bounds`, measured on the development machine and
+#: rounded up: per ``A S^2`` entry on the least-element path (structure, iterations, samples),
+#: per ``S^3`` of its dense solves, and per ``S^3`` and ``A S^2`` of the HiGHS path.
+COST_LEAST = (2e-7, 1e-9)
+COST_HIGHS = (3e-6, 3e-6)
+#: The tight variant without the least element adds hinge-LP rounds: about this many times the LP.
+TIGHTEN_FACTOR = 5.0
+
+
+def estimate_solve_bounds(model: POMDP, variant: str = "tight") -> tuple[float, int]:
+    """Rough ``(seconds, peak bytes)`` of :func:`solve_bounds` with the default solver, before it runs.
+
+    Runs the structure test the solver starts with (``O(A S^2)``): where the least element applies
+    (monotone transitions, a contraction) the cost is a few passes over the ``A (S-1)``
+    constraints and a few dense solves; otherwise the HiGHS path (the dense constraint matrices
+    of ``g`` and ``h``, ``A (S-1) x S`` each, and the solver's copies), and for ``tight`` the
+    hinge-LP rounds. Good to a factor of a few (the unit costs :data:`COST_LEAST`,
+    :data:`COST_HIGHS`)."""
+    S, A = model.S, model.A
+    if S < 2:
+        return 0.0, 0
+    st = _structure(model)
+    rows = A * S * S
+    memory = 8 * 5 * rows + 8 * 400 * S * (A + 2)  # constraint matrices and copies; the sampled beliefs
+    if st.contraction:
+        return COST_LEAST[0] * rows + COST_LEAST[1] * S**3, memory
+    seconds = COST_HIGHS[0] * S**3 + COST_HIGHS[1] * rows
+    return seconds * (TIGHTEN_FACTOR if variant == "tight" else 1.0), memory
 
 
 # ---------------------------------------------------------------- public API

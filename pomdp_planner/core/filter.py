@@ -12,14 +12,14 @@ An *epoch* is one transition of the target under one action ``a`` followed by on
    state, so the result is ``b^a * prod_k O_k[a][:, z_k]`` normalised, whatever their order.
 3. **Recovery** when a reading is impossible under the belief (``eta = 0``, i.e.
    ``<= belief.ETA_MIN``). The Bayes update is then undefined, and the reading proves that the
-   belief excluded the true state: the belief is wrong, not the reading. Two rules were in use
-   before this module (issue 11) and neither is kept:
+   belief excluded the true state: the belief is wrong, not the reading. Two simpler rules
+   fail:
 
-   * *discard the reading and keep the prediction* (the belief filter node): a belief that
+   * *discard the reading and keep the prediction*: a belief that
      excludes the truth can stay wrong for ever. With a static target and a perfect sensor,
      ``b = [1, 0]`` while the target is in state 1, every later reading is impossible too and
      is discarded in turn, so the filter never moves again;
-   * *re-initialise to the normalised likelihood* ``O[a][:, z]`` (``simulate``): it ignores
+   * *re-initialise to the normalised likelihood* ``O[a][:, z]``: it ignores
      the transition of this epoch, so it can put mass on states that no state reaches under
      ``a``.
 

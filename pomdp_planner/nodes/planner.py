@@ -72,7 +72,7 @@ class PlannerNode(LoopNode):
             self.model = load_model_file(self.model_file)
             loop = PlannerLoop(self.model, {name: value(name).value for name in TUNABLE}, self.live, now=self.now(),
                                refuse=value("refuse_if_assumptions_fail").value,
-                               chunk_bytes=1024 * value("chunk_kib").value)
+                               chunk_bytes=1024 * value("chunk_kib").value, progress=self.get_logger().info)
         self.action_pub = self.create_publisher(Int64MultiArray, "action", STREAM_QOS)
         self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         plan_group = MutuallyExclusiveCallbackGroup()

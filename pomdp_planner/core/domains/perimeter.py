@@ -55,7 +55,7 @@ Not wired into ``core/io`` yet: a YAML ``generator: {domain: perimeter, S, A, Z,
 set_points, process_sd, sensor_sd}`` plus ``reward_generator: {kind: perimeter, effort_cost,
 damage, damage_from, interception}`` would map one-to-one onto :func:`perimeter_model`'s
 arguments (the shipped ``config/models/perimeter_*.yaml`` are written in explicit form by
-``python -m pomdp_planner.bench.lookahead_models --write-models`` from :data:`PRESETS`).
+``python -m tools.lookahead_models --write-models`` from :data:`PRESETS`, in the source tree).
 """
 
 from __future__ import annotations

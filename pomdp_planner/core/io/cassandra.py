@@ -31,7 +31,7 @@ uncertainty term but part of every model): it is ``model.default_epsilon(S)`` (`
 :func:`load_pomdp_file`, which wins. Export writes it in that comment when the model's differs
 from the default.
 
-Import is bounded (issue 13): the file is read by
+Import is bounded, since a model file is untrusted input: the file is read by
 :func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8 file of at most
 ``MAX_MODEL_FILE_BYTES``); a token longer than :data:`MAX_TOKEN_CHARS` is refused; the declared
 sizes are checked against ``MAX_MODEL_BYTES`` as soon as each header line is read, before any

@@ -1,4 +1,4 @@
-"""YAML model files (schema in README.md, "Model files").
+"""YAML model files (schema in docs/models.md).
 
 Field names are fixed so that files written by others load::
 
@@ -17,7 +17,7 @@ instead of ``reward``, ``reward_generator: {kind: tracking_comparison, c_a, c_p,
 Every error is a :class:`~pomdp_planner.core.model.ModelError` of one line that starts with the
 file name and the field.
 
-A model file is untrusted input, so loading is bounded by design (issue 13):
+A model file is untrusted input, so loading is bounded by design:
 
 * the file is read by :func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8
   file of at most ``MAX_MODEL_FILE_BYTES``);

@@ -16,7 +16,7 @@ touches only the planner; every other method is called with the node's lock held
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -115,11 +115,14 @@ class PlannerLoop:
 
     ``refuse``: if the model fails the structural assumptions, plan nothing (the gate's
     ``on_assumption_failure="refuse"``) instead of searching exhaustively. ``chunk_bytes``: the
-    search's chunk size (the deadline is checked between chunks).
+    search's chunk size (the deadline is checked between chunks). ``progress``: where the gate
+    announces a set-up that will take a while, as it starts (a log line; the loop's other lines
+    come with its outputs).
     """
 
     def __init__(self, model: POMDP, params: Mapping[str, Any], live: Liveness, *, now: float,
-                 refuse: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES):
+                 refuse: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                 progress: Callable[[str], None] | None = None):
         missing = [k for k in TUNABLE if k not in params]
         if missing:
             raise ValueError(f"params: missing {missing}")
@@ -131,6 +134,7 @@ class PlannerLoop:
         self.params = {k: params[k] for k in TUNABLE}
         self._on_failure = "refuse" if refuse else "exhaustive"
         self._chunk_bytes = chunk_bytes
+        self._progress = progress
         self._planner_key: tuple[str, str] | None = None
         self.health = LoopHealth(COUNTERS, PROBLEMS, [InputWatch("belief", "belief", started=now)], live.stall)
         bounds_warning = self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
@@ -178,7 +182,7 @@ class PlannerLoop:
         if self._planner_key == (variant, constant):
             return None
         setup = build_planner(self.model, variant=variant, constant=constant, on_assumption_failure=self._on_failure,
-                              chunk_bytes=self._chunk_bytes)
+                              chunk_bytes=self._chunk_bytes, progress=self._progress)
         bounds, warning = f"{variant}, constant {constant}", None
         if setup.pruning:
             message = f"{bounds}: feasible"

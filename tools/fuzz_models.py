@@ -1,6 +1,7 @@
-"""Mutation fuzzer for model files (issue 13): hostile YAML and ``.POMDP`` files for the loader.
+"""Mutation fuzzer for model files: hostile YAML and ``.POMDP`` files for the loader.
 
-Seeds are the shipped models (``config/models/*.yaml``), the same models in explicit matrix form
+Development tooling (``tools/`` of the source tree, not installed). Seeds are the shipped models
+(``config/models/*.yaml``, found through ``core/io/paths.py``), the same models in explicit matrix form
 (``core.io.model_yaml.model_to_dict``) and their Cassandra exports (``core.io.cassandra.
 export_pomdp``). Each case applies one mutation (:data:`MUTATIONS`) to one seed: byte flips,
 truncation, binary junk, deleted or repeated spans, other text encodings, huge or non-finite
@@ -18,8 +19,8 @@ as a failure). This script writes the corpus (never committed) and runs the load
 this process, each case under a time limit and the whole run under an address-space limit, and
 prints the count of each outcome::
 
-    python -m pomdp_planner.bench.fuzz_models --count 5000 --out /tmp/fuzz        # write, then run
-    python -m pomdp_planner.bench.fuzz_models --run-only /tmp/fuzz                 # run only
+    python -m tools.fuzz_models --count 5000 --out /tmp/fuzz        # write, then run
+    python -m tools.fuzz_models --run-only /tmp/fuzz                 # run only
 
 ``--run-only`` runs whichever ``pomdp_planner`` is importable (e.g. ``PYTHONPATH=<old checkout>``
 to measure an old loader on the same corpus). ``test/test_fuzz_models.py`` draws the same
@@ -46,17 +47,20 @@ import yaml
 
 #: A clean error message is one line of at most this many characters after the file path.
 MAX_MESSAGE = 400
-#: Folder of the shipped models in a checkout.
-MODELS_DIR = Path(__file__).resolve().parents[2] / "config" / "models"
 
 # ------------------------------------------------------------------------------------ seeds
 
 
-def seeds(models_dir: Path = MODELS_DIR) -> list[tuple[str, str, bytes]]:
+def seeds(models_dir: Path | None = None) -> list[tuple[str, str, bytes]]:
     """``(name, kind, content)`` of every seed: each shipped YAML model as shipped, in explicit
-    matrix form, and as a ``.POMDP`` export (``kind`` is ``"yaml"`` or ``"pomdp"``)."""
+    matrix form, and as a ``.POMDP`` export (``kind`` is ``"yaml"`` or ``"pomdp"``). The shipped
+    models are those of the folder the path resolver finds them in (installed or a checkout)."""
     from pomdp_planner.core.io.cassandra import export_pomdp
     from pomdp_planner.core.io.model_yaml import load_model, model_to_dict
+    from pomdp_planner.core.io.paths import shipped_model_path
+
+    if models_dir is None:
+        models_dir = shipped_model_path("tracking_s3_info").parent
 
     out = []
     for path in sorted(models_dir.glob("*.yaml")):
