@@ -77,7 +77,7 @@ def test_simulate_initial_belief_and_state(capsys):
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["simulate", "missing.yaml"], "cannot read model file"),
+    (["simulate", "missing.yaml"], "MODEL: 'missing.yaml' not found (looked in "),
     (["simulate", S3, "--policy", "nope"], "--policy: unknown policy 'nope'"),
     (["simulate", S3, "--belief", "0.5,0.5"], "--belief: expected 3 probabilities"),
     (["simulate", S3, "--initial-state", "9"], "--initial-state: index 9 out of range"),

@@ -97,7 +97,7 @@ def _initial_state(text: str | None, model: POMDP) -> int | None:
 
 def run(args: argparse.Namespace) -> int:
     if args.record is not None:  # before any work: not after a long run
-        check_output_file(args.record, "--record")
+        check_output_file(args.record, "--record", stdout=False)  # the steps go to stdout
     model = load_model_arg(args)
     if args.policy not in POLICIES:
         raise OptionError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")
