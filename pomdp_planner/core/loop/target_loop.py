@@ -4,10 +4,11 @@
 Each step of epoch ``t`` under priority ``p`` (action ``a = p - 1``) moves the state
 ``s ~ P[a, s, :]`` and draws one reading per sensor ``z_k ~ O_k[a, s, :]``; the readings carry the
 epoch and the priority actually applied, so the filter pairs them without relying on timing.
-Stepping on actions, each action of a *new* epoch within the window is stepped (a jump is one
-step, counted as a gap); timer-driven, the node calls :meth:`TargetLoop.tick` every period and an
-action only sets the priority of the next ticks. A (re)started target joins the loop's numbering
-first (package docstring, "Join").
+Stepping on actions, the target steps the action of the epoch it steps next, and no other: an
+action further ahead is one no planner of this loop can have sent (rule "Explained epochs");
+timer-driven, the node calls :meth:`TargetLoop.tick` every period and an action of an epoch up to
+the next one only sets the priority of the next ticks. A (re)started target joins the loop's
+numbering first (rule "Join"; rules: docs/ros.md, "Trust and stray messages").
 """
 
 from __future__ import annotations
@@ -23,8 +24,7 @@ from .epochs import DEFAULT_JOIN_TIMEOUT, EpochLine, JoinWait, Liveness, Resende
 from .health import InputWatch, Log, LoopHealth, Report
 from .samples import ActionSample
 
-COUNTERS = ("steps", "stale_actions", "malformed_actions", "epoch_gaps", "out_of_window", "resyncs",
-            "resent_observations")
+COUNTERS = ("steps", "stale_actions", "malformed_actions", "out_of_window", "resyncs", "resent_observations")
 #: Counts that make the report WARN when they grew since the previous one.
 PROBLEMS = ("malformed_actions", "out_of_window", "resyncs")
 
@@ -114,6 +114,9 @@ class TargetLoop:
             if verdict == "out_of_window":
                 self.watch.arrived(now, False)
                 self._out_of_window(act.epoch, now)
+            elif act.epoch > self.epoch + 1:
+                self.watch.arrived(now, False)
+                self._unexplained(act.epoch, now)
             else:
                 new = act.epoch > self._newest_action
                 self.watch.arrived(now, new, act.epoch)
@@ -121,17 +124,16 @@ class TargetLoop:
                     self._newest_action = act.epoch
                     self.last_priority = act.priority
             return self._result(now)
-        if verdict in ("next", "ahead"):
+        if verdict == "next":
             self.watch.arrived(now, True, act.epoch)
             self.resender.answered()
-            if act.epoch > self.epoch + 1:
-                self.health.warn("epoch_gaps", f"action jumps from epoch {self.epoch} to {act.epoch} (actions lost?)",
-                                 now)
             self._step(act.epoch, act.priority, now)
             return self._result(now)
         self.watch.arrived(now, False)
         if verdict == "out_of_window":
             self._out_of_window(act.epoch, now)
+        elif verdict == "ahead":
+            self._unexplained(act.epoch, now)
         else:
             self.health.count("stale_actions")
             self.health.log("debug", f"ignored action of epoch {act.epoch} (already at epoch {self.epoch})")
@@ -211,6 +213,12 @@ class TargetLoop:
         if held is not None and not self.timer_mode and held.epoch == position + 1:
             self.watch.arrived(now, True, held.epoch)
             self._step(held.epoch, held.priority, now)
+
+    def _unexplained(self, epoch: int, now: float) -> None:
+        """An action beyond the epoch the target steps next: no planner of this loop can have sent it
+        (its actions answer beliefs of epochs the target has stepped)."""
+        self.health.warn("unexplained_epochs", f"action of epoch {epoch} is beyond epoch {self.epoch + 1}, the one "
+                         "the simulator steps next: dropped (a stray, forged or replayed message?)", now)
 
     def _out_of_window(self, epoch: int, now: float) -> None:
         self.health.warn("out_of_window", f"action of epoch {epoch} is beyond the epoch window "
