@@ -25,15 +25,15 @@ def test_the_first_writer_is_followed_and_a_second_one_is_foreign_while_the_firs
     assert w.admit(PLANNER, T0) == ("admitted", "")
     verdict, text = w.admit(PROBE, T0 + 0.1)
     assert verdict == "foreign"
-    assert text == ("action: samples of a second writer, /probe [bbbbbbbb], dropped while /planner [aaaaaaaa] "
+    assert text == ("action: samples of a second writer, /probe [bbbbbbbbbbbbbbbb], dropped while /planner [aaaaaaaaaaaaaaaa] "
                     "writes (one writer per stream)")
     assert w.admit(PROBE, T0 + 0.2) == ("foreign", "")  # logged once per writer
     for k in range(1, 20):  # the planner keeps writing: the probe never takes over
         assert w.admit(PLANNER, T0 + k)[0] == "admitted"
         assert w.admit(PROBE, T0 + k + 0.5)[0] == "foreign"
     assert w.foreign == 21 and w.changes == 0 and w.established == PLANNER
-    assert w.status() == "action has 2 writers: /planner [aaaaaaaa] (followed), /probe [bbbbbbbb]"
-    assert w.values() == {"input.action.writer": "/planner [aaaaaaaa]", "input.action.writers": 2,
+    assert w.status() == "action has 2 writers: /planner [aaaaaaaaaaaaaaaa] (followed), /probe [bbbbbbbbbbbbbbbb]"
+    assert w.values() == {"input.action.writer": "/planner [aaaaaaaaaaaaaaaa]", "input.action.writers": 2,
                           "input.action.foreign_samples": 21, "input.action.writer_changes": 0}
 
 
@@ -46,8 +46,8 @@ def test_a_restarted_writer_takes_over_once_the_old_one_is_silent_for_alive_afte
     assert not w.takeover_due(T0 + 1.99) and w.takeover_due(T0 + 2.0)
     verdict, text = w.admit(RESTARTED, T0 + 2.0)  # the node hands the waiting sample in again
     assert verdict == "replaced" and w.established == RESTARTED and w.changes == 1
-    assert text == ("belief: writer changed from /belief_filter [aaaaaaaa] (silent for 2.0 s) to "
-                    "/belief_filter [cccccccc] (a restart?)")
+    assert text == ("belief: writer changed from /belief_filter [aaaaaaaaaaaaaaaa] (silent for 2.0 s) to "
+                    "/belief_filter [cccccccccccccccc] (a restart?)")
     assert not w.takeover_due(T0 + 2.0)
     assert w.admit(PLANNER, T0 + 2.1)[0] == "foreign"  # the old one, should it come back, is now foreign
 
@@ -66,7 +66,7 @@ def test_unattributed_samples_are_admitted_and_names_can_be_missing():
     assert w.admit(None, T0) == ("admitted", "") and w.unattributed == 1 and w.established is None
     assert w.values()["input.observation.writer"] == "none" and w.values()["input.observation.writers"] == "unknown"
     w.admit(PLANNER, T0)
-    assert not w.known(PLANNER) and w.label(PLANNER) == "(node not in the graph) [aaaaaaaa]"
+    assert not w.known(PLANNER) and w.label(PLANNER) == "(node not in the graph) [aaaaaaaaaaaaaaaa]"
     assert w.status() == ""  # the graph has not been looked at: nothing to say
     with pytest.raises(ValueError, match="alive_after"):
         WriterWatch("x", alive_after=0)
@@ -95,15 +95,15 @@ def test_health_drops_foreign_samples_counts_them_and_reports_writers_and_change
     assert "samples of a second writer, /probe" in h.drain_logs()[0].text
     r = h.report(T0 + 0.5, {}, head=["epoch 5"])
     assert r.level == Level.WARN
-    assert r.message == ("epoch 5; action has 2 writers: /planner [aaaaaaaa] (followed), /probe [bbbbbbbb]; since "
+    assert r.message == ("epoch 5; action has 2 writers: /planner [aaaaaaaaaaaaaaaa] (followed), /probe [bbbbbbbbbbbbbbbb]; since "
                          "the last report: 1 foreign samples; last: action: samples of a second writer, /probe "
-                         "[bbbbbbbb], dropped while /planner [aaaaaaaa] writes (one writer per stream)")
-    assert r.values["input.action.writer"] == "/planner [aaaaaaaa]" and r.values["foreign_samples"] == 1
+                         "[bbbbbbbbbbbbbbbb], dropped while /planner [aaaaaaaaaaaaaaaa] writes (one writer per stream)")
+    assert r.values["input.action.writer"] == "/planner [aaaaaaaaaaaaaaaa]" and r.values["foreign_samples"] == 1
     h.writers["action"].graph({PLANNER: "/planner"})
     assert h.report(T0 + 1.0, {}, head=["epoch 5"]).level == Level.OK  # one writer again, nothing new
     h.writers["action"].graph({RESTARTED: "/planner"})
     assert h.admit("action", RESTARTED, T0 + 1.1) and h.counts["writer_changes"] == 1
-    assert "writer changed from /planner [aaaaaaaa] (it left the graph)" in h.drain_logs()[0].text
+    assert "writer changed from /planner [aaaaaaaaaaaaaaaa] (it left the graph)" in h.drain_logs()[0].text
 
 
 def test_a_stream_without_a_stall_watch_has_writers_too_and_oversized_samples_are_counted():

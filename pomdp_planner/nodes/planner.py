@@ -28,10 +28,11 @@ from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.io.sensors import load_model_file
 from ..core.loop import TUNABLE, PlannerLoop, PlannerOutput, check_params
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, decode_belief, encode_action, encode_plan_info
+from .messages import MessageError, decode_belief, encode_action, encode_plan_info, wire_limits
 from .params import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, declare_double, descriptor
 from .qos import STREAM_QOS
 from .runtime import callback, config_errors, main_for
+from .take import subscribe
 
 
 class PlannerNode(LoopNode):
@@ -82,9 +83,12 @@ class PlannerNode(LoopNode):
         # The guard condition wakes plan_group when the loop says so (a re-sync, a belief that came
         # after the planning reader had taken its sample, the join).
         self._received = self._planning_received = 0  # samples taken by each reader
-        self.create_subscription(Float64MultiArray, "belief", self._on_belief, STREAM_QOS)
-        self.create_subscription(Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS,
-                                 callback_group=plan_group)
+        limit = wire_limits(self.model.S)["belief"]
+        self.subscribe_input("belief", Float64MultiArray, "belief", STREAM_QOS, self._on_belief, max_bytes=limit,
+                             layout=f"a belief of {self.model.S} states", on_take=self._took_belief,
+                             on_bad=lambda problem: self.call(self.loop.rejected_belief, problem))
+        subscribe(self, Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS, limit,
+                  callback_group=plan_group)
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=plan_group)
         self._join = OneShot(self, self._plan_trigger.trigger)
         self.run(loop)
@@ -106,15 +110,20 @@ class PlannerNode(LoopNode):
         except MessageError as exc:
             bel, problem = None, str(exc)
         with self.lock:
-            self._received += 1
             if bel is None:
                 out = self.loop.rejected_belief(problem, now)
             else:
                 out = self.loop.belief(bel, now, planner_ahead=self._planning_received >= self._received)
         self.emit(out)
 
+    def _took_belief(self) -> None:
+        with self.lock:
+            self._received += 1
+
     @callback
-    def _on_belief_planning(self, msg: Float64MultiArray) -> None:
+    def _on_belief_planning(self, raw: bytes | None, info: dict) -> None:
+        """The planning reader: wakes the planning side as a belief comes (its content is the other
+        reader's business)."""
         with self.lock:
             self._planning_received += 1
         self._plan_next()

@@ -1,4 +1,4 @@
-"""A node's ROS time (rule "Time" of docs/ros.md, "Trust and stray messages").
+"""A node's ROS time (rule "Time" of docs/ros.md, "The loop's rules").
 
 The loops run on a monotonic clock the node passes in (``now``); ROS time (``/clock`` when
 ``use_sim_time`` is true) only paces what is meant to follow a simulation: the simulator's steps

@@ -1,6 +1,6 @@
 """Which epochs from the wire a loop acts on: the epoch window, the verdicts, the re-sync, jump and
-join evidence, and at-least-once delivery of a loop's last output (rules: docs/ros.md, "Trust and
-stray messages").
+join evidence, and at-least-once delivery of a loop's last output (rules: docs/ros.md, "The loop's
+rules").
 
 Every rule here is a function of epochs, counts and the time the caller passes in (``now``,
 seconds on any monotonic clock); nothing reads a clock of its own.
@@ -54,7 +54,7 @@ class Liveness:
 
 
 def classify(epoch: int, position: int | None, window: int) -> Verdict:
-    """Where ``epoch`` stands relative to a node at ``position`` (package docstring, "Verdicts").
+    """Where ``epoch`` stands relative to a node at ``position`` (rule "Verdicts").
 
     ``position is None``: the node has not joined the loop yet (``"join"``)."""
     if window < 1:
@@ -83,7 +83,7 @@ class EpochLine:
     """A node's position on the loop's epoch line and the evidence for re-syncing it.
 
     ``position``: the last epoch the node acted on (``None``: not joined). ``counting``: the
-    stricter evidence of a line whose source counts (package docstring, "Re-sync"). A line is
+    stricter evidence of a line whose source counts (rule "Re-sync"). A line is
     *fresh* until it first advances. ``now``: the time the line is made.
     """
 
@@ -173,7 +173,7 @@ class EpochLine:
 
 
 class JoinWait:
-    """The join rule of a (re)started node (package docstring, "Join"): it collects evidence of the
+    """The join rule of a (re)started node (rule "Join"): it collects evidence of the
     loop's epoch for :data:`JOIN_DELAY` after the first and then joins at the newest."""
 
     def __init__(self, delay: float = JOIN_DELAY):
@@ -200,7 +200,7 @@ class JoinWait:
 
 
 class Resender:
-    """At-least-once delivery of a node's last output (package docstring, "Re-send").
+    """At-least-once delivery of a node's last output (rule "Re-send").
 
     ``period <= 0`` disables re-sending. The node calls :meth:`published` when it publishes a
     new output, :meth:`answered` when the input it expects next arrives, and asks :meth:`due`

@@ -1,4 +1,5 @@
-"""The belief filter's loop: readings in, beliefs out (package docstring; node: ``nodes/belief_filter.py``).
+"""The belief filter's loop: readings in, beliefs out (rules: docs/ros.md, "The loop's rules";
+node: ``nodes/belief_filter.py``).
 
 A reading is classified against the filter's epoch (:mod:`.epochs`), buffered in epoch order
 (:class:`~.epoch_buffer.EpochBuffer`), and each released epoch goes to the core's epoch filter
@@ -11,7 +12,7 @@ joins a running loop on two consecutive readings beyond its reach; a running one
 of the readings far ahead only on two consecutive epochs with nothing applied for
 ``epoch_timeout``; a stalled one re-syncs to readings counting on another numbering (a restarted
 simulator); the last belief is re-sent while no reading of the next epoch comes (rules:
-docs/ros.md, "Trust and stray messages").
+docs/ros.md, "The loop's rules").
 """
 
 from __future__ import annotations

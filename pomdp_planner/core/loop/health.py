@@ -1,6 +1,6 @@
 """A loop's health: its counters, the stall watch of each input, the writers of each input stream,
 the node's ROS time, throttled warnings, and the report rule every node's diagnostics follow
-(docs/ros.md, "Trust and stray messages", rules "Stall levels", "One writer", "Time", "Report").
+(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report").
 
 Times are passed in (``now``, seconds on a monotonic clock); nothing here reads a clock.
 """
@@ -66,7 +66,7 @@ class StallLimits:
 
 
 class InputWatch:
-    """Arrivals and progress of one input of a node (package docstring, "Stall levels").
+    """Arrivals and progress of one input of a node (rule "Stall levels").
 
     ``what``: how a new input is called in messages ("action", "reading", "belief").
     ``required=False``: an input the node can do without (the filter's ``action``, only a

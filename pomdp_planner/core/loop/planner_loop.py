@@ -1,4 +1,4 @@
-"""The planner's loop: beliefs in, actions out (package docstring; node: ``nodes/planner.py``).
+"""The planner's loop: beliefs in, actions out (rules: docs/ros.md, "The loop's rules"; node: ``nodes/planner.py``).
 
 Each new belief of epoch ``t`` that follows the beliefs so far (``t`` at most one beyond the
 newest accepted; a jump of the filter is followed on two consecutive beliefs) goes to a one-slot
@@ -352,7 +352,7 @@ class PlannerLoop:
 
     # ----------------------------------------------------------- diagnostics
     def report(self, now: float) -> Report:
-        """The diagnostics (package docstring, "Report"). A certificate is claimed only where the
+        """The diagnostics (rule "Report"). A certificate is claimed only where the
         gate guarantees the bounds: ``certified`` (the count) only while the planner in force has
         guaranteed bounds, ``last.certified`` only for a decision pruned with guaranteed bounds;
         ``guaranteed`` and ``guarantee`` say what the gate decided and why."""

@@ -1,5 +1,5 @@
 """The simulated target's loop: the hidden state of a model, stepped by the planner's actions
-(package docstring; node: ``nodes/target_simulator.py``).
+(rules: docs/ros.md, "The loop's rules"; node: ``nodes/target_simulator.py``).
 
 Each step of epoch ``t`` under priority ``p`` (action ``a = p - 1``) moves the state
 ``s ~ P[a, s, :]`` and draws one reading per sensor ``z_k ~ O_k[a, s, :]``; the readings carry the
@@ -8,7 +8,7 @@ Stepping on actions, the target steps the action of the epoch it steps next, and
 action further ahead is one no planner of this loop can have sent (rule "Explained epochs");
 timer-driven, the node calls :meth:`TargetLoop.tick` every period and an action of an epoch up to
 the next one only sets the priority of the next ticks. A (re)started target joins the loop's
-numbering first (rule "Join"; rules: docs/ros.md, "Trust and stray messages").
+numbering first (rule "Join"; rules: docs/ros.md, "The loop's rules").
 """
 
 from __future__ import annotations
@@ -88,7 +88,8 @@ class TargetLoop:
         self._newest_action = -1
         self.line = EpochLine(live.epoch_window, now=now)
         self.watch = InputWatch("action", "action", started=now)
-        self.health = LoopHealth(COUNTERS, PROBLEMS, [self.watch], live.stall)
+        self.health = LoopHealth(COUNTERS, PROBLEMS, [self.watch], live.stall,
+                                 streams=("belief",) if self.timer_mode else ())
         self.resender = Resender(0.0 if self.timer_mode else live.resend_period)
         self._last: Readings | None = None
         self._out = TargetOutput()
@@ -102,7 +103,7 @@ class TargetLoop:
         return self._result(now)
 
     def action(self, act: ActionSample, now: float) -> TargetOutput:
-        """One decoded action (package docstring, "Join" and "Epoch window")."""
+        """One decoded action (rules "Join" and "Epoch window")."""
         if not self.joined:
             if self.held is None or act.epoch > self.held.epoch:
                 self.held = act
@@ -159,7 +160,7 @@ class TargetLoop:
         return self.join_due(now)
 
     def join_due(self, now: float) -> TargetOutput:
-        """Join once the evidence has settled and the outputs are ready (package docstring, "Join")."""
+        """Join once the evidence has settled and the outputs are ready (rule "Join")."""
         self._try_join(now)
         return self._result(now)
 

@@ -1,5 +1,5 @@
 """Who writes a loop's input streams: one writer per stream (rule "One writer" of docs/ros.md,
-"Trust and stray messages").
+"The loop's rules").
 
 ROS topics are unauthenticated and any process on the domain may publish on them. A node follows
 *one* writer per input stream, the *established* one: the first writer whose sample it admits.
@@ -72,10 +72,10 @@ class WriterWatch:
         return writer in self._names
 
     def label(self, writer: str | None) -> str:
-        """``writer`` as messages name it: its node name and the first 8 hex digits of its id."""
+        """``writer`` as messages name it: its node name and its id (the GID ``ros2 topic info -v`` shows)."""
         if writer is None:
             return "an unattributed writer"
-        return f"{self._names.get(writer, '(node not in the graph)')} [{writer[:8]}]"
+        return f"{self._names.get(writer, '(node not in the graph)')} [{writer}]"
 
     # ----------------------------------------------------------- the rule
     def alive(self, now: float) -> bool:
