@@ -25,8 +25,8 @@ def test_the_first_writer_is_followed_and_a_second_one_is_foreign_while_the_firs
     assert w.admit(PLANNER, T0) == ("admitted", "")
     verdict, text = w.admit(PROBE, T0 + 0.1)
     assert verdict == "foreign"
-    assert text == ("action: samples of a second writer, /probe [bbbbbbbbbbbbbbbb], dropped while /planner [aaaaaaaaaaaaaaaa] "
-                    "writes (one writer per stream)")
+    assert text == ("action: samples of a second writer, /probe [bbbbbbbbbbbbbbbb], dropped while "
+                    "/planner [aaaaaaaaaaaaaaaa] writes (one writer per stream)")
     assert w.admit(PROBE, T0 + 0.2) == ("foreign", "")  # logged once per writer
     for k in range(1, 20):  # the planner keeps writing: the probe never takes over
         assert w.admit(PLANNER, T0 + k)[0] == "admitted"
@@ -95,9 +95,10 @@ def test_health_drops_foreign_samples_counts_them_and_reports_writers_and_change
     assert "samples of a second writer, /probe" in h.drain_logs()[0].text
     r = h.report(T0 + 0.5, {}, head=["epoch 5"])
     assert r.level == Level.WARN
-    assert r.message == ("epoch 5; action has 2 writers: /planner [aaaaaaaaaaaaaaaa] (followed), /probe [bbbbbbbbbbbbbbbb]; since "
-                         "the last report: 1 foreign samples; last: action: samples of a second writer, /probe "
-                         "[bbbbbbbbbbbbbbbb], dropped while /planner [aaaaaaaaaaaaaaaa] writes (one writer per stream)")
+    assert r.message == ("epoch 5; action has 2 writers: /planner [aaaaaaaaaaaaaaaa] (followed), /probe "
+                         "[bbbbbbbbbbbbbbbb]; since the last report: 1 foreign samples; last: action: samples of a "
+                         "second writer, /probe [bbbbbbbbbbbbbbbb], dropped while /planner [aaaaaaaaaaaaaaaa] writes "
+                         "(one writer per stream)")
     assert r.values["input.action.writer"] == "/planner [aaaaaaaaaaaaaaaa]" and r.values["foreign_samples"] == 1
     h.writers["action"].graph({PLANNER: "/planner"})
     assert h.report(T0 + 1.0, {}, head=["epoch 5"]).level == Level.OK  # one writer again, nothing new
