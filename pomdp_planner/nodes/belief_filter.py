@@ -51,7 +51,6 @@ from __future__ import annotations
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 
 from ..core.belief import BeliefError
@@ -64,6 +63,7 @@ from ..core.uncertainty import SHANNON
 from .diagnostics import Warnings, array, status
 from .messages import MessageError, OutOfRangeError, decode_action, decode_observation, encode_belief
 from .params import (
+    ParameterNode,
     accept_integers_for_doubles,
     declare_double,
     declare_liveness,
@@ -81,7 +81,7 @@ PROBLEMS = ("impossible_observations", "contradicting_observations", "out_of_ran
             "resyncs")
 
 
-class BeliefFilter(Node):
+class BeliefFilter(ParameterNode):
     """Belief filter node (see module docstring)."""
 
     def __init__(self, node_name: str = "belief_filter", **kwargs):

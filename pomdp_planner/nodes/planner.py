@@ -53,19 +53,17 @@ from collections import OrderedDict
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.gate import PlannerSetup, build_planner
 from ..core.io.sensors import load_model_file
 from ..core.liveness import JOIN_DELAY, EpochLine, InputWatch, Level, Resender
-from ..core.search import Planner
-from .diagnostics import LEVELS, Warnings, status
+from ..core.search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, Planner
+from .diagnostics import LEVELS, Warnings, array, status
 from .messages import BeliefMsg, MessageError, decode_belief, encode_action, encode_plan_info
 from .params import (
-    MAX_DEPTH_RANGE,
-    TIME_BUDGET_RANGE,
+    ParameterNode,
     accept_integers_for_doubles,
     declare_double,
     declare_liveness,
@@ -80,7 +78,7 @@ TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "bound_con
 DECISION_CACHE = 64
 
 
-class PlannerNode(Node):
+class PlannerNode(ParameterNode):
     """Planner node (see module docstring)."""
 
     def __init__(self, node_name: str = "planner", **kwargs):
@@ -408,10 +406,7 @@ class PlannerNode(Node):
     @callback
     def _publish_diagnostics(self) -> None:
         level, text, values = self.diagnostics_values()
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [status(f"{self.get_name()}: planning", self.model.name, level, text, values)]
-        self.diag_pub.publish(msg)
+        self.diag_pub.publish(array(self, status(f"{self.get_name()}: planning", self.model.name, level, text, values)))
 
 
 def main(args=None) -> None:

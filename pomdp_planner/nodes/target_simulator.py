@@ -45,7 +45,6 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
@@ -54,6 +53,7 @@ from ..core.model import action_of_priority
 from .diagnostics import Warnings, array, status
 from .messages import ActionMsg, MessageError, decode_action, decode_belief, encode_observation, encode_true_state
 from .params import (
+    ParameterNode,
     accept_integers_for_doubles,
     declare_double,
     declare_liveness,
@@ -69,7 +69,7 @@ from .runtime import NodeConfigError, callback, config_errors, main_for
 PROBLEMS = ("malformed_actions", "out_of_window", "resyncs")
 
 
-class TargetSimulator(Node):
+class TargetSimulator(ParameterNode):
     """Simulated target: hidden Markov state, sampled observations (see module docstring)."""
 
     def __init__(self, node_name: str = "target_simulator", **kwargs):
