@@ -21,11 +21,16 @@ decision epoch it belongs to, and every observation carries the action it was ta
 
 * **plan_info** (``std_msgs/Float64MultiArray``), one record per decision, published right after
   the action: data ``[epoch, action_priority, depth, nodes_expanded, pruned_percent, certified,
-  time_used, latency, deadline_hit, deadline_miss]`` with one dimension labelled with these
-  names (comma separated). ``nodes_expanded`` sums all completed depths, ``pruned_percent`` is
-  that of the deepest one, ``time_used`` is the search time and ``latency`` belief-in to
-  action-out (s); ``deadline_hit`` (1/0): the budget limited the depth; ``deadline_miss`` (1/0):
-  the planner's rule, ``latency > time_budget + deadline_slack`` with the parameters in force.
+  time_used, latency, deadline_hit, deadline_miss, bound_lower, bound_upper]`` with one dimension
+  labelled with these names (comma separated). ``nodes_expanded`` sums all completed depths,
+  ``pruned_percent`` is that of the deepest one, ``time_used`` is the search time and ``latency``
+  belief-in to action-out (s); ``deadline_hit`` (1/0): the budget limited the depth;
+  ``deadline_miss`` (1/0): the planner's rule, ``latency > time_budget + deadline_slack`` with the
+  parameters in force. ``bound_lower``, ``bound_upper``: the myopic policy bounds at the belief
+  (Theorem 2), as priorities: the optimal priority lies in ``[bound_lower, bound_upper]``, and
+  ``certified`` is 1 exactly when they agree (Proposition 1); ``NaN`` when the decision used no
+  bounds (``use_bounds`` false, or bounds not guaranteed for the model: the planner node never
+  uses bounds without the guarantee).
 
 Decoders raise :class:`MessageError` with a message that names the field and the problem. They
 bound what they accept before converting anything: epochs are ``0..MAX_EPOCH`` (so that
@@ -36,6 +41,7 @@ the nodes' epoch window (``core/liveness.py``), not the decoder's business.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -44,13 +50,14 @@ import numpy as np
 from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from ..core.belief import BeliefError, check_belief
+from ..core.model import priority_of
 
 ACTION_LABEL = "epoch,action_priority"
 OBSERVATION_LABEL = "epoch,action_priority,observation"
 TRUE_STATE_LABEL = "epoch,state"
 BELIEF_STATE_LABEL = "state"
 PLAN_INFO_FIELDS = ("epoch", "action_priority", "depth", "nodes_expanded", "pruned_percent", "certified",
-                    "time_used", "latency", "deadline_hit", "deadline_miss")
+                    "time_used", "latency", "deadline_hit", "deadline_miss", "bound_lower", "bound_upper")
 PLAN_INFO_LABEL = ",".join(PLAN_INFO_FIELDS)
 #: Largest epoch a message may carry (10^18 - 1 < 2^63 - 1, the int64 range, with room for + 1).
 MAX_EPOCH = 10**18 - 1
@@ -184,6 +191,14 @@ def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
     except BeliefError as exc:
         raise MessageError(str(exc)) from None
     return BeliefMsg(int(m.group(1)), b)
+
+
+def bound_fields(root_bounds: tuple[int, int] | None) -> dict[str, float]:
+    """``bound_lower``, ``bound_upper`` of a plan_info record from a search result's 0-based
+    ``root_bounds`` (``None``: no bounds used, ``NaN``)."""
+    if root_bounds is None:
+        return {"bound_lower": math.nan, "bound_upper": math.nan}
+    return {"bound_lower": float(priority_of(root_bounds[0])), "bound_upper": float(priority_of(root_bounds[1]))}
 
 
 def encode_plan_info(**fields: float) -> Float64MultiArray:

@@ -61,7 +61,7 @@ from ..core.io.sensors import load_model_file
 from ..core.liveness import JOIN_DELAY, EpochLine, InputWatch, Level, Resender
 from ..core.search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, Planner
 from .diagnostics import LEVELS, Warnings, array, status
-from .messages import BeliefMsg, MessageError, decode_belief, encode_action, encode_plan_info
+from .messages import BeliefMsg, MessageError, bound_fields, decode_belief, encode_action, encode_plan_info
 from .params import (
     ParameterNode,
     accept_integers_for_doubles,
@@ -329,7 +329,8 @@ class PlannerNode(ParameterNode):
         self.info_pub.publish(encode_plan_info(
             epoch=bel.epoch + 1, action_priority=result.priority, depth=result.depth,
             nodes_expanded=sum(result.nodes_expanded), pruned_percent=pruned, certified=result.certified,
-            time_used=result.time_used, latency=latency, deadline_hit=result.deadline_hit, deadline_miss=missed))
+            time_used=result.time_used, latency=latency, deadline_hit=result.deadline_hit, deadline_miss=missed,
+            **bound_fields(result.root_bounds)))
         with self._lock:
             self.last = result
             self.last_latency = latency
