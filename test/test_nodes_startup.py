@@ -249,3 +249,35 @@ def test_a_refused_declaration_is_a_node_config_error_in_process(harness):
         PlannerNode(context=harness.context, parameter_overrides=[Parameter("model_file", value=S3),
                                                                   Parameter("max_depth", value=0)])
     assert err.value.node == "planner"
+
+
+HOLD_SCRIPT = """
+import os, sys, time
+from pomdp_planner.nodes.runtime import _HeldStderr
+held = _HeldStderr(limit={limit})
+os.write(2, b"held line\\n")
+sys.stderr.write("python line\\n")
+{then}
+print("done", flush=True)
+time.sleep({sleep})
+"""
+
+
+@pytest.mark.parametrize(("then", "limit", "shown"), [
+    ("held.release()", 60, True), ("held.release(keep=False)", 60, False), ("pass", 0.1, True)])
+def test_start_up_output_is_held_then_shown_or_dropped(then, limit, shown):
+    """What start-up writes to stderr (C and Python alike) is shown on release, dropped on a refusal,
+    and shown anyway once the hold's time limit has passed (a long start is not silent)."""
+    script = HOLD_SCRIPT.format(limit=limit, then=then, sleep=30 if then == "pass" else 0)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=_env())
+    try:
+        assert proc.stdout.readline() == "done\n"
+        if then == "pass":  # the child still sleeps: its held lines must come by themselves
+            assert proc.stderr.readline() == "held line\n" and proc.stderr.readline() == "python line\n"
+            return
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert err == ("held line\npython line\n" if shown else "")

@@ -7,8 +7,9 @@ and SIGTERM) with the project's :class:`~.executor.NodeExecutor`. A node that ca
 name the field, i.e. the parameter), an undeclared parameter under ``strict_parameters``
 (:func:`~.params.check_given_parameters`). ``run_nodes`` prints it as one ``[FATAL]`` line, exit
 code 1, and so it does when rcl refuses the command line itself (a parameter file it cannot
-parse, a malformed ``-p``). What the process wrote to stderr while starting is held until the
-nodes are built: on a refusal, the ``[FATAL]`` line is all that is printed.
+parse, a malformed ``-p``). What the process writes to stderr while starting is held until the
+nodes are built (at most :data:`HOLD_STDERR_SECONDS`): on a refusal, the ``[FATAL]`` line is all
+that is printed.
 """
 
 from __future__ import annotations
@@ -106,30 +107,42 @@ class _SigintWhileSpinning:
         self.fallback.start()
 
 
+#: Longest time start-up output is held (:class:`_HeldStderr`): a start that takes longer (a large
+#: model's checks) shows its log lines after this delay, and as they come from then on.
+HOLD_STDERR_SECONDS = 5.0
+
+
 class _HeldStderr:
     """Hold what the process writes to stderr (file descriptor 2: Python's and rcl's logging alike)
-    until :meth:`release`; ``release(keep=False)`` drops it (a refused start-up: the ``[FATAL]``
-    line alone is printed, not the log lines of the nodes built before the refusal)."""
+    until :meth:`release`, or at most ``limit`` seconds; ``release(keep=False)`` drops it (a
+    refused start-up: the ``[FATAL]`` line alone is printed, not the log lines of the nodes built
+    before the refusal)."""
 
-    def __init__(self) -> None:
+    def __init__(self, limit: float = HOLD_STDERR_SECONDS) -> None:
         sys.stderr.flush()
+        self._lock = threading.Lock()
         self._file = tempfile.TemporaryFile()
         self._saved: int | None = os.dup(2)
         os.dup2(self._file.fileno(), 2)
+        self._timer = threading.Timer(limit, self.release)
+        self._timer.daemon = True
+        self._timer.start()
 
     def release(self, keep: bool = True) -> None:
-        if self._saved is None:
-            return
-        sys.stderr.flush()
-        os.dup2(self._saved, 2)
-        os.close(self._saved)
-        self._saved = None
-        if keep:
-            self._file.seek(0)
-            data = memoryview(self._file.read())
-            while data:
-                data = data[os.write(2, data):]
-        self._file.close()
+        with self._lock:
+            if self._saved is None:
+                return
+            self._timer.cancel()
+            sys.stderr.flush()
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+            self._saved = None
+            if keep:
+                self._file.seek(0)
+                data = memoryview(self._file.read())
+                while data:
+                    data = data[os.write(2, data):]
+            self._file.close()
 
 
 def _params_file_error(path: str, error: str) -> str:
