@@ -340,10 +340,6 @@ def given_scopes(args: Sequence[str], fqn: str, own: bool) -> dict[str, int]:
     return scopes
 
 
-def _declared(node: Node) -> list[str]:
-    return list(node.list_parameters([], 0).names)
-
-
 def _closest(name: str, names: Sequence[str], cutoff: float) -> str:
     match = difflib.get_close_matches(name, names, n=1, cutoff=cutoff)
     return match[0] if match else ""
@@ -354,55 +350,66 @@ def unknown_text(unknown: dict[str, str]) -> str:
     return ", ".join(f"{n} (did you mean {s}?)" if s else n for n, s in unknown.items()) or "none"
 
 
-def check_given_parameters(nodes: Sequence[Node], args: Sequence[str] = ()) -> None:
-    """Report the parameters given to ``nodes`` (one process, started with the command line
-    ``args``) that they do not declare: a WARN naming each and the closest declared name, kept in
-    ``node.unknown_parameters`` (the diagnostics show it); a node whose ``strict_parameters`` is
-    true raises :class:`NodeConfigError` instead.
+def find_unknown(given: Sequence[dict[str, int]], declared: Sequence[Sequence[str]]) -> list[dict[str, str]]:
+    """The reporting rule, for the nodes of one process: ``given[i]`` maps each parameter node
+    ``i`` was given to how it reached it (:data:`BY_NAME`, :data:`TO_PROCESS`, :data:`TO_ALL`),
+    ``declared[i]`` are its parameters; returns, per node, the undeclared parameters it reports,
+    each with the closest declared name (``''`` if none is close).
 
-    Reported: a parameter given to a node by name; one given to every node of the process that no
-    node of it declares (by the node with the closest name); one from a wildcard section (``/**:``,
-    meant for every node of the system, also nodes of other packages) only when no node of the
-    process declares it and it is a near miss of a name one of them declares. Parameters rclpy
-    itself handles are declared by rclpy (``use_sim_time``, ``start_type_description_service``)
-    or skipped (:data:`RCLPY_PARAMETER_PREFIXES`)."""
-    declared = {id(n): _declared(n) for n in nodes}
-    found: dict[int, dict[str, str]] = {id(n): {} for n in nodes}
-    for_process: dict[str, list[Node]] = {}
-    for node in nodes:
-        fqn = node.get_fully_qualified_name()
-        scopes = given_scopes(args, fqn, own=False) if getattr(node, "uses_global_arguments", True) else {}
-        for name, scope in given_scopes(getattr(node, "given_cli_args", ()), fqn, own=True).items():
-            scopes[name] = min(scope, scopes.get(name, scope))
-        for name in getattr(node, "given_overrides", ()):
-            scopes[name] = BY_NAME
-        for name in node._parameter_overrides:  # rclpy's dict of what the node was given
-            if name in declared[id(node)] or name.startswith(RCLPY_PARAMETER_PREFIXES):
+    Reported: a parameter given to a node by name (also ``-p name:=value`` to a single-node
+    process); one given to every node of the process that no node of it declares, once (by the
+    node with the closest name, the first one if none is close); one from a wildcard section
+    (meant for every node of the system, also nodes of other packages) only when no node of the
+    process declares it and it is a near miss (:data:`NEAR_MISS_CUTOFF`) of a name the node
+    declares. Names under :data:`RCLPY_PARAMETER_PREFIXES` are never reported."""
+    everyone = {name for names in declared for name in names}
+    found: list[dict[str, str]] = [{} for _ in given]
+    to_process: dict[str, list[int]] = {}
+    for i, scopes in enumerate(given):
+        for name, scope in scopes.items():
+            if name in declared[i] or name.startswith(RCLPY_PARAMETER_PREFIXES):
                 continue
-            scope = scopes.get(name, BY_NAME)  # not found in the arguments: given by name, somehow
-            if scope == TO_PROCESS and len(nodes) == 1:
-                scope = BY_NAME
-            if scope == BY_NAME:
-                found[id(node)][name] = _closest(name, declared[id(node)], SUGGEST_CUTOFF)
-            elif any(name in names for names in declared.values()):
+            if scope == BY_NAME or (scope == TO_PROCESS and len(given) == 1):
+                found[i][name] = _closest(name, declared[i], SUGGEST_CUTOFF)
+            elif name in everyone:
                 continue
             elif scope == TO_PROCESS:
-                for_process.setdefault(name, []).append(node)
-            elif near := _closest(name, declared[id(node)], NEAR_MISS_CUTOFF):
-                found[id(node)][name] = near
-    for name, given_to in for_process.items():
-        ratio = {id(n): max((difflib.SequenceMatcher(None, name, d).ratio() for d in declared[id(n)]), default=0.0)
-                 for n in given_to}
-        best = max(given_to, key=lambda n: ratio[id(n)])
-        found[id(best)][name] = _closest(name, declared[id(best)], SUGGEST_CUTOFF)
-    for node in nodes:
-        unknown = found[id(node)]
+                to_process.setdefault(name, []).append(i)
+            elif near := _closest(name, declared[i], NEAR_MISS_CUTOFF):
+                found[i][name] = near
+    for name, nodes in to_process.items():
+        def similarity(i: int, name: str = name) -> float:
+            return max((difflib.SequenceMatcher(None, name, d).ratio() for d in declared[i]), default=0.0)
+        best = max(nodes, key=similarity)  # the first of equals
+        found[best][name] = _closest(name, declared[best], SUGGEST_CUTOFF)
+    return found
+
+
+def _given(node: Node, args: Sequence[str]) -> dict[str, int]:
+    """What ``node`` was given (rclpy's overrides) and how (:func:`given_scopes`; a parameter not
+    found in the arguments counts as given by name)."""
+    fqn = node.get_fully_qualified_name()
+    scopes = given_scopes(args, fqn, own=False) if getattr(node, "uses_global_arguments", True) else {}
+    for name, scope in given_scopes(getattr(node, "given_cli_args", ()), fqn, own=True).items():
+        scopes[name] = min(scope, scopes.get(name, scope))
+    scopes.update(dict.fromkeys(getattr(node, "given_overrides", ()), BY_NAME))
+    return {name: scopes.get(name, BY_NAME) for name in node._parameter_overrides}  # rclpy's dict
+
+
+def check_given_parameters(nodes: Sequence[Node], args: Sequence[str] = ()) -> None:
+    """Report the parameters given to ``nodes`` (one process, started with the command line
+    ``args``) that they do not declare (the rule: :func:`find_unknown`): a WARN naming each and the
+    closest declared name, kept in ``node.unknown_parameters`` (the diagnostics show it); a node
+    whose ``strict_parameters`` is true raises :class:`NodeConfigError` instead. Parameters rclpy
+    itself reads are declared by rclpy (``use_sim_time``, ``start_type_description_service``) or
+    skipped (:data:`RCLPY_PARAMETER_PREFIXES`)."""
+    found = find_unknown([_given(n, args) for n in nodes], [list(n.list_parameters([], 0).names) for n in nodes])
+    for node, unknown in zip(nodes, found, strict=True):
         if unknown and node.has_parameter("strict_parameters") and node.get_parameter("strict_parameters").value:
             what = "not a parameter" if len(unknown) == 1 else "not parameters"
             raise NodeConfigError(f"{unknown_text(unknown)}: {what} of this node; refused because "
                                   "strict_parameters is true", node=node.get_name())
-    for node in nodes:
-        unknown = found[id(node)]
+    for node, unknown in zip(nodes, found, strict=True):
         node.unknown_parameters = unknown
         for name, near in unknown.items():
             hint = f"did you mean {near}?" if near else f"`ros2 param list {node.get_fully_qualified_name()}` " \
