@@ -146,8 +146,8 @@ def legend(model: POMDP, time_budget: float, max_depth: int) -> list[str]:
         "in between",
         "        certified yes: the bounds agree, so the action is optimal (Proposition 1) and the search stops at "
         "depth 1;",
-        f"        no (the usual case): they differ at this belief, so the planner searches [lower, upper] to depth "
-        f"{max_depth} in {time_budget:g} s",
+        f"        no: they differ at this belief, so the planner searches the priorities in [lower, upper] to "
+        f"depth {max_depth} in {time_budget:g} s",
     ]
 
 
@@ -271,8 +271,9 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
             print(f"demo: {name} exited with code {c}; last lines of its log:", file=sys.stderr)
             print("\n".join(text.splitlines()[-15:]), file=sys.stderr)
     if rewards:
-        open_ = (f"; where not, the bounds left {min(w for w in widths if w > 1)} to "
-                 f"{max(widths)} of the {model.A} priorities open" if any(w > 1 for w in widths) else "")
+        open_ = sorted({w for w in widths if w > 1})
+        open_ = (f"; where not, the bounds left {' or '.join(map(str, open_))} of the {model.A} priorities open"
+                 if open_ else "")
         print(f"\nsummary over {len(rewards)} steps: mean reward {sum(rewards) / len(rewards):.4f}, "
               f"mean entropy {sum(entropies) / len(entropies):.4f} nats, action other than greedy's on "
               f"{not_greedy} of {len(rewards)} steps, deadline misses "
