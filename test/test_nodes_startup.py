@@ -22,7 +22,7 @@ from nodes_support import REPO, S3, make_harness, rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from pomdp_planner.core.search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
+from pomdp_planner.core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.params import (
     BY_NAME,

@@ -2,8 +2,8 @@
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
-``bench all`` regenerates docs/RESULTS.md (``pomdp_planner/bench/experiments/``, through
-``pomdp_planner/cli/experiments.py``).
+``bench all`` writes every experiment into ``--output DIR`` (``RESULTS.md``, ``img/*.png``;
+``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=search_bench.__doc__.split("\n\n")[0])
     search_bench.add_arguments(s)
     s.set_defaults(func=_run_search)
-    experiments.add_arguments(sub.add_parser("all", help="all experiments: docs/RESULTS.md and docs/img/*.png",
+    experiments.add_arguments(sub.add_parser("all", help="all experiments: RESULTS.md and img/*.png in --output DIR",
                                              description=experiments.__doc__.split("\n\n")[0]))
 
 

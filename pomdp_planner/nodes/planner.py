@@ -59,7 +59,8 @@ from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.gate import PlannerSetup, build_planner
 from ..core.io.sensors import load_model_file
 from ..core.liveness import JOIN_DELAY, EpochLine, InputWatch, Level, Resender
-from ..core.search import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, Planner
+from ..core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
+from ..core.search import Planner
 from .diagnostics import LEVELS, Warnings, array, status
 from .messages import BeliefMsg, MessageError, bound_fields, decode_belief, encode_action, encode_plan_info
 from .params import (

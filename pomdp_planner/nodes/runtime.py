@@ -33,8 +33,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
 
-from ..core.belief import BeliefError
-from ..core.model import ModelError
+from ..core.errors import InputError
 from .executor import NodeExecutor, shutdown_executor
 from .messages import shorten
 from .params import NodeConfigError, check_given_parameters
@@ -46,7 +45,7 @@ def config_errors() -> Iterator[None]:
     their messages name the field) into :class:`NodeConfigError`."""
     try:
         yield
-    except (ModelError, BeliefError) as exc:
+    except InputError as exc:  # a model file, parameter value or belief the core refuses
         raise NodeConfigError(str(exc)) from None
 
 
