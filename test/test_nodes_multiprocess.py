@@ -160,7 +160,9 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
                            "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else [])],
                           capture_output=True, text=True, timeout=90, cwd=REPO,
                           env={**os.environ, "TMPDIR": str(tmp_path)})
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    logs = "".join(f"\n--- {log.name}\n{log.read_text(errors='replace')[-3000:]}"
+                   for log in sorted(tmp_path.glob("pomdp_planner_demo_*/*.log")))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
     lines = proc.stdout.splitlines()
     m = load_model(parameter_set_model(model))
     assert lines[0].startswith(f"pomdp_planner demo: {m.name}: S=")

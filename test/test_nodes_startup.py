@@ -84,7 +84,7 @@ BAD_STARTUP = [
      "seed: must be an integer in 0..2147483647, got 'abc'"),
     # what rcl refuses on the command line itself
     ("planner", [], 'planner:\n  ros__parameters:\n    max_depth: [1, "a"]\n', "pomdp_planner",
-     "params.yaml, line 3 (max_depth: [1, \"a\"]): "),
+     "params.yaml, line 3 'max_depth: [1, \"a\"]': "),
     ("planner", [], "planner:\n  ros__parameters:\n    max_depth: [1\n", "pomdp_planner",
      "params.yaml, line 4: not YAML"),
     ("belief_filter", ["--params-file", "no_such_file.yaml"], None, "pomdp_planner",

@@ -91,7 +91,7 @@ class BeliefMsg:
     belief: np.ndarray
 
 
-def shorten(text: str, limit: int = 60) -> str:
+def _short(text: str, limit: int = 60) -> str:
     """``text`` cut to ``limit`` characters: error messages never embed an unbounded field."""
     return text if len(text) <= limit else text[:limit] + f"... ({len(text)} characters)"
 
@@ -113,7 +113,7 @@ def _decode_record(msg: Int64MultiArray, label: str, what: str) -> list[int]:
     dims = list(msg.layout.dim)
     # The label is the protocol: accept it, or no layout at all (hand-typed messages).
     if dims and (len(dims) != 1 or dims[0].label != label):
-        got = shorten(",".join(d.label for d in dims[:4]))
+        got = _short(",".join(d.label for d in dims[:4]))
         raise MessageError(f"{what}: layout label {got!r} is not {label!r}")
     if not 0 <= data[0] <= MAX_EPOCH:
         raise MessageError(f"{what}: epoch must be in 0..{MAX_EPOCH}, got {data[0]}")
@@ -174,11 +174,11 @@ def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
     if len(dims) != 2 or dims[0].label != BELIEF_STATE_LABEL:
         raise MessageError(
             f"belief: layout must be [('{BELIEF_STATE_LABEL}', S), ('epoch=<t>', 1)], got "
-            f"{shorten(str([(d.label, d.size) for d in dims[:4]]))}"
+            f"{_short(str([(d.label, d.size) for d in dims[:4]]))}"
         )
     m = _EPOCH_LABEL_RE.match(dims[1].label)
     if m is None:
-        raise MessageError(f"belief: second dimension label {shorten(dims[1].label)!r} is not 'epoch=<t>' "
+        raise MessageError(f"belief: second dimension label {_short(dims[1].label)!r} is not 'epoch=<t>' "
                            f"(t: 0..{MAX_EPOCH})")
     if msg.layout.data_offset != 0:
         raise MessageError(f"belief: data_offset must be 0, got {msg.layout.data_offset}")

@@ -19,6 +19,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from ..core.errors import short_repr
 from ..core.liveness import (
     DEFAULT_EPOCH_WINDOW,
     DEFAULT_RESEND_PERIOD,
@@ -26,7 +27,6 @@ from ..core.liveness import (
     DEFAULT_STALL_WARN,
     StallLimits,
 )
-from .messages import shorten
 
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
 DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
@@ -201,7 +201,7 @@ def refusal(name: str, value, desc: ParameterDescriptor, reason: str = "") -> st
     """The one-line message for a parameter value refused at start-up: the parameter, the value and
     what is allowed (in the core's style, ``<field>: must be <allowed>, got <value>``); a value
     that passes the descriptor but was refused by a callback gives that callback's ``reason``."""
-    got = shorten(repr(value))
+    got = short_repr(value)
     if reason and not _out_of_range(value, desc) and Parameter.Type.from_parameter_value(value).value == desc.type:
         return reason if reason.startswith(f"{name}:") else f"{name}: {reason}, got {got}"
     return f"{name}: must be {allowed_values(desc)}, got {got}"

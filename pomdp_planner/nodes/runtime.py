@@ -33,9 +33,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
 
-from ..core.errors import InputError
+from ..core.errors import InputError, short_repr
 from .executor import NodeExecutor, shutdown_executor
-from .messages import shorten
 from .params import NodeConfigError, check_given_parameters
 
 
@@ -161,7 +160,7 @@ def _params_file_error(path: str, error: str) -> str:
     lines = text.splitlines()
     if m and 1 <= int(m.group(1)) <= len(lines):
         n = int(m.group(1))
-        return f"--params-file {path}, line {n} ({shorten(lines[n - 1].strip())}): {error}"
+        return f"--params-file {path}, line {n} {short_repr(lines[n - 1].strip())}: {error}"
     return f"--params-file {path}: {error}"
 
 
