@@ -53,6 +53,12 @@ def _config_files() -> list[tuple[str, list[str]]]:
     return sorted(groups.items())
 
 
+def _launch_files() -> list[tuple[str, list[str]]]:
+    """Every ``launch/*.launch.xml`` into ``share/<pkg>/launch`` (``ros2 launch <pkg> <file>``)."""
+    files = sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.xml"))
+    return [(str(Path("share", PACKAGE, "launch")), files)] if files else []
+
+
 def _wheel_forwarders(executables) -> list[tuple[str, list[str]]]:
     """``lib/<pkg>/<exe>`` forwarders, for wheel builds only (see the module docstring).
 
@@ -87,6 +93,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         *_config_files(),
+        *_launch_files(),
         *_wheel_forwarders(EXECUTABLES),
     ],
     python_requires=">=3.11",
@@ -95,6 +102,7 @@ setup(
         "test": ["pytest", "hypothesis", "ruff"],
         # docs/benchmarks.md, "Optional extras": plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
+        "plot": ["matplotlib"],  # pomdp-planner plot
         "bench": ["pomdp-py"],
     },
     zip_safe=False,  # PEP 561: a typed package is not zip-safe

@@ -66,7 +66,8 @@ BAD_STARTUP = [
      f"time_budget: must be a number in {TB}, got 'fast'"),
     ("planner", ["-p", "max_depth:=abc"], None, "planner", f"max_depth: must be an integer in {DEPTH}, got 'abc'"),
     ("planner", ["-p", "bound_variant:=5"], None, "planner", "bound_variant: must be a string (one of "),
-    ("planner", ["-p", "bound_constant:=paper"], None, "planner", "bound_constant: 'paper' is not one of"),
+    ("planner", ["-p", "bound_constant:=paper"], None, "planner",
+     "bound_constant: expected one of mlr, fosd, got 'paper'"),
     ("planner", ["-p", "use_sim_time:=abc"], None, "planner", "use_sim_time: must be true or false, got 'abc'"),
     ("planner", ["-p", "strict_parameters:=true", "-p", "time_budgett:=0.2"], None, "planner",
      "time_budgett (did you mean time_budget?): not a parameter of this node; refused because strict_parameters"),
@@ -74,7 +75,8 @@ BAD_STARTUP = [
      "seed: must be an integer in 0..2147483647, got -3"),
     ("target_simulator", [], {"target_simulator": {"step_period": "fast"}}, "target_simulator",
      "step_period: must be a number in 0..3600, got 'fast'"),
-    ("target_simulator", ["-p", "initial_state:=7"], None, "target_simulator", "initial_state: 7 out of range -1..2"),
+    ("target_simulator", ["-p", "initial_state:=7"], None, "target_simulator",
+     "initial_state: must be an integer in -1..2, got 7"),
     ("belief_filter", ["-p", "epoch_timeout:=0"], None, "belief_filter", "epoch_timeout: must be a number in "),
     ("belief_filter", [], {"belief_filter": {"max_pending_epochs": 2.5}}, "belief_filter",
      "max_pending_epochs: must be an integer in 1..10000, got 2.5"),
@@ -172,12 +174,15 @@ def test_given_scopes_tell_a_parameter_given_by_name_from_one_given_to_every_nod
         "belief_filter": {"ros__parameters": {"d": 1}},
         "ns": {"planner": {"ros__parameters": {"e": 1}}},
         "/*": {"ros__parameters": {"f": 1}},
+        "/**/planner": {"ros__parameters": {"j": 1}},
     }))
     args = ["prog", "--ros-args", "--params-file", str(params), "-p", "g:=1", "-p", "planner:h:=1",
             "-p", "belief_filter:i:=1", "--", "-p", "not_ros:=1"]
     assert given_scopes(args, "/planner", own=False) == {
-        "a": TO_ALL, "shared": BY_NAME, "b": BY_NAME, "nested.c": BY_NAME, "f": TO_ALL, "g": TO_PROCESS, "h": BY_NAME}
+        "a": TO_ALL, "shared": BY_NAME, "b": BY_NAME, "nested.c": BY_NAME, "f": TO_ALL, "g": TO_PROCESS, "h": BY_NAME,
+        "j": BY_NAME}
     assert given_scopes(args, "/ns/planner", own=False)["e"] == BY_NAME
+    assert given_scopes(args, "/ns/planner", own=False)["j"] == BY_NAME  # /**/planner: any namespace
     assert "f" not in given_scopes(args, "/ns/planner", own=False)  # '*' is one name token
     assert given_scopes(["--ros-args", "-p", "g:=1"], "/planner", own=True) == {"g": BY_NAME}
 

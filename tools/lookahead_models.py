@@ -633,7 +633,8 @@ def format_evaluation(ev: ModelEvaluation) -> str:
     st = ev.assumptions
     lines.append(f"Assumption 1: {', '.join(f'{k} {v}' for k, v in st['status'].items())} "
                  f"(A2: {st['A2_counts']['proven_elementwise']} matrices elementwise, "
-                 f"{st['A2_counts']['proven_exact']} by the exact test; {st['seconds']:.2f} s).")
+                 f"{st['A2_counts']['proven_exact']} by the exact test, "
+                 f"{st['A2_counts'].get('proven_dominated', 0)} as dominated; {st['seconds']:.2f} s).")
     if ref["kind"].startswith("grid"):
         lines.append(f"Reference: grid policy iteration at n = {ref['n']} checked against n = {ref['fine_n']}; tie "
                      f"margin {ref['tie_margin']:.2e}; action decided (gap > margin) on "

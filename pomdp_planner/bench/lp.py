@@ -27,6 +27,7 @@ from typing import Any
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
 from ..core.domains.comparison import comparison_model
+from ..core.domains.perimeter import PRESETS, perimeter_model
 from ..core.io.model_yaml import load_model
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
@@ -37,10 +38,14 @@ NEW, OLD = BOUND_SOLVERS  # "structured", "clarabel"
 
 
 def load_bench_model(spec: str) -> POMDP:
-    """``comparison:S,A`` or a model file (shipped name or path)."""
+    """``comparison:S,A`` (the Sec. VI-B model), ``perimeter:S`` (the shipped perimeter physics at
+    ``S`` bands) or a model file (shipped name or path)."""
     m = re.fullmatch(r"comparison:(\d+),(\d+)", spec.strip())
     if m:
         return comparison_model(int(m.group(1)), int(m.group(2)))
+    m = re.fullmatch(r"perimeter:(\d+)", spec.strip())
+    if m:
+        return perimeter_model(**(PRESETS["perimeter_s8"] | {"S": int(m.group(1))}), name=f"perimeter_s{m.group(1)}")
     return load_model(resolve_path(spec, field="--models"))
 
 
@@ -87,8 +92,14 @@ def run_lp_bench(models: Sequence[str] = DEFAULT_MODELS, repeat: int = 1, old: b
     return rows
 
 
-def _f(x: Any, spec: str) -> str:
+def cell(x: Any, spec: str) -> str:
+    """``x`` formatted with ``spec``, ``-`` for ``None`` (a figure not measured)."""
     return "-" if x is None else format(x, spec)
+
+
+def old_over_new(row: dict[str, Any]) -> float | None:
+    """The speed-up of a row with ``old_time`` and ``new_time`` (``None`` without the old path)."""
+    return row["old_time"] / row["new_time"] if row["old_time"] is not None and row["new_time"] > 0 else None
 
 
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
@@ -96,11 +107,11 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
             f"{'old/new':>8} {'new margin':>11} {'old margin':>11} {'agree new':>9} {'agree old':>9}")
     lines = [head, "-" * len(head)]
     for r in rows:
-        ratio = r["old_time"] / r["new_time"] if r["old_time"] is not None and r["new_time"] > 0 else None
+        ratio = old_over_new(r)
         lines.append(f"{r['model']:<22} {r['S']:>4} {r['A']:>3} {r['variant']:<8} {r['constant']:<5} "
-                     f"{r['new_time']:>8.3f} {_f(r['old_time'], '>8.3f')} {_f(ratio, '>7.1f') + 'x':>8} "
-                     f"{_f(r['new_worst_margin'], '>11.2e')} {_f(r['old_worst_margin'], '>11.2e')} "
-                     f"{_f(r['new_agreement'], '>9.3f')} {_f(r['old_agreement'], '>9.3f')}")
+                     f"{r['new_time']:>8.3f} {cell(r['old_time'], '>8.3f')} {cell(ratio, '>7.1f') + 'x':>8} "
+                     f"{cell(r['new_worst_margin'], '>11.2e')} {cell(r['old_worst_margin'], '>11.2e')} "
+                     f"{cell(r['new_agreement'], '>9.3f')} {cell(r['old_agreement'], '>9.3f')}")
     lines.append("new: solver='structured' (least element / HiGHS); old: solver='clarabel' (the previous path). "
                  "Times: best of the repeats, wall clock. Margins: worst exact constraint margin of g and h "
                  "(>= 0: feasible). Agreement: lower == upper on the 400 fitting samples.")

@@ -22,11 +22,11 @@ import warnings
 from collections.abc import Sequence
 
 from ..core.errors import InputError, InputWarning
-from . import bench, bounds, check, export, plan, simulate
+from . import bench, bounds, check, export, plan, plot, simulate
 from ._common import Parser, one_line
 
 #: Subcommand modules, in the order ``--help`` lists them.
-SUBCOMMANDS = (check, bounds, export, simulate, plan, bench)
+SUBCOMMANDS = (check, bounds, export, simulate, plan, plot, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,7 +1,9 @@
-"""``pomdp-planner bench search|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|structure|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
+``bench structure`` times the Assumption 1 check, fast path against the previous one
+(``pomdp_planner/bench/structure.py``).
 ``bench all`` writes every experiment into ``--output DIR`` (``RESULTS.md``, ``img/*.png``;
 ``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
@@ -12,6 +14,7 @@ import argparse
 import sys
 
 from ..bench import search as search_bench
+from ..bench import structure as structure_bench
 from . import experiments
 
 
@@ -25,6 +28,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=search_bench.__doc__.split("\n\n")[0])
     search_bench.add_arguments(s)
     s.set_defaults(func=_run_search)
+    t = sub.add_parser("structure", help="the Assumption 1 check: fast path against the previous one",
+                       description=structure_bench.__doc__.split("\n\n")[0])
+    structure_bench.add_arguments(t)
+    t.set_defaults(func=lambda args: structure_bench.run_from_args(args, "pomdp-planner bench structure"))
     experiments.add_arguments(sub.add_parser("all", help="all experiments: RESULTS.md and img/*.png in --output DIR",
                                              description=experiments.__doc__.split("\n\n")[0]))
 

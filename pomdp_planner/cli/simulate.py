@@ -8,6 +8,11 @@ names them, else by 0-based index. ``--json`` prints the same as data. For the p
 assumption gate's decision: pruning with valid bounds, exhaustive search and why, or pruning
 without guarantee (``--option prune_without_guarantee=1``).
 
+``--record FILE`` also writes the run as a run record (``core/io/run_record.py``: one CSV row per
+decision with the belief it was made from, the true state, the priority, the root bounds, the
+depth, whether it was certified and the search time), streamed like the output; ``pomdp-planner
+plot FILE`` draws it.
+
 The steps are streamed: each line (each JSON step) is printed as soon as the step is simulated
 and then forgotten, and the summary comes from running sums (``core.simulate.Simulation``,
 ``RunningSummary``), so any ``--steps`` runs in constant memory and ``| head`` stops it at once.
@@ -18,12 +23,15 @@ policy, the search guards) is checked before the first step is printed.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Iterator, Sequence
 
 from ..core.checks import option_value
 from ..core.errors import OptionError
+from ..core.io.outputs import check_output_file
+from ..core.io.run_record import RunRecordWriter
 from ..core.model import POMDP, short_repr
-from ..core.policies import POLICIES, make_policy, policy_names
+from ..core.policies import POLICIES, last_decision, make_policy, policy_names, setup_notice_for
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
 from ._common import (
     add_belief_argument,
@@ -65,6 +73,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: the model's start, else uniform)")
     p.add_argument("--initial-state", default=None, metavar="STATE",
                    help="true initial state: a state name or 0-based index (default: sampled from the belief)")
+    p.add_argument("--record", default=None, metavar="FILE",
+                   help="also write the run as a run-record CSV (one row per decision: belief, action, root "
+                        "bounds, depth, certified, latency; docs/cli.md), e.g. for 'pomdp-planner plot'")
     add_json_argument(p)
     p.set_defaults(func=run)
 
@@ -85,6 +96,8 @@ def _initial_state(text: str | None, model: POMDP) -> int | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.record is not None:  # before any work: not after a long run
+        check_output_file(args.record, "--record")
     model = load_model_arg(args)
     if args.policy not in POLICIES:
         raise OptionError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")
@@ -92,16 +105,28 @@ def run(args: argparse.Namespace) -> int:
     initial_state = _initial_state(args.initial_state, model)
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.
     options = {"seed": args.seed + 1, **dict(args.option)}
+    notice = setup_notice_for(args.policy, model, options)
+    if notice is not None:
+        print(f"pomdp-planner simulate: {notice}", file=sys.stderr, flush=True)
     policy = make_policy(args.policy, model, **options)
     sim = Simulation(model, policy, args.steps, seed=args.seed, initial_state=initial_state, initial_belief=belief)
     setup = getattr(policy, "setup", None)  # the assumption gate's decision, for the planners
     note = getattr(policy, "note", "")  # e.g. the anytime search's max_depth capped by the memory budget
     summary = RunningSummary(model.gamma)
+    record = None if args.record is None else _open_record(args.record, model, policy)
 
     def steps() -> Iterator[SimulationStep]:
-        for st in sim:
-            summary.add(st)
-            yield st
+        belief = sim.initial_belief  # the belief each decision is made from
+        try:
+            for st in sim:
+                summary.add(st)
+                if record is not None:
+                    record.write(st.t, belief, st.action + 1, true_state=st.state, **last_decision(policy, belief))
+                belief = st.belief
+                yield st
+        finally:  # also when the reader stops early (| head)
+            if record is not None:
+                record.stream.close()
 
     if args.json:
         head = {"model": model.name, "policy": args.policy, "seed": args.seed, "gamma": model.gamma,
@@ -134,6 +159,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {s['recovered_steps']} observation(s) impossible under the belief; belief re-initialised "
               "from the observation likelihood")
     return 0
+
+
+def _open_record(path: str, model: POMDP, policy: object) -> RunRecordWriter:
+    """The ``--record`` writer (every row is flushed as written; closed after the last step)."""
+    try:
+        stream = open(path, "w", encoding="utf-8")
+    except OSError as exc:
+        raise OptionError(f"--record: cannot write {path}: {exc.strerror or type(exc).__name__}") from None
+    return RunRecordWriter(stream, model.name, model.S, model.A, getattr(policy, "time_budget", None))
 
 
 class StepTable:

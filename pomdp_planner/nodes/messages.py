@@ -29,28 +29,27 @@ decision epoch it belongs to, and every observation carries the action it was ta
   parameters in force. ``bound_lower``, ``bound_upper``: the myopic policy bounds at the belief
   (Theorem 2), as priorities: the optimal priority lies in ``[bound_lower, bound_upper]``, and
   ``certified`` is 1 exactly when they agree (Proposition 1); ``NaN`` when the decision used no
-  bounds (``use_bounds`` false, or bounds not guaranteed for the model: the planner node never
-  uses bounds without the guarantee).
+  guaranteed bounds (``use_bounds`` false, or the model fails the assumptions). The record is
+  ``core.loop.PlanInfo``.
 
 Decoders raise :class:`MessageError` with a message that names the field and the problem. They
 bound what they accept before converting anything: epochs are ``0..MAX_EPOCH`` (so that
 ``epoch + 1`` always fits the ``int64`` of the next message, and an epoch label is at most 18
-digits), and the length is checked before the data are copied. Whether an epoch is *plausible* is
-the nodes' epoch window (``core/liveness.py``), not the decoder's business.
+digits), and the length is checked before the data are copied. They return the loops' sample
+types (``core/loop/samples.py``); whether an epoch is *plausible* is the loops' epoch window
+(``core/loop``), not the decoder's business.
 """
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from ..core.belief import BeliefError, check_belief
-from ..core.model import priority_of
+from ..core.loop.samples import ActionSample, BeliefSample, ObservationSample
 
 ACTION_LABEL = "epoch,action_priority"
 OBSERVATION_LABEL = "epoch,action_priority,observation"
@@ -70,25 +69,6 @@ class MessageError(ValueError):
 
 class OutOfRangeError(MessageError):
     """A well-formed message whose action priority or observation is out of range."""
-
-
-@dataclass(frozen=True)
-class ActionMsg:
-    epoch: int
-    priority: int
-
-
-@dataclass(frozen=True)
-class ObservationMsg:
-    epoch: int
-    priority: int
-    observation: int
-
-
-@dataclass(frozen=True)
-class BeliefMsg:
-    epoch: int
-    belief: np.ndarray
 
 
 def _short(text: str, limit: int = 60) -> str:
@@ -124,24 +104,24 @@ def encode_action(epoch: int, priority: int) -> Int64MultiArray:
     return _record(ACTION_LABEL, (epoch, priority))
 
 
-def decode_action(msg: Int64MultiArray, num_actions: int) -> ActionMsg:
+def decode_action(msg: Int64MultiArray, num_actions: int) -> ActionSample:
     epoch, priority = _decode_record(msg, ACTION_LABEL, "action")
     if not 1 <= priority <= num_actions:
         raise OutOfRangeError(f"action: action_priority {priority} out of range 1..{num_actions}")
-    return ActionMsg(epoch, priority)
+    return ActionSample(epoch, priority)
 
 
 def encode_observation(epoch: int, priority: int, observation: int) -> Int64MultiArray:
     return _record(OBSERVATION_LABEL, (epoch, priority, observation))
 
 
-def decode_observation(msg: Int64MultiArray, num_actions: int, num_observations: int) -> ObservationMsg:
+def decode_observation(msg: Int64MultiArray, num_actions: int, num_observations: int) -> ObservationSample:
     epoch, priority, z = _decode_record(msg, OBSERVATION_LABEL, "observation")
     if not 1 <= priority <= num_actions:
         raise OutOfRangeError(f"observation: action_priority {priority} out of range 1..{num_actions}")
     if not 0 <= z < num_observations:
         raise OutOfRangeError(f"observation: observation {z} out of range 0..{num_observations - 1}")
-    return ObservationMsg(epoch, priority, z)
+    return ObservationSample(epoch, priority, z)
 
 
 def encode_true_state(epoch: int, state: int) -> Int64MultiArray:
@@ -167,7 +147,7 @@ def encode_belief(epoch: int, belief: np.ndarray) -> Float64MultiArray:
     return msg
 
 
-def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
+def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefSample:
     """Decode a belief message (layout, epoch label, length) and check the belief with the core's
     ``check_belief`` (finite, on the simplex); its error becomes a :class:`MessageError`."""
     dims = list(msg.layout.dim)
@@ -190,15 +170,7 @@ def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
         b = check_belief(num_states, np.array(msg.data, dtype=float))
     except BeliefError as exc:
         raise MessageError(str(exc)) from None
-    return BeliefMsg(int(m.group(1)), b)
-
-
-def bound_fields(root_bounds: tuple[int, int] | None) -> dict[str, float]:
-    """``bound_lower``, ``bound_upper`` of a plan_info record from a search result's 0-based
-    ``root_bounds`` (``None``: no bounds used, ``NaN``)."""
-    if root_bounds is None:
-        return {"bound_lower": math.nan, "bound_upper": math.nan}
-    return {"bound_lower": float(priority_of(root_bounds[0])), "bound_upper": float(priority_of(root_bounds[1]))}
+    return BeliefSample(int(m.group(1)), b)
 
 
 def encode_plan_info(**fields: float) -> Float64MultiArray:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import difflib
 import re
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
@@ -20,13 +19,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ..core.errors import short_repr
-from ..core.liveness import (
-    DEFAULT_EPOCH_WINDOW,
-    DEFAULT_RESEND_PERIOD,
-    DEFAULT_STALL_ERROR,
-    DEFAULT_STALL_WARN,
-    StallLimits,
-)
+from ..core.loop import Liveness, StallLimits
+from ..core.loop.epochs import DEFAULT_EPOCH_WINDOW, DEFAULT_RESEND_PERIOD
+from ..core.loop.health import DEFAULT_STALL_ERROR, DEFAULT_STALL_WARN
 
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
 DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
@@ -125,24 +120,7 @@ def accept_integers_for_doubles(node: Node) -> None:
     node.add_pre_set_parameters_callback(pre_set)
 
 
-@dataclass(frozen=True)
-class LivenessParams:
-    """The liveness parameters every node declares (README, "Liveness"; rules in ``core/liveness.py``)."""
-
-    epoch_window: int
-    resend_period: float
-    stall: StallLimits
-
-    @property
-    def watchdog_period(self) -> float:
-        """How often a node checks its re-send, re-sync and stall rules: a quarter of the shortest
-        of their times, within 0.05..1 s (0.25 s by default)."""
-        shortest = min(self.resend_period if self.resend_period > 0 else self.stall.warn_after,
-                       self.stall.warn_after)
-        return min(1.0, max(0.05, shortest / 4))
-
-
-def declare_liveness(node: Node) -> LivenessParams:
+def declare_liveness(node: Node) -> Liveness:
     """Declare ``epoch_window``, ``resend_period``, ``stall_warn_after`` and ``stall_error_after``
     (read-only) and return them; a warn limit above the error limit stops the node."""
     d = descriptor
@@ -162,7 +140,7 @@ def declare_liveness(node: Node) -> LivenessParams:
         stall = StallLimits(value("stall_warn_after").value, value("stall_error_after").value)
     except ValueError as exc:
         raise NodeConfigError(f"stall_warn_after, stall_error_after: {exc}") from None
-    return LivenessParams(value("epoch_window").value, value("resend_period").value, stall)
+    return Liveness(value("epoch_window").value, value("resend_period").value, stall)
 
 
 # ----------------------------------------------------------------- start-up rules of every node
@@ -262,9 +240,10 @@ class ParameterNode(Node):
 
 
 # Where a parameter given to a node came from, as far as it matters for reporting it: by the
-# node's name (its own section of a parameter file, ``-p node:name:=value``, the node's own
-# arguments or ``parameter_overrides``), to every node of the process (``-p name:=value`` on the
-# command line), or to every node of the system (a wildcard section such as ``/**:``).
+# node's name (its own section of a parameter file, also ``/**/<name>``, ``-p node:name:=value``,
+# the node's own arguments or ``parameter_overrides``), to every node of the process
+# (``-p name:=value`` on the command line), or to every node of the system (a wildcard section
+# such as ``/**:``).
 BY_NAME, TO_PROCESS, TO_ALL = 0, 1, 2
 
 
@@ -273,6 +252,13 @@ def _matches(pattern: str, fqn: str) -> bool:
     tokens = [t for t in pattern.strip("/").split("/") if t]
     regex = "".join("(?:/[^/]+)*" if t == "**" else "/" + re.escape(t).replace(r"\*", "[^/]*") for t in tokens)
     return re.fullmatch(regex, fqn) is not None
+
+
+def _pattern_scope(pattern: str) -> int:
+    """A node pattern that ends in the node's name (``planner``, ``/ns/planner``, ``/**/planner``:
+    that node in any namespace, as the shipped files write it) gives by name; one that ends in a
+    wildcard (``/**``, ``/*``) gives to every node."""
+    return TO_ALL if "*" in pattern.rstrip("/").rsplit("/", 1)[-1] else BY_NAME
 
 
 def _flat(params: dict, prefix: str = "") -> Iterator[str]:
@@ -327,7 +313,7 @@ def given_scopes(args: Sequence[str], fqn: str, own: bool) -> dict[str, int]:
             if not target:
                 given(name, BY_NAME if own else TO_PROCESS)
             elif _matches(target, fqn):
-                given(name, TO_ALL if "*" in target else BY_NAME)
+                given(name, _pattern_scope(target))
             continue
         try:
             doc = yaml.safe_load(Path(value).read_text(encoding="utf-8"))
@@ -336,7 +322,7 @@ def given_scopes(args: Sequence[str], fqn: str, own: bool) -> dict[str, int]:
         for pattern, params in _file_sections(doc):
             if _matches(pattern, fqn):
                 for name in _flat(params):
-                    given(name, TO_ALL if "*" in pattern else BY_NAME)
+                    given(name, _pattern_scope(pattern))
     return scopes
 
 

@@ -27,10 +27,19 @@ NODES = ("target_simulator", "belief_filter", "planner")
 PARAMETER_SETS = ("s3", "s8", "perimeter_s3", "perimeter_s8")
 
 
+def node_parameters(doc: dict, node: str) -> dict:
+    """The ``ros__parameters`` of ``node`` in a parameter file's document: under ``/**/<node>`` (the
+    shipped files: the node in any namespace), ``<node>`` or ``/<node>``."""
+    for key in (f"/**/{node}", node, f"/{node}"):
+        if key in doc:
+            return doc[key]["ros__parameters"]
+    raise KeyError(f"no section for node {node!r} (keys: {', '.join(map(str, doc))})")
+
+
 def parameter_set_values(key: str, node: str) -> dict:
     """The parameters ``config/<node>_<key>.yaml`` gives node ``node`` (its ``ros__parameters``)."""
     params = resolve_path(f"config/{node}_{key}.yaml", "params file")
-    return yaml.safe_load(params.read_text(encoding="utf-8"))[node]["ros__parameters"]
+    return node_parameters(yaml.safe_load(params.read_text(encoding="utf-8")), node)
 
 
 def parameter_set_model(key: str) -> Path:

@@ -106,8 +106,9 @@ class _SigintWhileSpinning:
 
 
 #: Longest time start-up output is held (:class:`_HeldStderr`): a start that takes longer (a large
-#: model's checks) shows its log lines after this delay, and as they come from then on.
-HOLD_STDERR_SECONDS = 5.0
+#: model's set-up, which the planner announces when it expects it to take more than 2 s) shows its
+#: log lines after this delay, and as they come from then on.
+HOLD_STDERR_SECONDS = 2.0
 
 
 class _HeldStderr:
