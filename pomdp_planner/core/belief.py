@@ -68,6 +68,25 @@ def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: s
     return b / b.sum()
 
 
+def check_likelihood(model: POMDP | int, values, field: str = "likelihood") -> np.ndarray:
+    """Return ``values`` as a float array after checking it is a likelihood over the states of
+    ``model``: ``S`` finite, non-negative entries, at least one positive (``l(s) = P(reading | s)``
+    up to a constant factor: soft evidence, :mod:`~pomdp_planner.core.filter`). Errors are
+    :class:`BeliefError` naming ``field``; ``model`` may be just ``S``, as for :func:`check_belief`."""
+    S = int(model) if isinstance(model, (int, np.integer)) else model.S
+    lik = np.asarray(values, dtype=float)
+    if lik.shape != (S,):
+        got = f"{lik.size}" if lik.ndim == 1 else f"shape {lik.shape}"
+        raise BeliefError(f"{field}: expected {S} values (one per state), got {got}")
+    if not np.all(np.isfinite(lik)):
+        raise BeliefError(f"{field}: contains non-finite values")
+    if np.any(lik < 0):
+        raise BeliefError(f"{field}: entry {int(np.argmin(lik))} is negative ({lik.min():.3g})")
+    if not lik.max() > 0:
+        raise BeliefError(f"{field}: every entry is 0 (a reading no state can produce is no evidence)")
+    return lik
+
+
 def check_action(model: POMDP, a: int) -> int:
     """Check a 0-based action index (the message shows the 1..A priority too)."""
     return check_int(a, "action", 0, model.A - 1, error=BeliefError, note=f"(0-based; priorities 1..{model.A})")
