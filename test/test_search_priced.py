@@ -14,8 +14,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from model_factory import ModelSpec, random_candidate
+
 from pomdp_planner.core.belief import posteriors_all
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.sensors import load_model_file
@@ -111,3 +111,19 @@ def test_deadline_of_a_fixed_depth_search():
     with pytest.raises(DeadlineExceeded):
         planner.search(b, 3, deadline=0.5)
     assert planner.search(b, 2, deadline=1e9).depth == 2
+
+
+@pytest.mark.parametrize("name", ("perimeter_s3", "tracking_s3_info", "perimeter_s8"))
+def test_batched_q_values_equal_one_search_per_belief(name):
+    model = load_model_file(name)
+    planner = build_planner(model).planner.priced(np.linspace(0.5, 0.0, model.A))
+    B = np.random.default_rng(3).dirichlet(np.ones(model.S), size=7)
+    for depth in (1, 2, 3):
+        for use_bounds in (True, False):
+            got = planner.q_values_batch(B, depth, use_bounds)
+            want = np.array([planner.search(b, depth, use_bounds, all_root_actions=True).q_values for b in B])
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(planner.q_values_batch(B, 0), model.rho(B) - np.linspace(0.5, 0.0, model.A))
+    assert planner.q_values_batch(B[:0], 2).shape == (0, model.A)
+    with pytest.raises(ModelError, match="beliefs"):
+        planner.q_values_batch(B[:, :2], 2)

@@ -8,6 +8,9 @@ names them, else by 0-based index. ``--json`` prints the same as data. For the p
 assumption gate's decision: pruning with valid bounds, exhaustive search and why, or pruning
 without guarantee (``--option prune_without_guarantee=1``).
 
+With ``--targets M1,M2,... --budget B`` (no ``MODEL``) it simulates K targets under one effort
+budget per epoch and a joint policy (``cli/simulate_targets.py``, docs/multitarget.md).
+
 The steps are streamed: each line (each JSON step) is printed as soon as the step is simulated
 and then forgotten, and the summary comes from running sums (``core.simulate.Simulation``,
 ``RunningSummary``), so any ``--steps`` runs in constant memory and ``| head`` stops it at once.
@@ -21,12 +24,13 @@ import argparse
 from collections.abc import Iterator, Sequence
 
 from ..core.model import POMDP, ModelError, short_repr
+from ..core.multitarget.policies import JOINT_POLICIES, joint_policy_names
 from ..core.policies import POLICIES, make_policy, policy_names
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
+from . import simulate_targets
 from ._common import (
     add_belief_argument,
     add_json_argument,
-    add_model_argument,
     add_seed_argument,
     emit_json_stream,
     format_number,
@@ -54,20 +58,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("simulate", help="closed-loop simulation of a policy",
                               description=__doc__.split("\n\n")[0].replace("``", ""),
                               epilog="policies (--policy NAME):\n" + "\n".join(
-                                  f"  {name:<11} {POLICIES[name].help}" for name in policy_names()),
+                                  f"  {name:<11} {POLICIES[name].help}" for name in policy_names())
+                              + "\n\njoint policies (--targets ... --policy NAME):\n" + "\n".join(
+                                  f"  {name:<11} {JOINT_POLICIES[name].help}" for name in joint_policy_names()),
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_model_argument(p)
+    p.add_argument("model", metavar="MODEL", nargs="?", default=None,
+                   help="model file: YAML (see README) or Cassandra .POMDP (not with --targets)")
     p.add_argument("--steps", type=int_in(0, None), default=20, metavar="N",
                    help="number of steps, >= 0 (default 20); streamed: any number runs in constant memory")
     add_seed_argument(p, "random seed (default 0); same seed, same run")
-    p.add_argument("--policy", default="myopic",
-                   help=f"policy name: {', '.join(policy_names())} (default myopic; see below)")
+    p.add_argument("--policy", default=None,
+                   help=f"policy name: {', '.join(policy_names())} (default myopic; see below); with --targets "
+                   f"one of {', '.join(joint_policy_names())} (default lagrangian)")
     p.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                    help="option passed to the policy factory (repeatable), e.g. --option depth=3")
     add_belief_argument(p, default="", help_text="initial belief: 'uniform' or p1,...,pS "
                         "(default: the model's start, else uniform)")
     p.add_argument("--initial-state", default=None, metavar="STATE",
                    help="true initial state: a state name or 0-based index (default: sampled from the belief)")
+    simulate_targets.add_arguments(p)
     add_json_argument(p)
     p.set_defaults(func=run)
 
@@ -88,6 +97,10 @@ def _initial_state(text: str | None, model: POMDP) -> int | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.targets is not None:
+        return simulate_targets.run(args)
+    simulate_targets.check_single_target(args)
+    args.policy = "myopic" if args.policy is None else args.policy
     model = load_model_arg(args)
     if args.policy not in POLICIES:
         raise ModelError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")

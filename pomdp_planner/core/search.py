@@ -526,7 +526,8 @@ class Planner:
         except (TypeError, ValueError):
             c = np.full(0, np.nan)
         if c.shape != (A,) or not np.all(np.isfinite(c)):
-            raise ModelError(f"action_cost: expected {A} finite numbers (one per action), got {short_repr(action_cost)}")
+            raise ModelError(f"action_cost: expected {A} finite numbers (one per action), "
+                             f"got {short_repr(action_cost)}")
         new = copy.copy(self)
         new._rT = np.ascontiguousarray(self._rT - c[:, None])
         # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
@@ -535,6 +536,27 @@ class Planner:
         new._WT = np.ascontiguousarray(WT.reshape(self._WT.shape))
         new._bound_cache = None
         return new
+
+    def q_values_batch(self, beliefs: np.ndarray, depth: int, use_bounds: bool = True, *,
+                       deadline: float | None = None) -> np.ndarray:
+        """``Q(b, a)`` for every row ``b`` of ``beliefs`` (``n x S``) and every action, ``n x A``: the
+        root Q values of :meth:`search` with ``all_root_actions=True``, for ``n`` roots in one
+        vectorised pass (the roots are columns of the first level, as every level's beliefs are).
+        ``depth = 0`` gives ``rho(b, a)``. ``deadline`` as in :meth:`search`."""
+        depth = check_depth(depth, "depth", (0, None))
+        B = np.asarray(beliefs, dtype=float)
+        if B.ndim != 2 or B.shape[1] != self.model.S:
+            raise ModelError(f"beliefs: expected shape n x {self.model.S}, got {B.shape}")
+        BT = np.ascontiguousarray(np.stack([check_belief(self.model, b, field=f"beliefs[{i}]")
+                                            for i, b in enumerate(B)], axis=1) if len(B) else B.T)
+        rhoT = self._rho(BT)
+        if depth == 0 or not len(B):
+            return np.ascontiguousarray(rhoT.T)
+        self.check_memory(depth, "depth")
+        bounds = self.bounds if use_bounds else self.trivial
+        sizes = [B.shape[0]] + [0] * depth
+        QT = self._values(BT, rhoT, np.ones((self.model.A, B.shape[0]), dtype=bool), depth, 0, sizes, bounds, deadline)
+        return np.ascontiguousarray(QT.T)
 
     def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
         """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
