@@ -1,9 +1,11 @@
-"""``pomdp-planner bench search|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|multitarget|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
-``bench all`` regenerates docs/RESULTS.md (``pomdp_planner/bench/experiments/``, through
-``pomdp_planner/cli/experiments.py``).
+``bench multitarget [--quick] [--json FILE] [--plot FILE]`` is the multi-target benchmark (dual
+bound against the exact joint lookahead, closed-loop regret, decision time against K;
+``pomdp_planner/bench/multitarget.py``). ``bench all`` regenerates docs/RESULTS.md
+(``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..bench import multitarget as multitarget_bench
 from ..bench import search as search_bench
 from . import experiments
 
@@ -25,8 +28,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=search_bench.__doc__.split("\n\n")[0])
     search_bench.add_arguments(s)
     s.set_defaults(func=_run_search)
+    m = sub.add_parser("multitarget", help="several targets, one budget: dual bound, regret, scaling",
+                       description=multitarget_bench.__doc__.split("\n\n")[0])
+    multitarget_bench.add_arguments(m)
+    m.set_defaults(func=_run_multitarget)
     experiments.add_arguments(sub.add_parser("all", help="all experiments: docs/RESULTS.md and docs/img/*.png",
                                              description=experiments.__doc__.split("\n\n")[0]))
+
+
+def _run_multitarget(args: argparse.Namespace) -> int:
+    try:
+        return multitarget_bench.run_from_args(args)
+    except (ValueError, OSError) as exc:  # a bad option; an unwritable --json or --plot
+        print(f"pomdp-planner bench multitarget: error: {exc}", file=sys.stderr)
+        return 2
 
 
 def _run_search(args: argparse.Namespace) -> int:
