@@ -5,7 +5,8 @@ and a deadline for a fixed-depth search (``core/search.py``: ``Planner.priced``,
 The priced planner is checked against a planner built from scratch on the priced model
 (``r[s, a] - c[a]`` written into a new :class:`POMDP`), for every uncertainty function, both with
 and without pruning; every root action's Q value against the backup of the children's values
-(a second formula).
+(a second formula); Theorem P of docs/THEORY.md (the price changes neither Assumption 1 nor the
+bound LP) on the shipped models.
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ import pytest
 from model_factory import ModelSpec, random_candidate
 
 from pomdp_planner.core.belief import posteriors_all
+from pomdp_planner.core.bounds import solve_bounds
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.myopic import MyopicBounds
 from pomdp_planner.core.search import DeadlineExceeded, Planner
+from pomdp_planner.core.structure import check_assumptions
 
 SHIPPED = ("perimeter_s3", "tracking_s3_info", "perimeter_s8", "tracking_s2_info")
 
@@ -127,3 +130,18 @@ def test_batched_q_values_equal_one_search_per_belief(name):
     assert planner.q_values_batch(B[:0], 2).shape == (0, model.A)
     with pytest.raises(ModelError, match="beliefs"):
         planner.q_values_batch(B[:, :2], 2)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_price_changes_neither_assumption_1_nor_the_lp(name):
+    """Theorem P (a), (c) (docs/THEORY.md): the priced model has the same Assumption 1 verdicts and
+    the same least-element bound vectors."""
+    model = load_model_file(name)
+    plain = solve_bounds(model, "tight")
+    for c in (np.linspace(3.0, 0.0, model.A), np.array([-1.0, 4.0, 0.5][:model.A])):
+        priced = replace(model, r=model.r - c[None, :])
+        assert check_assumptions(priced).status == check_assumptions(model).status
+        sol = solve_bounds(priced, "tight")
+        assert sol.feasible == plain.feasible and sol.covers == plain.covers
+        np.testing.assert_allclose(sol.g, plain.g, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(sol.h, plain.h, rtol=1e-9, atol=1e-9)
