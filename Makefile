@@ -55,14 +55,14 @@ test: $(PKG_STAMP)
 	$(BIN)/ruff check .
 	$(TEST_ENV) $(BIN)/python -m pytest $(PYTEST_ARGS)
 
-# Issue 6: the optional extras `experiments` (matplotlib) and `bench` (pomdp-py) of setup.py, then
-# every experiment (README, "Results"). matplotlib is also in requirements.txt (the smoke test).
+# The optional extras `experiments` (matplotlib) and `bench` (pomdp-py) of setup.py, then every
+# experiment into docs/ (docs/benchmarks.md). matplotlib is also in requirements.txt (the smoke test).
 EXPERIMENTS_EXTRAS := matplotlib pomdp-py
 EXPERIMENTS_ARGS ?=
 
 experiments: $(PKG_STAMP)
 	$(PIP) install $(EXPERIMENTS_EXTRAS)
-	$(BIN)/pomdp-planner bench all $(EXPERIMENTS_ARGS)
+	$(BIN)/pomdp-planner bench all --output docs $(EXPERIMENTS_ARGS)
 
 lint: $(DEPS_STAMP)
 	$(BIN)/ruff check .

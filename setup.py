@@ -82,6 +82,7 @@ setup(
     name=PACKAGE,
     version=_version(),
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"], exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["py.typed"]},  # PEP 561: the package is typed
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -92,11 +93,11 @@ setup(
     install_requires=["numpy", "scipy", "clarabel", "PyYAML"],
     extras_require={
         "test": ["pytest", "hypothesis", "ruff"],
-        # issue 6 (README, "Optional extras"): plots of `pomdp-planner bench all`, and its POUCT peer
+        # docs/benchmarks.md, "Optional extras": plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
         "bench": ["pomdp-py"],
     },
-    zip_safe=True,
+    zip_safe=False,  # PEP 561: a typed package is not zip-safe
     maintainer="pomdp_planner maintainers",
     maintainer_email="maintainers@example.com",
     description="Information-acquisition POMDPs with myopic policy bounds (Lauri et al.), with ROS 2 nodes",

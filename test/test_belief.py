@@ -156,14 +156,14 @@ def test_action_out_of_range_raises_belief_error(bad_a):
     b = uniform_belief(m)
     for fn in (lambda: predict(m, b, bad_a), lambda: update(m, b, bad_a, 0),
                lambda: observation_probabilities(m, b, bad_a)):
-        with pytest.raises(BeliefError, match="action: index"):
+        with pytest.raises(BeliefError, match="action: must be an integer in"):
             fn()
 
 
 @pytest.mark.parametrize("bad_z", [-1, 2, 0.5, False])
 def test_observation_out_of_range_raises_belief_error(bad_z):
     m = random_model(np.random.default_rng(0), 3, 2, 2)
-    with pytest.raises(BeliefError, match="observation: index"):
+    with pytest.raises(BeliefError, match="observation: must be an integer in"):
         update(m, uniform_belief(m), 0, bad_z)
 
 

@@ -375,7 +375,7 @@ def test_result_to_dict_is_json(s3):
     ("time_budget", -1.0), ("time_budget", "fast"), ("time_budget", math.nan), ("simulations", 0),
     ("simulations", 2.5), ("max_depth", 0), ("max_depth", True), ("exploration", -0.1),
     ("exploration", math.inf), ("exploration_scale", -1), ("leaf", "random"), ("rollout_depth", -1),
-    ("tail", "forever"), ("backup", "max"), ("seed", -3), ("seed", "x"), ("reuse", "yes"), ("reuse", 2),
+    ("tail", "forever"), ("backup", "max"), ("seed", -3), ("seed", "x"), ("reuse", "maybe"), ("reuse", 2),
 ])
 def test_bad_option_raises_value_error_naming_it(s3, option, value):
     with pytest.raises(ValueError, match=option):

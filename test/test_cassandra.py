@@ -229,7 +229,7 @@ def test_start_forms(line, expected):
 
 @pytest.mark.parametrize(("text", "pattern"), [
     ("states: 2\nactions: 1\nobservations: 1\nT: 0 identity\nO: 0 uniform\n", "'discount:' is missing"),
-    ("discount: 1.0\n", r"line 1: discount: must satisfy 0 <= discount < 1"),
+    ("discount: 1.5\n", r"line 1: discount: must satisfy 0 <= discount <= 1 \(1: a finite horizon only\)"),
     ("discount: 0.9\nvalues: utility\n", "line 2: values: expected 'reward' or 'cost'"),
     ("discount: 0.9\nT: 0 identity\n", "line 2: 'states:' must be declared"),
     ("discount: 0.9\nstates: 1 2 3\n", "line 2: states: name '1' is a bare number"),

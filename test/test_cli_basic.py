@@ -15,9 +15,9 @@ import yaml
 from pomdp_planner.cli import main
 from pomdp_planner.cli._common import emit_json, format_table, parse_belief, to_jsonable
 from pomdp_planner.core.belief import BeliefError
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.cassandra import parse_pomdp
 from pomdp_planner.core.io.model_yaml import load_model, model_from_dict
-from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +126,7 @@ def test_common_helpers():
     np.testing.assert_allclose(parse_belief("uniform", m), 1 / 3)
     np.testing.assert_allclose(parse_belief("0.2, 0.3, 0.5", m), [0.2, 0.3, 0.5])
     for bad in ("a,b,c", "0.5,0.6,0.1", "-0.5,1,0.5", "1"):
-        with pytest.raises((ModelError, BeliefError), match="--belief"):  # text, or the core's belief rule
+        with pytest.raises((OptionError, BeliefError), match="--belief"):  # text, or the core's belief rule
             parse_belief(bad, m)
 
 

@@ -284,3 +284,15 @@ def test_tree_depth_counts_action_observation_levels() -> None:
     v1 = Node({"a1": Node({"z0": v2})})
     root = Node({"a0": Node({"z1": v1, "z2": Node()}), "a1": Node({"z0": Node()})})
     assert peers.tree_depth(root) == 2
+
+
+def test_report_names_the_reference_policy_and_does_not_call_a_depth_search_optimal() -> None:
+    """A regret is against the model's reference policy; where that is a fixed-depth exhaustive
+    search (the S = 8 models) the report says it is not the optimum, and no row is called 'optimal'."""
+    d = {"results": [], "plan": {**_plan(planners=("optimal", "greedy")).__dict__, "budgets": (0.01,), "pouct": {},
+                                 "probes": {}},
+         "pouct": False, "mcts": False, "missing": [], "facts": {}, "models": []}
+    text = "\n".join(section_peers(d, {}))
+    assert "- `reference`:" in text and "- `optimal`" not in text
+    assert "not always the optimum" in text and "not the optimum" in text
+    assert "optimal reference" not in text

@@ -129,9 +129,9 @@ def test_bad_arguments_name_the_problem():
     model = hand_model()
     flt = EpochFilter(model)
     b = np.full(3, 1 / 3)
-    with pytest.raises(BeliefError, match="sensor: index 1"):
+    with pytest.raises(BeliefError, match=r"sensor: must be an integer in 0\.\.0, got 1"):
         flt.step(b, 0, {1: 0})
-    with pytest.raises(BeliefError, match="observation: index 2 of sensor 0"):
+    with pytest.raises(BeliefError, match=r"observation \(sensor 0\): must be an integer in 0\.\.1, got 2"):
         flt.step(b, 0, {0: 2})
     with pytest.raises(BeliefError, match="action"):
         flt.step(b, 1, {0: 0})

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 from pomdp_planner.core import gate
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.gate import assumption_report, build_planner
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.model import POMDP, ModelError
+from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.search import Planner
 
 from model_factory import ModelSpec, posterior_floor, random_candidate  # isort: skip
@@ -170,9 +171,9 @@ def test_to_dict_is_json(failing: POMDP, s3: POMDP) -> None:
 
 
 def test_bad_arguments_name_the_field(s3: POMDP) -> None:
-    with pytest.raises(ModelError, match="variant"):
+    with pytest.raises(OptionError, match="variant"):
         build_planner(s3, variant="loose")
-    with pytest.raises(ModelError, match="on_assumption_failure"):
+    with pytest.raises(OptionError, match="on_assumption_failure"):
         build_planner(s3, on_assumption_failure="ignore")
 
 
@@ -219,5 +220,5 @@ def test_the_default_constant_is_mlr_and_no_lp_records_none(s3: POMDP, failing: 
 @pytest.mark.parametrize("bad", ["paper", "MLR", "", None, 1])
 def test_a_bad_constant_is_refused_naming_the_field_and_the_choices(s3: POMDP, bad: object) -> None:
     for use_bounds in (True, False):
-        with pytest.raises(ModelError, match=r"constant: expected one of mlr, fosd"):
+        with pytest.raises(OptionError, match=r"constant: expected one of mlr, fosd"):
             build_planner(s3, constant=bad, use_bounds=use_bounds)

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import yaml
 
-from pomdp_planner.bench import lookahead_models as lm
 from pomdp_planner.core.bounds import constraint_margins, renyi_constant
 from pomdp_planner.core.domains.perimeter import preset_model
 from pomdp_planner.core.io.model_yaml import load_model
@@ -16,6 +15,7 @@ from pomdp_planner.core.policies import make_policy
 from pomdp_planner.core.reference import reference_policy
 from pomdp_planner.core.simulate import simulate
 from pomdp_planner.nodes.processes import parameter_set_model
+from tools import lookahead_models as lm
 
 
 @pytest.fixture(scope="module")

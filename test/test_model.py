@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from pomdp_planner.core.errors import BeliefError
 from pomdp_planner.core.model import POMDP, STOCHASTIC_ATOL, ModelError, action_of_priority, priority_of
 
 
@@ -62,12 +63,13 @@ O0 = base()["O"]
     (dict(O=O0 + np.array([0, 0, 0.001])[None, None, :] * np.array([[[1], [0]], [[0], [0]]])),
      r"observation\[0\]\[0\]: row \(next state 0, action 0\) sums to 1.001"),
     (dict(r=np.array([[1.0, np.inf], [0, 0]])), r"reward\[0\]\[1\]: value is not finite"),
-    (dict(gamma=1.0), r"discount: must satisfy 0 <= gamma < 1, got 1.0"),
-    (dict(gamma=-0.1), r"discount: must satisfy 0 <= gamma < 1"),
+    (dict(gamma=1.5), r"discount: must satisfy 0 <= gamma <= 1 \(1: a finite horizon only\), got 1.5"),
+    (dict(gamma=-0.1), r"discount: must satisfy 0 <= gamma <= 1"),
+    (dict(gamma=float("nan")), r"discount: must be a finite number"),
     (dict(gamma="fast"), r"discount: must be a number"),
     (dict(w=[1.0, 2.0, 3.0]), r"uncertainty.weights: expected 2 weights"),
     (dict(w=[1.0, np.nan]), r"uncertainty.weights\[1\]: weight is not finite"),
-    (dict(w=["a", 1]), r"uncertainty.weights: must be numbers"),
+    (dict(w=["a", 1]), r"uncertainty.weights\[0\]: must be a number, got a string 'a'"),
     (dict(epsilon=0.5), r"uncertainty.epsilon: must satisfy 0 < epsilon < 1/S = 0.5"),
     (dict(epsilon="x"), r"uncertainty.epsilon: must be a number"),
     (dict(uncertainty="tsallis"), r"uncertainty.function: unknown function 'tsallis'"),
@@ -128,9 +130,6 @@ def test_priorities():
     assert priority_of(0) == 1 and priority_of(2) == 3
     np.testing.assert_array_equal(priority_of(np.array([0, 1])), [1, 2])
     assert [action_of_priority(p, 3) for p in (1, 2, 3)] == [0, 1, 2]
-    for p in (0, 4, -1):
-        with pytest.raises(ModelError, match=r"action: priority .* out of range 1..3"):
-            action_of_priority(p, 3)
-    for p in (1.0, "1", True):
-        with pytest.raises(ModelError, match="action: priority must be an integer"):
+    for p in (0, 4, -1, 1.0, "1", True):
+        with pytest.raises(BeliefError, match=r"action: priority: must be an integer in 1\.\.3, got"):
             action_of_priority(p, 3)

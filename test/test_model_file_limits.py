@@ -1,6 +1,6 @@
 """Hostile model files (issue 13): every case ends in one clean line, in bounded memory.
 
-One test per crash class found by the mutation fuzzer (pomdp_planner/bench/fuzz_models.py) and
+One test per crash class found by the mutation fuzzer (tools/fuzz_models.py) and
 listed in the issue: binary content, non-regular files, oversized files, alias bombs, deep
 nesting, huge numbers, NaN/infinity, strings and bools where numbers are expected, non-integer
 counts, absurd declared sizes (YAML generator and .POMDP headers), long tokens, and the
@@ -175,7 +175,10 @@ def test_yaml_errors_are_one_line(tmp_path, text, pattern):
     ("[2.0, 2.5, 1.0]", "[2.0, '2.5', 1.0]", r"reward\[0\]\[1\]: must be a number, got a string '2.5'"),
     ("[2.0, 2.5, 1.0]", "[2.0, 1.0e999, 1.0]", r"reward\[0\]\[1\]: value is not finite \(inf\)"),
     ("[2.0, 2.5, 1.0]", "[2.0, null, 1.0]", r"reward\[0\]\[1\]: must be a number, got null"),
-    ("weights: [1.1, 1.6, 1.0]", "weights: [1.1, yes, 1.0]", r"uncertainty.weights\[1\]: must be a number, got a bool"),
+    ("weights: [1.1, 1.6, 1.0]", "weights: [1.1, true, 1.0]",
+     r"uncertainty.weights\[1\]: must be a number, got a bool"),
+    ("weights: [1.1, 1.6, 1.0]", "weights: [1.1, yes, 1.0]",
+     r"uncertainty.weights\[1\]: must be a number, got a string 'yes'"),
     ("epsilon: 0.001", "epsilon: '1e-3'", "uncertainty.epsilon: must be a number, got a string"),
     ("name: tracking_s3_info", "name: [a, b]", "name: must be a string, got a list"),
     ("name: tracking_s3_info", 'name: "a\\nb"', "name: must be one line of at most 256 printable characters"),

@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.sensors import load_model_file
-from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.multitarget.dual import lambda_ceiling, minimise_convex, reward_range_bound
 from pomdp_planner.core.multitarget.knapsack import solve_knapsack
 from pomdp_planner.core.multitarget.problem import default_efforts, make_problem
@@ -52,18 +52,19 @@ def test_rational_efforts_are_exact():
     ({"budget": 10**9, "efforts": [["0.000001", 0, 0], None]}, "budget"),
 ])
 def test_bad_problems_name_the_field(kwargs, field):
-    with pytest.raises(ModelError, match=rf"^{field}") as info:
+    with pytest.raises(OptionError, match=rf"^{field}") as info:
         make_problem([PERIMETER, TRACKING], discount=0.95, **kwargs)
     assert "\n" not in str(info.value)
 
 
 def test_different_discounts_need_an_explicit_joint_discount():
-    with pytest.raises(ModelError, match=r"^discount: .*different discounts"):
+    with pytest.raises(OptionError, match=r"^discount: .*different discounts"):
         make_problem([PERIMETER, TRACKING], budget=1)
     p = make_problem([PERIMETER, TRACKING], budget=1, discount=0.9)
     assert p.gamma == 0.9 and all(m.gamma == 0.9 for m in p.models)
-    with pytest.raises(ModelError, match=r"^discount"):
-        make_problem([PERIMETER], budget=1, discount=1.0)
+    with pytest.raises(OptionError, match=r"^discount"):
+        make_problem([PERIMETER], budget=1, discount=1.5)
+    assert make_problem([PERIMETER], budget=1, discount=1.0).gamma == 1.0  # a finite lookahead
 
 
 def test_a_budget_that_cannot_bind():

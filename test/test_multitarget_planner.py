@@ -19,9 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pomdp_planner.core.belief import BeliefError
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.sensors import load_model_file
-from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.multitarget.dual import lambda_ceiling
 from pomdp_planner.core.multitarget.planner import MultiTargetPlanner
 from pomdp_planner.core.multitarget.policies import joint_policy_names, make_joint_policy
@@ -171,17 +171,17 @@ def test_decisions_are_json_ready_with_priorities():
 def test_bad_input_names_the_field():
     problem = make_problem([PERIMETER, PERIMETER], budget=2)
     planner = MultiTargetPlanner(problem, depth=2)
-    with pytest.raises(ModelError, match=r"^beliefs: 1 beliefs for 2 targets"):
+    with pytest.raises(BeliefError, match=r"^beliefs: 1 beliefs for 2 targets"):
         planner.decide([np.full(3, 1 / 3)])
     with pytest.raises(BeliefError, match=r"beliefs\[1\]"):
         planner.decide([np.full(3, 1 / 3), np.array([0.5, 0.6, -0.1])])
-    with pytest.raises(ModelError, match=r"^search"):
+    with pytest.raises(OptionError, match=r"^search"):
         MultiTargetPlanner(problem, search="mcts")
-    with pytest.raises(ModelError, match=r"^price"):
+    with pytest.raises(OptionError, match=r"^price"):
         MultiTargetPlanner(problem, price=-1)
-    with pytest.raises(ModelError, match=r"^depth"):
+    with pytest.raises(OptionError, match=r"^depth"):
         MultiTargetPlanner(problem, depth=0)
-    with pytest.raises(ModelError, match=r"^policy: unknown joint policy"):
+    with pytest.raises(OptionError, match=r"^policy: unknown joint policy"):
         make_joint_policy("bnb", problem)
-    with pytest.raises(ModelError, match=r"^policy greedy: unknown option"):
+    with pytest.raises(OptionError, match=r"^policy greedy: unknown option"):
         make_joint_policy("greedy", problem, depth=3)

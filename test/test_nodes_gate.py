@@ -60,3 +60,24 @@ def test_node_on_a_valid_model_prunes_with_the_guarantee(harness):
 def test_node_refusal_is_the_gates_refusal(harness):
     node = _planner(harness, FAILING, refuse_if_assumptions_fail=True)
     assert node.refusing and node.setup.mode == "refuse" and node.setup.planner is None
+
+
+def test_node_on_a_discount_one_model_plans_exhaustively_and_says_why(harness, tmp_path):
+    """A finite-horizon model (discount 1) that satisfies Assumption 1 still has no myopic bounds
+    (Theorem 2 needs discount < 1): the node searches exhaustively and its diagnostics say why."""
+    path = tmp_path / "finite.yaml"
+    path.write_text(Path(S3).read_text().replace("discount: 0.99", "discount: 1"))
+    h = harness
+    node = _planner(h, str(path), max_depth=2, time_budget=30.0)
+    assert node.report.holds and node.setup.mode == "exhaustive" and not node.setup.guaranteed
+    assert node.setup.reason.startswith("discount: the bound LP (Theorem 2) needs discount < 1")
+    assert "discount: the bound LP (Theorem 2) needs discount < 1" in node._bounds_message
+    rec = h.recorder()
+    pub_node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
+    pub = pub_node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
+    h.start()
+    b = np.array([0.2, 0.5, 0.3])
+    pub.publish(encode_belief(0, b))
+    assert h.wait_until(lambda: len(rec.actions) >= 1, timeout=20)
+    assert rec.actions[0] == (1, Planner(load_model(path)).search(b, 2, use_bounds=False).priority)
+    assert h.wait_until(lambda: "discount" in (rec.diag_values("planner") or [{}])[-1].get("bounds", ""), timeout=5)

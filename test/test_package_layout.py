@@ -113,3 +113,34 @@ def test_config_installed(prefix):
     assert not missing, f"not installed under {share}: {missing}"
     for p in config:
         assert (share / p).read_bytes() == (REPO / "config" / p).read_bytes(), f"{p}: installed copy is stale"
+
+
+def installed_package_dir() -> Path:
+    """Where a fresh interpreter, outside the source tree, imports ``pomdp_planner`` from."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = subprocess.run([sys.executable, "-I", "-c", f"import {PACKAGE}; print({PACKAGE}.__file__)"],
+                             cwd=tmp, capture_output=True, text=True)
+    if out.returncode != 0:
+        _skip_or_fail(f"{PACKAGE} is not importable outside the source tree: {out.stderr.strip()[-200:]}")
+    where = Path(out.stdout.strip()).parent
+    if where == REPO / PACKAGE:
+        _skip_or_fail(f"{PACKAGE} imports from the source tree, not from an installed copy")
+    return where
+
+
+def test_installed_package_is_typed():
+    """PEP 561: the ``py.typed`` marker ships with the package, so type checkers use its annotations."""
+    assert (REPO / PACKAGE / "py.typed").is_file()
+    assert (installed_package_dir() / "py.typed").is_file(), "py.typed is not installed (setup.py package_data)"
+
+
+def test_development_tooling_is_not_installed():
+    """``tools/`` (model search, fuzz corpus) runs from a checkout; the installed package has no copy."""
+    pkg = installed_package_dir()
+    assert (REPO / "tools" / "lookahead_models.py").is_file()
+    assert not (pkg / "bench" / "lookahead_models.py").exists()
+    assert not (pkg / "bench" / "fuzz_models.py").exists()
+    assert not (pkg.parent / "tools" / "lookahead_models.py").exists()

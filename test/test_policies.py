@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.policies import POLICIES, make_policy, policy_names
 from pomdp_planner.core.simulate import simulate
 
@@ -64,17 +64,17 @@ def test_a_name_and_the_built_policy_give_the_same_run() -> None:
 
 def test_unknown_policy_and_option_are_errors_naming_them() -> None:
     model = load_model(S3)
-    with pytest.raises(ModelError, match=r"unknown policy 'bogus'.*bnb"):
+    with pytest.raises(OptionError, match=r"unknown policy 'bogus'.*bnb"):
         make_policy("bogus", model)
-    with pytest.raises(ModelError, match=r"policy bnb: unknown option 'dpth' \(known: .*depth"):
+    with pytest.raises(OptionError, match=r"policy bnb: unknown option 'dpth' \(known: .*depth"):
         make_policy("bnb", model, dpth=2)
-    with pytest.raises(ModelError, match="variant"):
+    with pytest.raises(OptionError, match="variant"):
         make_policy("lower", model, variant="loose")
-    with pytest.raises(ModelError, match=r"option depth: must be an integer in 1\.\.50"):
+    with pytest.raises(OptionError, match=r"option depth: must be an integer in 1\.\.50"):
         make_policy("exhaustive", model, depth=0)
-    with pytest.raises(ModelError, match=r"option time_budget: must be a number of seconds in 0\.001\.\.60"):
+    with pytest.raises(OptionError, match=r"option time_budget: must be a number of seconds in 0\.001\.\.60"):
         make_policy("bnb", model, time_budget=-1)
-    with pytest.raises(ModelError, match="option prune_without_guarantee: expected 1/0"):
+    with pytest.raises(OptionError, match="option prune_without_guarantee: must be 1/0"):
         make_policy("bnb", model, prune_without_guarantee="maybe")
 
 
@@ -97,9 +97,9 @@ def test_mcts_by_name_is_the_core_planner_and_its_option_errors_name_the_option(
     again = simulate(model, make_policy("mcts", model, simulations=200, seed=3), 5, seed=2)
     assert list(run.actions) == list(again.actions)  # seeded: the same decisions
     assert policy.last.simulations == 200
-    with pytest.raises(ModelError, match=r"^policy mcts: option max_depth: "):
+    with pytest.raises(OptionError, match=r"^policy mcts: option max_depth: "):
         make_policy("mcts", model, max_depth=0)
-    with pytest.raises(ModelError, match=r"^policy mcts: unknown option 'depth'"):
+    with pytest.raises(OptionError, match=r"^policy mcts: unknown option 'depth'"):
         make_policy("mcts", model, depth=3)
 
 
@@ -129,7 +129,7 @@ def test_the_bound_policies_take_the_constant_option(capsys: pytest.CaptureFixtu
     planner = json.loads(capsys.readouterr().out)["planner"]
     assert planner["constant"] == planner["bounds"]["constant"] == "fosd"
     for name in ("bnb", "lower", "upper"):
-        with pytest.raises(ModelError, match=r"option constant: expected one of mlr, fosd, got 'paper'"):
+        with pytest.raises(OptionError, match=r"option constant: expected one of mlr, fosd, got 'paper'"):
             make_policy(name, model, constant="paper")
-    with pytest.raises(ModelError, match=r"policy exhaustive: unknown option 'constant'"):
+    with pytest.raises(OptionError, match=r"policy exhaustive: unknown option 'constant'"):
         make_policy("exhaustive", model, constant="fosd")

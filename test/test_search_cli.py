@@ -99,11 +99,11 @@ def test_variant_choices_come_from_the_core() -> None:
 
 def test_core_validators_are_the_last_guard() -> None:
     assert check_depth(3) == 3 and check_depth(np.int64(7), "d", MAX_DEPTH_RANGE) == 7
-    assert check_time_budget(0) == 0.0 and check_time_budget("0.25") == 0.25
+    assert check_time_budget(0) == 0.0 and check_time_budget(np.float32(0.25)) == 0.25
     for bad in (0, -1, 1.5, True, "2"):
         with pytest.raises(ValueError, match="depth"):
             check_depth(bad)
-    for bad in (-1.0, float("inf"), "x", None, True):
+    for bad in (-1.0, float("inf"), "x", "0.25", None, True):
         with pytest.raises(ValueError, match="time_budget"):
             check_time_budget(bad)
     with pytest.raises(ValueError, match=r"in 1\.\.50"):

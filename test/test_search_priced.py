@@ -19,9 +19,9 @@ from model_factory import ModelSpec, random_candidate
 
 from pomdp_planner.core.belief import posteriors_all
 from pomdp_planner.core.bounds import solve_bounds
+from pomdp_planner.core.errors import BeliefError, OptionError
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.sensors import load_model_file
-from pomdp_planner.core.model import ModelError
 from pomdp_planner.core.myopic import MyopicBounds
 from pomdp_planner.core.search import DeadlineExceeded, Planner
 from pomdp_planner.core.structure import check_assumptions
@@ -79,7 +79,7 @@ def test_price_zero_changes_nothing_and_the_original_is_untouched():
 def test_price_is_checked():
     planner = Planner(load_model_file("perimeter_s3"))
     for bad in ([1.0, 2.0], [np.nan, 0.0, 0.0], "abc"):
-        with pytest.raises(ModelError, match="action_cost"):
+        with pytest.raises(OptionError, match="action_cost"):
             planner.priced(bad)
 
 
@@ -128,7 +128,7 @@ def test_batched_q_values_equal_one_search_per_belief(name):
             np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(planner.q_values_batch(B, 0), model.rho(B) - np.linspace(0.5, 0.0, model.A))
     assert planner.q_values_batch(B[:0], 2).shape == (0, model.A)
-    with pytest.raises(ModelError, match="beliefs"):
+    with pytest.raises(BeliefError, match="beliefs"):
         planner.q_values_batch(B[:, :2], 2)
 
 

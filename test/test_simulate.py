@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from pomdp_planner.core.belief import update
+from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.model import POMDP, ModelError
+from pomdp_planner.core.model import POMDP
 from pomdp_planner.core.policies import MyopicPolicy, RandomPolicy, make_policy, policy_names
 from pomdp_planner.core.simulate import simulate
 
@@ -113,7 +114,7 @@ def test_policies_callable_object_and_registry(s3):
     assert {rp.act(np.ones(3) / 3) for _ in range(60)} == {0, 1, 2}
     assert MyopicPolicy(s3).act(np.array([1.0, 0.0, 0.0])) == int(np.argmax(s3.r[0] - 0.0))
     assert {"random", "myopic"} <= set(policy_names())
-    with pytest.raises(ModelError, match="policy: unknown policy 'nope'"):
+    with pytest.raises(OptionError, match="policy: unknown policy 'nope'"):
         make_policy("nope", s3)
     with pytest.raises(ValueError, match="policy returned 7"):
         simulate(s3, lambda b: 7, steps=1)

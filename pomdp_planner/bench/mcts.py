@@ -7,29 +7,13 @@ simulations per search, fresh tree each time), with the tree depth reached and t
 created per second.
 
 ``--tune`` measures decision quality at equal wall-clock time on the ``S = 3`` model against
-an optimal reference, the grid policy iteration of ``core/reference.py``
+a reference policy, the grid policy iteration of ``core/reference.py``
 (:func:`~pomdp_planner.core.reference.reference_policy`): on grid beliefs where the reference
 decides the action (its Q gap exceeds the measured tie margin), all those where greedy is
 wrong plus a seeded sample of the others, the mean loss ``Q*(b, a*) - Q*(b, a_mcts)`` and the
 share of optimal decisions, for each configuration (leaf evaluation, rollout depth,
 exploration scale, maximum depth) and budget. The defaults of ``core/belief_mcts.py`` were
-chosen from this table; one run (2 shared cores under heavy load, so the simulation counts are
-low and noisy) gave, as share of optimal decisions at 0.01 / 0.05 / 0.2 s (greedy: 84 %, mean
-Q* loss 0.0022):
-
-====================================  ===================
-configuration                         optimal decisions
-====================================  ===================
-bellman, rollout 1, max depth 2 or 3  100 / 100 / 100 %
-bellman, rollout 1, max depth 4       99 / 100 / 100 %
-bellman, rollout 1, max depth 6       97 / 98 / 100 %
-bellman, rollout 1, max depth 50      98 / 99 / 99 %
-bellman, depth 3, c x0.3 or x3        100 / 100 / 100 %
-bellman, depth 3, rollout 0 or 3      100 / 100 / 100 %
-mean, rollout 1, max depth 3          98 / 98 / 98 %
-mean, rollout 1, max depth 50         93 / 96 / 97 %
-mean, rollout 3, max depth 50, c x3   86 / 90 / 94 %
-====================================  ===================
+chosen from this table (one run: docs/benchmarks.md, "Belief-space MCTS").
 
 ``--closed-loop`` runs seeded closed-loop episodes (``core.simulate.simulate``, true belief
 reward ``rho``) of the MCTS policy at each budget per decision and of greedy, and prints the

@@ -9,7 +9,8 @@ is infeasible), 2 bad input: a bad argument, file or option value, or a request 
 refuse (too deep, too large). Every error is one line on stderr naming the option or field;
 :func:`main` returns the code instead of raising ``SystemExit``, so it can be called in-process.
 An interrupt (Ctrl-C) ends with code 130 and one line; a closed output pipe (``| head``) ends
-quietly with code 0.
+quietly with code 0. A warning (e.g. a model file accepted with a change, which the loader
+says) is one line on stderr: ``pomdp-planner: warning: ...``.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from collections.abc import Sequence
 
-from ..core.belief import BeliefError
-from ..core.model import ModelError
+from ..core.errors import InputError, InputWarning
 from . import bench, bounds, check, export, plan, simulate
 from ._common import Parser, one_line
 
@@ -49,8 +50,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help (0) or a bad argument (2, one line already printed)
         return exc.code if isinstance(exc.code, int) else 2
     try:
-        return int(args.func(args) or 0)
-    except (ModelError, BeliefError) as exc:  # bad input: the message names the field
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", InputWarning)
+            warnings.showwarning = _one_line_warning
+            return int(args.func(args) or 0)
+    except InputError as exc:  # bad input: the message names the field
         print(f"pomdp-planner: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader went away (| head): stop quietly
@@ -62,6 +66,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("pomdp-planner: interrupted", file=sys.stderr)
         return 130
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Show a warning as one line on stderr (``pomdp-planner: warning: ...``), without Python's
+    location and source line: e.g. a model file accepted with a change (``InputWarning``)."""
+    print(f"pomdp-planner: warning: {one_line(str(message))}", file=sys.stderr)
 
 
 def _silence_stdout() -> None:

@@ -4,7 +4,7 @@ Every subcommand module uses the same conventions, so that the commands look ali
 
 * ``add_model_argument(parser)`` adds the positional ``MODEL`` (a YAML model file or a
   Cassandra ``.POMDP`` file); ``load_model_arg(args)`` loads it (errors are
-  :class:`~pomdp_planner.core.model.ModelError`, which ``cli.main`` turns into exit code 2).
+  :class:`~pomdp_planner.core.errors.ModelError`, which ``cli.main`` turns into exit code 2).
 * ``add_json_argument(parser)`` adds ``--json``; ``emit_json(data)`` prints ``data`` as JSON,
   converting numpy scalars/arrays on the way (``to_jsonable``).
 * ``add_belief_argument(parser)`` / ``parse_belief(text, model)``: a belief given on the
@@ -30,9 +30,10 @@ from typing import Any, NoReturn, TextIO
 import numpy as np
 
 from ..core.belief import check_belief, uniform_belief
+from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
-from ..core.model import POMDP, ModelError, short_repr
-from ..core.policies import SEED_RANGE, check_seed
+from ..core.model import POMDP, short_repr
+from ..core.options import SEED_RANGE, check_seed
 
 
 def one_line(text: str) -> str:
@@ -87,7 +88,7 @@ def seed_arg(text: str) -> int:
     """An argparse ``type`` for seeds: an integer in :data:`~pomdp_planner.core.policies.SEED_RANGE`."""
     try:
         return check_seed(int_in(*SEED_RANGE)(text), "seed")
-    except (argparse.ArgumentTypeError, ModelError):
+    except (argparse.ArgumentTypeError, OptionError):
         raise argparse.ArgumentTypeError(f"must be an integer in {SEED_RANGE[0]}..{SEED_RANGE[1]}, "
                                          f"got {short_repr(text)}") from None
 
@@ -124,7 +125,7 @@ def parse_belief(text: str, model: POMDP, field: str = "--belief") -> np.ndarray
 
     Only the text is handled here; the belief itself is checked by the core's one rule,
     :func:`~pomdp_planner.core.belief.check_belief` (length S, finite, on the simplex within
-    1e-6). Errors name ``field``: ``ModelError`` for the text, ``BeliefError`` from the core
+    1e-6). Errors name ``field``: ``OptionError`` for the text, ``BeliefError`` from the core
     (``cli.main`` turns both into exit code 2).
     """
     text = text.strip()
@@ -134,7 +135,7 @@ def parse_belief(text: str, model: POMDP, field: str = "--belief") -> np.ndarray
     try:  # an empty item ("0.5,,0.5", a trailing comma) is an error, as any other non-number
         values = [float(x) if x.isascii() else math.nan for x in items]
     except ValueError:
-        raise ModelError(f"{field}: expected 'uniform' or comma-separated numbers, got {short_repr(text)}") from None
+        raise OptionError(f"{field}: expected 'uniform' or comma-separated numbers, got {short_repr(text)}") from None
     return check_belief(model, np.asarray(values, dtype=float), field=field)
 
 

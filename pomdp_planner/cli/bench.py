@@ -4,8 +4,9 @@
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
 ``bench multitarget [--quick] [--json FILE] [--plot FILE]`` is the multi-target benchmark (dual
 bound against the exact joint lookahead, closed-loop regret, decision time against K;
-``pomdp_planner/bench/multitarget.py``). ``bench all`` regenerates docs/RESULTS.md
-(``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
+``pomdp_planner/bench/multitarget.py``).
+``bench all`` writes every experiment into ``--output DIR`` (``RESULTS.md``, ``img/*.png``;
+``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=multitarget_bench.__doc__.split("\n\n")[0])
     multitarget_bench.add_arguments(m)
     m.set_defaults(func=_run_multitarget)
-    experiments.add_arguments(sub.add_parser("all", help="all experiments: docs/RESULTS.md and docs/img/*.png",
+    experiments.add_arguments(sub.add_parser("all", help="all experiments: RESULTS.md and img/*.png in --output DIR",
                                              description=experiments.__doc__.split("\n\n")[0]))
 
 

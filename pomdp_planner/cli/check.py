@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..core.model import POMDP
+from ..core.model import POMDP, infinite_horizon_refusal
 from ..core.structure import EXACT_MAX_STATES, SDP_MAX_STATES, check_assumptions
 from ._common import (
     add_json_argument,
@@ -44,7 +44,12 @@ def _text(model: POMDP, report) -> str:
         f"  S={s['S']} states, A={s['A']} actions (priorities 1..{s['A']}), Z={s['Z']} observations, "
         f"gamma={s['gamma']:g}",
         f"  uncertainty: {s['uncertainty']}, weights per priority [{weights}]",
-        "  validation: OK (shapes, probabilities, rows sum to 1, 0 <= gamma < 1)",
+        "  validation: OK (shapes, probabilities, rows sum to 1, 0 <= gamma <= 1)",
+    ]
+    horizon = infinite_horizon_refusal(model, "the bound LP (Theorem 2)")
+    if horizon:
+        lines.append(f"  {horizon}; plan and simulate search exhaustively")
+    lines += [
         "",
         report.summary(),
     ]

@@ -1,7 +1,8 @@
-"""``pomdp-planner bench all``: regenerate docs/RESULTS.md and docs/img (issue 6).
+"""``pomdp-planner bench all``: every experiment of the paper, as RESULTS.md and img/*.png.
 
 Runs every experiment of the paper (Figs. 1, 3, 4, Tables II, III) and the peer comparison,
-writing ``DIR/RESULTS.md`` and ``DIR/img/*.png`` (default ``docs``). ``--quick`` runs toy
+writing ``DIR/RESULTS.md`` and ``DIR/img/*.png`` (``--output DIR``, default the current
+directory; ``make experiments`` passes ``--output docs``). ``--quick`` runs toy
 sizes (CI smoke test, about half a minute). Plots need the ``experiments`` extra (matplotlib), the
 POUCT peer the ``bench`` extra (pomdp-py); without pomdp-py POUCT is left out and the report
 says so.
@@ -24,8 +25,8 @@ MAX_JOBS = os.cpu_count() or 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--output", default="docs", metavar="DIR",
-                        help="directory for RESULTS.md and img/*.png (default: docs)")
+    parser.add_argument("--output", default=".", metavar="DIR",
+                        help="directory for RESULTS.md and img/*.png (default: the current directory)")
     parser.add_argument("--quick", action="store_true", help="toy sizes, < 2 minutes (CI smoke test)")
     parser.add_argument("--only", nargs="+", choices=SECTIONS, metavar="SECTION",
                         help=f"run only these sections ({', '.join(SECTIONS)})")

@@ -23,7 +23,9 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator, Sequence
 
-from ..core.model import POMDP, ModelError, short_repr
+from ..core.checks import option_value
+from ..core.errors import OptionError
+from ..core.model import POMDP, short_repr
 from ..core.multitarget.policies import JOINT_POLICIES, joint_policy_names
 from ..core.policies import POLICIES, make_policy, policy_names
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
@@ -41,17 +43,12 @@ from ._common import (
 
 
 def _option(text: str) -> tuple[str, object]:
-    """``KEY=VALUE``; the value as an int, else a float, else the text (the policy checks it)."""
+    """``KEY=VALUE``; the value as the core reads option text (:func:`~pomdp_planner.core.checks.option_value`:
+    an int for plain ASCII digits, else a float, else the text); the policy checks it."""
     key, sep, value = text.partition("=")
     if not sep or not key.strip():
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {short_repr(text)}")
-    key = key.strip()
-    for conv in (int, float):
-        try:
-            return key, conv(value)
-        except ValueError:
-            pass
-    return key, value
+    return key.strip(), option_value(value)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -89,10 +86,10 @@ def _initial_state(text: str | None, model: POMDP) -> int | None:
     t = text.strip()
     digits = t[1:] if t[:1] in "+-" else t
     if not (digits.isascii() and digits.isdigit() and len(digits) <= 30):
-        raise ModelError(f"--initial-state: {short_repr(text)} is neither a state name nor an index")
+        raise OptionError(f"--initial-state: {short_repr(text)} is neither a state name nor an index")
     s = int(t)
     if not 0 <= s < model.S:
-        raise ModelError(f"--initial-state: index {s} out of range 0..{model.S - 1}")
+        raise OptionError(f"--initial-state: index {s} out of range 0..{model.S - 1}")
     return s
 
 
@@ -103,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     args.policy = "myopic" if args.policy is None else args.policy
     model = load_model_arg(args)
     if args.policy not in POLICIES:
-        raise ModelError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")
+        raise OptionError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")
     belief = parse_belief(args.belief, model) if args.belief else None
     initial_state = _initial_state(args.initial_state, model)
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.

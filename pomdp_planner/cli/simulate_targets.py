@@ -16,8 +16,9 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator
 
+from ..core.checks import check_number, option_value
+from ..core.errors import OptionError, short_repr
 from ..core.io.sensors import load_model_file
-from ..core.model import ModelError, short_repr
 from ..core.multitarget.planner import MultiTargetPlanner
 from ..core.multitarget.policies import JOINT_POLICIES, joint_policy_names, make_joint_policy
 from ..core.multitarget.problem import MultiTargetProblem, format_effort, make_problem
@@ -42,10 +43,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def check_single_target(args: argparse.Namespace) -> None:
     """A single-target run needs ``MODEL`` and none of the multi-target options."""
     if args.model is None:
-        raise ModelError("MODEL: give a model file, or --targets M1,M2,... for several targets")
+        raise OptionError("MODEL: give a model file, or --targets M1,M2,... for several targets")
     for name in ("budget", "efforts", "discount"):
         if getattr(args, name) is not None:
-            raise ModelError(f"--{name}: only with --targets")
+            raise OptionError(f"--{name}: only with --targets")
 
 
 def _efforts(text: str | None, K: int) -> list | None:
@@ -55,46 +56,39 @@ def _efforts(text: str | None, K: int) -> list | None:
     if len(rows) == 1:
         rows = rows * K
     if len(rows) != K:
-        raise ModelError(f"--efforts: {len(rows)} lists for {K} targets (give one list, or one per target)")
+        raise OptionError(f"--efforts: {len(rows)} lists for {K} targets (give one list, or one per target)")
     return [None if not r else [x.strip() for x in r.split(",")] for r in rows]
 
 
 def load_problem(args: argparse.Namespace) -> MultiTargetProblem:
     """The problem of ``--targets``, ``--budget``, ``--efforts`` and ``--discount``."""
     if args.model is not None:
-        raise ModelError("MODEL: not with --targets (give every target in --targets)")
+        raise OptionError("MODEL: not with --targets (give every target in --targets)")
     for name in ("belief", "initial_state"):
         if getattr(args, name):
-            raise ModelError(f"--{name.replace('_', '-')}: not available with --targets (every target starts from "
+            raise OptionError(f"--{name.replace('_', '-')}: not available with --targets (every target starts from "
                              "its model's start belief, else uniform)")
     names = [t.strip() for t in args.targets.split(",")]
     if not all(names):
-        raise ModelError(f"--targets: an empty entry in {short_repr(args.targets)}")
+        raise OptionError(f"--targets: an empty entry in {short_repr(args.targets)}")
     if args.budget is None:
-        raise ModelError("--budget: required with --targets")
+        raise OptionError("--budget: required with --targets")
     loaded: dict[str, object] = {}
     models = []
     for k, name in enumerate(names):
         if name not in loaded:
             loaded[name] = load_model_file(name, f"--targets[{k}]")
         models.append(loaded[name])
-    discount = None if args.discount is None else _number(args.discount, "--discount")
+    discount = None if args.discount is None else check_number(option_value(args.discount), "--discount", 0.0, 1.0)
     return make_problem(models, budget=args.budget, efforts=_efforts(args.efforts, len(models)),
                         discount=discount)
-
-
-def _number(text: str, field: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise ModelError(f"{field}: must be a number, got {short_repr(text)}") from None
 
 
 def run(args: argparse.Namespace) -> int:
     problem = load_problem(args)
     name = "lagrangian" if args.policy is None else args.policy
     if name not in JOINT_POLICIES:
-        raise ModelError(f"--policy: unknown joint policy {short_repr(name)} "
+        raise OptionError(f"--policy: unknown joint policy {short_repr(name)} "
                          f"(known: {', '.join(joint_policy_names())})")
     policy = make_joint_policy(name, problem, **dict(args.option))
     sim = JointSimulation(problem, policy, args.steps, seed=args.seed)

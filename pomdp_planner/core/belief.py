@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import check_int
+from .errors import BeliefError
 from .model import POMDP, ModelError, short_repr
 
 #: Observations whose probability under the belief is at most this are impossible.
@@ -40,10 +42,6 @@ class ImpossibleObservation(ArithmeticError):
             f"observation {observation} has probability {eta:.3g} under the belief after action "
             f"{action} (priority {action + 1}): Bayes update undefined"
         )
-
-
-class BeliefError(ValueError):
-    """A belief, action or observation given to the filter is invalid (message says which)."""
 
 
 def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
@@ -72,16 +70,12 @@ def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: s
 
 def check_action(model: POMDP, a: int) -> int:
     """Check a 0-based action index (the message shows the 1..A priority too)."""
-    if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < model.A:
-        raise BeliefError(f"action: index {a!r} out of range 0..{model.A - 1} (priorities 1..{model.A})")
-    return int(a)
+    return check_int(a, "action", 0, model.A - 1, error=BeliefError, note=f"(0-based; priorities 1..{model.A})")
 
 
 def check_observation(model: POMDP, z: int) -> int:
     """Check a 0-based observation index."""
-    if isinstance(z, bool) or not isinstance(z, (int, np.integer)) or not 0 <= z < model.Z:
-        raise BeliefError(f"observation: index {z!r} out of range 0..{model.Z - 1}")
-    return int(z)
+    return check_int(z, "observation", 0, model.Z - 1, error=BeliefError)
 
 
 def uniform_belief(model: POMDP) -> np.ndarray:

@@ -3,104 +3,46 @@
 An anytime, information-aware online planner for the discrete POMDPs of this package. Every
 node of the tree is an **exact** Bayes belief (paper Eqs. 1-2), every edge is rewarded with the
 true belief reward ``rho(b, a) = b . r[:, a] - w_a f(b)`` (paper Eq. 3), so the planner sees the
-uncertainty term that a state-sampling planner (POMCP, POUCT) cannot.
+uncertainty term that a state-sampling planner (POMCP, POUCT) cannot. Options, benchmark and how
+the defaults were chosen: docs/benchmarks.md, "Belief-space MCTS".
 
-Tree
-----
-A belief node ``b`` is *expanded* on its second visit: for every action ``a`` and observation
-``z`` at once (one matrix product, then a few vectorised operations) it stores
-``eta(z | b, a) = b^a @ O[a][:, z]`` with ``b^a = b @ P[a]``, the posterior
-``tau(b, a, z) ∝ b^a ∘ O[a][:, z]`` and ``rho(tau, .)`` of every child. With finite, small ``Z``
-the child for ``(a, z)`` is unique, so there is no need for progressive widening on
-observations (PFT-DPW's rule exists for continuous or huge observation spaces, where a new
-sample is almost surely a new child): all ``Z`` posteriors of an action are known exactly and a
-simulation descends by **sampling** ``z ~ eta(. | b, a)``, which spends the simulations on the
-likely observations. Impossible observations (``eta <= ETA_MIN``, as in
-:mod:`~pomdp_planner.core.belief`) are never sampled. Child node objects are created lazily,
-from the stored posterior, when a simulation first reaches them.
+**Tree.** A belief node is expanded on its second visit: for every action ``a`` and observation
+``z`` at once it stores ``eta(z | b, a) = b^a @ O[a][:, z]`` (``b^a = b @ P[a]``), the posterior
+``tau(b, a, z) ∝ b^a ∘ O[a][:, z]`` and ``rho(tau, .)``. With finite, small ``Z`` the child for
+``(a, z)`` is unique, so no progressive widening is needed: a simulation descends by sampling
+``z ~ eta(. | b, a)``; impossible observations (``eta <= ETA_MIN``) are never sampled. Actions
+are chosen by UCB1, ``Q(b, a) + c sqrt(ln N(b) / N(b, a))``, after the untried actions, which are
+tried in greedy order (largest ``rho(b, a)`` first); ties are broken by the seeded generator.
+``c = exploration_scale * (max rho - min rho)`` over the simplex (:func:`rho_range`), unless
+``exploration`` sets it.
 
-Action selection is UCB1, ``Q(b, a) + c sqrt(ln N(b) / N(b, a))``, after the untried actions,
-which are tried in greedy order (largest ``rho(b, a)`` first: a node tried once is then valued
-by its greedy action, consistent with the leaf values below); exact UCB1 ties are broken by the
-seeded generator.
+**Backups** (``backup``). ``"bellman"`` (default): partial Bellman backups with the exact
+observation probabilities (DP-UCT, Keller and Helmert, ICAPS 2013), ``Q(b, a) = rho(b, a) +
+gamma sum_z eta_z V(z) / sum_z eta_z`` over the children visited so far; once every child of a
+finite tree has been visited it is the expectimax value exactly (paper Eqs. 4-6). ``"mean"``:
+the Monte Carlo means of POMCP and PFT-DPW. ``test/test_belief_mcts.py`` checks both against a
+brute-force expectimax recursion.
 
-Statistics (``backup``)
------------------------
-* ``"bellman"`` (default): partial Bellman backups with the exact observation probabilities
-  (DP-UCT, Keller and Helmert, ICAPS 2013): ``Q(b, a) = rho(b, a) + gamma sum_z eta_z V(z) /
-  sum_z eta_z`` over the children ``(a, z)`` visited so far, ``V`` of an expanded node the
-  largest ``Q`` of its tried actions, ``V`` of a leaf the mean of its leaf values. Only the
-  *choice* of observations is sampled, not their weights, so the estimate has no
-  observation-sampling noise; once every possible child of a finite tree has been visited it is
-  the expectimax value exactly (paper Eqs. 4-6).
-* ``"mean"``: the classic Monte Carlo statistics of POMCP and PFT-DPW, ``Q(b, a)`` the mean of
-  the discounted returns ``rho(b, a) + gamma G'`` of the simulations through ``(b, a)``; they
-  converge to the same expectimax values, more slowly.
+**Leaf values** (``leaf``). ``"rollout"`` (default): ``rollout_depth`` greedy steps along one
+sampled observation path with exact Bayes updates, then a tail (``tail``): ``"average"``
+(default, ``gamma^D rho_bar / (1 - gamma)`` with ``rho_bar`` the long-run mean reward of the
+greedy policy, :func:`average_greedy_reward`), ``"leaf"`` (the last greedy reward held forever)
+or ``"none"`` (the truncated return). ``"rho"``: ``max_a rho(b, a)``, the leaf of
+:mod:`~pomdp_planner.core.search`, so the tree estimates the expectimax values of Algorithm 1.
+``"zero"``: 0.
 
-``test/test_belief_mcts.py`` checks both against a brute-force expectimax recursion.
+**Speed.** Tree statistics are plain Python lists; the numerical work is vectorised per node:
+an expansion is one product of the belief with a precomputed ``S x A (Z + Z A + Z S)`` matrix
+holding ``eta``, the linear reward and the unnormalised posterior of every ``(a, z)``; a rollout
+step carries the belief unnormalised. Random numbers are drawn in blocks.
 
-Exploration constant: returns are sums of ``rho`` values, so ``c`` is scaled to the spread of
-``rho``: ``c = exploration_scale * (max rho - min rho)`` over the simplex
-(:func:`rho_range`, on the vertices, the centre and a fixed sample of beliefs). An explicit
-``exploration`` overrides it.
-
-Leaf values (``leaf``)
-----------------------
-* ``"rollout"`` (default): ``rollout_depth`` greedy steps, ``a_t = argmax_a rho(b_t, a)``,
-  along one sampled observation path with exact Bayes updates, then a tail for the rest of the
-  infinite horizon (``tail``):
-
-  - ``"average"`` (default): ``gamma^D rho_bar / (1 - gamma)`` with ``rho_bar`` the long-run
-    mean reward of the greedy policy (:func:`average_greedy_reward`, computed once per model).
-    It adds no variance, and leaves at different depths stay comparable (a truncated return
-    would favour the deeper, more visited subtrees by about one reward per level).
-  - ``"leaf"``: ``gamma^D max_a rho(b_D, a) / (1 - gamma)``, the last greedy reward held
-    forever. It multiplies the spread of ``rho`` between leaves by ``1 / (1 - gamma)`` (100 at
-    ``gamma = 0.99``) and measured much worse.
-  - ``"none"``: the truncated return.
-
-  ``rollout_depth = 1`` is the cheap value estimate ``max_a rho(b, a) + gamma rho_bar / (1 -
-  gamma)``: no belief update at all (``rho`` of every node is cached).
-* ``"rho"``: ``max_a rho(b, a)``, the leaf of :mod:`~pomdp_planner.core.search`: with it the
-  tree estimates the depth-``max_depth`` expectimax values of Algorithm 1.
-* ``"zero"``: 0 (the pure finite-horizon problem).
-
-Defaults
---------
-Chosen from ``python -m pomdp_planner.bench.mcts --tune`` (decisions at 100 grid beliefs of the
-shipped ``S = 3`` model, 16 of them where greedy is not optimal, against the grid
-policy-iteration optimum of ``core/reference.py``, at 0.01, 0.05 and 0.2 s per decision; figures
-in the benchmark's docstring): with Bellman backups and ``max_depth`` 2 or 3 every decision was
-optimal at every budget (greedy: 84 %); Monte Carlo means (98 %), deeper trees (97-99 % at
-0.01-0.05 s), the ``"leaf"`` tail and truncated returns (61-81 %, in an earlier round) lost.
-Rollout depths 0, 1 and 3 and ``exploration_scale`` 0.3, 1 and 3 tied at ``max_depth`` 3;
-rollout depth 1 is the cheapest informative leaf (no belief update) and 1 the middle of the
-flat range of ``c``. Trying the untried actions greedy-first was the largest single
-improvement (before it, with a random order, ``max_depth`` 50 chose optimally at 83-89 % of
-the beliefs, now 98-99 %). This model cannot separate the settings further: on a model where
-lookahead pays beyond three steps, measure ``max_depth`` and ``rollout_depth`` again.
-
-Speed
------
-The tree statistics are plain Python lists (for ``A`` of a few actions, a Python loop beats a
-numpy call), the numerical work is vectorised per node: an expansion is one product of the
-belief with a precomputed ``S x A (Z + Z A + Z S)`` matrix ``K`` holding, for every action and
-observation, ``eta``, the linear reward of the unnormalised posterior and the unnormalised
-posterior itself, then a division and the uncertainty of all ``A Z`` posteriors at once. A
-rollout step is one product with the action's block of ``K`` and, for Renyi's quadratic entropy,
-one dot product: the belief is carried unnormalised and the normaliser of the next belief is the
-sampled observation's unnormalised ``eta``. Random numbers are drawn in blocks.
-
-Anytime and determinism
------------------------
-A search stops after ``simulations`` simulations or when ``time_budget`` seconds have passed
-(the clock, injectable as in :class:`~pomdp_planner.core.search.Planner`, is read after every
-simulation: a call of ~0.1 us next to a simulation's 5-100 us), whichever comes
+**Anytime and determinism.** A search stops after ``simulations`` simulations or when
+``time_budget`` seconds have passed (the clock, injectable as in
+:class:`~pomdp_planner.core.search.Planner`, is read after every simulation), whichever comes
 first; at least one simulation is always run. Given the seed and a number of simulations the
 result is reproducible. Tree reuse (:class:`BeliefMCTSPolicy`): if the next belief is a child
-posterior of the last root under the action taken (equal up to rounding, checked with
-:data:`REUSE_ATOL`), that subtree becomes the new root, so its statistics are kept; otherwise a
-fresh tree is built.
+posterior of the last root under the action taken (equal up to :data:`REUSE_ATOL`), that
+subtree becomes the new root; otherwise a fresh tree is built.
 """
 
 from __future__ import annotations
@@ -117,9 +59,19 @@ from typing import Any
 import numpy as np
 
 from .belief import ETA_MIN, check_belief
+from .checks import check_choice, check_int, check_number, is_integer, parse_flag
+from .errors import OptionError
 from .gc_pause import paused_gc
 from .model import POMDP, priority_of
-from .search import DEFAULT_MEMORY_BUDGET, MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
+from .options import (
+    MAX_DEPTH_RANGE,
+    ROLLOUT_DEPTH_RANGE,
+    SIMULATIONS_RANGE,
+    TIME_BUDGET_RANGE,
+    check_depth,
+    check_time_budget,
+)
+from .search import DEFAULT_MEMORY_BUDGET
 
 #: Leaf evaluations accepted by :class:`BeliefMCTS` (see the module docstring).
 LEAF_KINDS = ("rollout", "rho", "zero")
@@ -131,7 +83,7 @@ TAILS = ("average", "leaf", "none")
 AVERAGE_REWARD_STEPS = 2000
 #: Backups accepted by :class:`BeliefMCTS`: Monte Carlo means or partial Bellman backups.
 BACKUPS = ("mean", "bellman")
-#: Default ``c / (max rho - min rho)`` of UCB1 (measured, module docstring "Defaults").
+#: Default ``c / (max rho - min rho)`` of UCB1 (measured: docs/benchmarks.md, "Belief-space MCTS").
 DEFAULT_EXPLORATION_SCALE = 1.0
 #: Default number of greedy rollout steps before the tail value (measured).
 DEFAULT_ROLLOUT_DEPTH = 1
@@ -291,21 +243,6 @@ class MCTSResult:
         }
 
 
-def _check_int(value: Any, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name}: must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def _check_number(value: Any, name: str, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name}: must be a number, got {value!r}")
-    x = float(value)
-    if not math.isfinite(x) or x < 0.0 or (positive and x == 0.0):
-        raise ValueError(f"{name}: must be a finite number {'>' if positive else '>='} 0, got {value!r}")
-    return x
-
-
 class BeliefMCTS:
     """UCT on exact beliefs with the true belief reward (module docstring).
 
@@ -324,23 +261,20 @@ class BeliefMCTS:
                  clock: Callable[[], float] = time.perf_counter,
                  memory_budget: int = DEFAULT_MEMORY_BUDGET):
         self.model = model
-        self.max_depth = _check_int(max_depth, "max_depth", 1)
-        self.rollout_depth = _check_int(rollout_depth, "rollout_depth", 0)
-        if leaf not in LEAF_KINDS:
-            raise ValueError(f"leaf: expected one of {', '.join(LEAF_KINDS)}, got {leaf!r}")
-        self.leaf = leaf
-        if tail not in TAILS:
-            raise ValueError(f"tail: expected one of {', '.join(TAILS)}, got {tail!r}")
-        self.tail = tail
-        if backup not in BACKUPS:
-            raise ValueError(f"backup: expected one of {', '.join(BACKUPS)}, got {backup!r}")
-        self.backup = backup
-        self.exploration_scale = _check_number(exploration_scale, "exploration_scale")
+        self.max_depth = check_int(max_depth, "max_depth", 1)
+        self.rollout_depth = check_int(rollout_depth, "rollout_depth", 0)
+        self.leaf = check_choice(leaf, LEAF_KINDS, "leaf")
+        self.tail = check_choice(tail, TAILS, "tail")
+        self.backup = check_choice(backup, BACKUPS, "backup")
+        if leaf == "rollout" and tail != "none" and model.gamma >= 1.0:
+            raise OptionError(f"tail: {tail} values the infinite horizon after a rollout (a factor 1 / (1 - gamma)), "
+                              "undefined at discount 1 (a finite-horizon model); use tail=none or leaf=rho")
+        self.exploration_scale = check_number(exploration_scale, "exploration_scale", 0.0)
         if exploration is None:
             exploration = self.exploration_scale * rho_range(model)
-        self.exploration = _check_number(exploration, "exploration")
+        self.exploration = check_number(exploration, "exploration", 0.0)
         if seed is not None:
-            seed = _check_int(seed, "seed", 0)
+            seed = check_int(seed, "seed", 0)
         self.seed = seed
         self.clock = clock
         self._rng = np.random.default_rng(seed)
@@ -349,7 +283,7 @@ class BeliefMCTS:
         self._runi = _Uniforms(self._rng)  # those of the rollouts
         S, A, Z = model.S, model.A, model.Z
         self._S, self._A, self._Z = S, A, Z
-        self.memory_budget = _check_int(memory_budget, "memory_budget", 1)
+        self.memory_budget = check_int(memory_budget, "memory_budget", 1)
         #: The tree stops growing at this many expanded nodes (:func:`expansion_bytes`).
         self.max_expansions = max(1, self.memory_budget // expansion_bytes(S, A, Z))
         self._gamma = float(model.gamma)
@@ -375,8 +309,9 @@ class BeliefMCTS:
         Kx = np.concatenate([eta, np.concatenate([lin, U], axis=3).reshape(A, S, Z * (A + S))], axis=2)
         self._Kall = np.ascontiguousarray(np.moveaxis(Kx, 0, 1).reshape(S, A * self._L))
         self._sure = bool(np.all(eta > 2.0 * ETA_MIN))  # every observation possible from every belief
-        self._tail_factor = self._gamma ** self.rollout_depth / (1.0 - self._gamma)
-        self._average_reward = average_greedy_reward(model, self) if self.tail == "average" else math.nan
+        tail_used = self.leaf == "rollout" and self.tail != "none"  # (checked above: then gamma < 1)
+        self._tail_factor = self._gamma ** self.rollout_depth / (1.0 - self._gamma) if tail_used else 0.0
+        self._average_reward = average_greedy_reward(model, self) if tail_used and self.tail == "average" else math.nan
 
     # ----------------------------------------------------------------- public
     def search(self, belief: np.ndarray, simulations: int | None = None, time_budget: float | None = None,
@@ -388,9 +323,9 @@ class BeliefMCTS:
         its stored posteriors under ``action``).
         """
         if simulations is not None:
-            simulations = _check_int(simulations, "simulations", 1)
+            simulations = check_int(simulations, "simulations", 1)
         if time_budget is not None:
-            time_budget = _check_number(time_budget, "time_budget")
+            time_budget = check_number(time_budget, "time_budget", 0.0)
         if simulations is None and time_budget is None:
             simulations = DEFAULT_SIMULATIONS
         clock = self.clock
@@ -642,8 +577,7 @@ class BeliefMCTS:
 
     def _reusable(self, old: _Node, action: int, b: np.ndarray) -> _Node | None:
         """The child of ``old`` under ``action`` whose posterior equals ``b`` (rounding aside)."""
-        if old.kids is None or isinstance(action, bool) or not isinstance(action, (int, np.integer)) \
-                or not 0 <= action < self._A:
+        if old.kids is None or not is_integer(action) or not 0 <= action < self._A:
             return None
         Z = self._Z
         rows = old.post[action * Z:(action + 1) * Z]
@@ -668,8 +602,8 @@ class BeliefMCTSPolicy:
     def __init__(self, planner: BeliefMCTS, simulations: int | None = None, time_budget: float | None = None,
                  reuse: bool = True):
         self.planner = planner
-        self.simulations = None if simulations is None else _check_int(simulations, "simulations", 1)
-        self.time_budget = None if time_budget is None else _check_number(time_budget, "time_budget")
+        self.simulations = None if simulations is None else check_int(simulations, "simulations", 1)
+        self.time_budget = None if time_budget is None else check_number(time_budget, "time_budget", 0.0)
         self.reuse = bool(reuse)
         self.last: MCTSResult | None = None
 
@@ -686,18 +620,10 @@ class BeliefMCTSPolicy:
         return self.last.action
 
 
-#: The largest ``simulations`` per decision a user may ask for (``--option simulations=N``): about
-#: 25-50 s of search at the 20-50 thousand simulations/s measured on the tracking models.
-MAX_SIMULATIONS = 10**6
-#: The largest ``rollout_depth`` a user may ask for (greedy steps per simulation).
-MAX_ROLLOUT_DEPTH = 1000
-
-
-def _check_range(value: Any, name: str, lo: float, hi: float) -> None:
-    """A user-facing range (the same ranges as the search planners' options, where they share one)."""
-    if value is not None and not (isinstance(value, (int, float, np.integer, np.floating)) and lo <= value <= hi):
-        span = "..".join(str(int(x)) if float(x).is_integer() else f"{x:g}" for x in (lo, hi))
-        raise ValueError(f"{name}: must be in {span}, got {value!r}")
+#: The largest ``simulations`` per decision a user may ask for (:data:`~.options.SIMULATIONS_RANGE`).
+MAX_SIMULATIONS = SIMULATIONS_RANGE[1]
+#: The largest ``rollout_depth`` a user may ask for (:data:`~.options.ROLLOUT_DEPTH_RANGE`).
+MAX_ROLLOUT_DEPTH = ROLLOUT_DEPTH_RANGE[1]
 
 
 #: Options of :func:`make_belief_mcts_policy` and their defaults.
@@ -713,28 +639,24 @@ def make_belief_mcts_policy(model: POMDP, options: Mapping[str, Any] | None = No
 
     ``time_budget`` (seconds per decision) and/or ``simulations``; neither:
     :data:`DEFAULT_SIMULATIONS` simulations. Values come typed (numbers, strings for ``leaf``,
-    ``tail``, ``backup``; ``reuse`` also as ``"true"``/``"false"`` or 0/1, as the command line's
-    ``--option KEY=VALUE`` gives them); ``None`` means the default. Other keys are ignored (the
-    policy registry passes every policy the same options). A bad value raises ``ValueError``
+    ``tail``, ``backup``; ``reuse`` as a yes/no flag, :func:`~.checks.parse_flag`, also as the command
+    line's ``--option KEY=VALUE`` gives it); ``None`` means the default. Other keys are ignored (the
+    policy registry passes every policy the same options). A bad value raises ``OptionError``
     naming the option.
     """
     opts = dict(POLICY_OPTIONS)
     opts.update({k: v for k, v in (options or {}).items() if k in POLICY_OPTIONS and v is not None})
-    # user-facing ranges, checked after the types (BeliefMCTS, BeliefMCTSPolicy) would be too late
-    # for an absurd but well-typed value: time_budget=1e9 or rollout_depth=1e8 would stall a run
-    for name, (lo, hi) in {"time_budget": TIME_BUDGET_RANGE, "max_depth": MAX_DEPTH_RANGE,
-                           "simulations": (1, MAX_SIMULATIONS), "rollout_depth": (0, MAX_ROLLOUT_DEPTH)}.items():
-        if not isinstance(opts[name], bool):
-            _check_range(opts[name], name, lo, hi)
-    reuse = opts["reuse"]
-    if isinstance(reuse, str) and reuse.lower() in ("true", "false"):  # from the command line
-        reuse = reuse.lower() == "true"
-    elif isinstance(reuse, (int, np.integer)) and not isinstance(reuse, bool) and reuse in (0, 1):
-        reuse = bool(reuse)
-    if not isinstance(reuse, (bool, np.bool_)):
-        raise ValueError(f"reuse: must be true or false, got {reuse!r}")
+    # user-facing ranges, checked here: the checks of BeliefMCTS and BeliefMCTSPolicy would accept
+    # an absurd but well-typed value (time_budget=1e9 or rollout_depth=1e8 would stall a run)
+    if opts["time_budget"] is not None:
+        check_time_budget(opts["time_budget"], "time_budget", TIME_BUDGET_RANGE)
+    check_depth(opts["max_depth"], "max_depth", MAX_DEPTH_RANGE)
+    if opts["simulations"] is not None:
+        check_int(opts["simulations"], "simulations", *SIMULATIONS_RANGE)
+    check_int(opts["rollout_depth"], "rollout_depth", *ROLLOUT_DEPTH_RANGE)
+    reuse = parse_flag(opts["reuse"], "reuse")
     planner = BeliefMCTS(model, exploration=opts["exploration"], exploration_scale=opts["exploration_scale"],
                          max_depth=opts["max_depth"], leaf=opts["leaf"], rollout_depth=opts["rollout_depth"],
                          tail=opts["tail"], backup=opts["backup"], seed=opts["seed"])
     return BeliefMCTSPolicy(planner, simulations=opts["simulations"], time_budget=opts["time_budget"],
-                            reuse=bool(reuse))
+                            reuse=reuse)

@@ -19,8 +19,9 @@ Constraints (paper Theorem 2 and Corollary 1, in our convention; docs/THEORY.md)
   - ``"mlr"`` (default): exactly what Corollary 1 needs. For Renyi quadratic entropy
     ``b -> phi.b + w log sum b^2`` is MLR increasing on the whole simplex iff every step of
     ``phi`` is ``>= 2 |w|`` (docs/THEORY.md, the proof and its tightness), so ``K_f = 2``:
-    the paper's constant 1 (Example 3), right for MLR although the paper derives it through
-    first-order dominance, where it is not a bound.
+    the paper's constant 1 (Example 3, whose printed chain has the signs reversed: we use
+    the corrected ``Delta_i phi >= 2 |w|``), right for MLR although the paper derives it
+    through first-order dominance, where it is not a bound.
   - ``"fosd"``: monotone in first-order stochastic dominance, the stronger property Theorem 2's
     proof establishes (gradient non-decreasing in the index at every belief). Its exact
     constant is ``K_f = 2 C_S``, ``C_S = (1 + sqrt(S-1)) / 2`` (:func:`renyi_constant`); the
@@ -63,10 +64,9 @@ upper bound): the ``tight`` variant returns them.
 **Solvers** (:data:`BOUND_SOLVERS`). ``"structured"`` (default): the least element wherever
 its conditions hold and it answers the question; otherwise HiGHS dual simplex
 (``scipy.optimize.linprog``), with row generation on large systems (start with one row per
-state pair, add the most violated action of each pair per round). ``"clarabel"``: the
-previous path, kept for cross-checks and the LP benchmark (``pomdp_planner.bench.lp``):
-Clarabel's interior point for every LP, row generation over whole actions, hinge-LP
-tightening whatever the structure.
+state pair, add the most violated action of each pair per round). ``"clarabel"``, for
+cross-checks and the LP benchmark (``pomdp_planner.bench.lp``): Clarabel's interior point for
+every LP, row generation over whole actions, hinge-LP tightening whatever the structure.
 
 Every returned vector is re-checked against the exact constraints of the chosen constant; a
 vector is reported feasible only if its worst margin is ``>= -tol``
@@ -88,7 +88,8 @@ from scipy import sparse
 from scipy.optimize import linprog
 
 from .belief import posterior_floor, update_batch
-from .model import POMDP
+from .checks import check_choice, check_int
+from .model import POMDP, frozen_copy, require_discount_below_one
 from .myopic import MyopicBounds
 
 #: Choices of ``g``/``h``; the first is the default of :func:`solve_bounds`.
@@ -157,14 +158,20 @@ def shannon_constant(S: int, epsilon: float) -> float:
         return 0.0
     if not 0.0 < epsilon < 1.0 / S:
         raise ValueError(f"epsilon must satisfy 0 < epsilon < 1/S = {1.0 / S:.6g}, got {epsilon}")
-    return float(math.log((1.0 - (S - 1) * epsilon) / epsilon))
+    # a difference of logarithms: the ratio itself overflows for a subnormal epsilon (1e-320)
+    return float(math.log1p(-(S - 1) * epsilon) - math.log(epsilon))
 
 
-def check_constant(constant: str) -> str:
-    """``constant`` if it is one of :data:`BOUND_CONSTANTS`, else a ValueError naming the choices."""
-    if constant not in BOUND_CONSTANTS:
-        raise ValueError(f"constant: expected one of {', '.join(BOUND_CONSTANTS)}, got {constant!r}")
-    return constant
+def check_variant(variant: object, field: str = "variant") -> str:
+    """``variant`` if it is one of :data:`BOUND_VARIANTS`, else an :class:`~.errors.OptionError`
+    naming ``field`` and the choices: the one check of a bound variant, wherever it is given."""
+    return check_choice(variant, BOUND_VARIANTS, field)
+
+
+def check_constant(constant: object, field: str = "constant") -> str:
+    """``constant`` if it is one of :data:`BOUND_CONSTANTS`, else an :class:`~.errors.OptionError`
+    naming ``field`` and the choices: the one check of a bound constant, wherever it is given."""
+    return check_choice(constant, BOUND_CONSTANTS, field)
 
 
 def gradient_spread(model: POMDP, constant: str = DEFAULT_CONSTANT) -> float:
@@ -282,18 +289,15 @@ def _scale_of(rhs: np.ndarray) -> float:
     return 1.0 + (float(np.max(np.abs(rhs))) if rhs.size else 0.0)
 
 
-def feasibility_tolerance(model: POMDP, v: np.ndarray, which: str, *, constant: str = DEFAULT_CONSTANT) -> float:
-    """Absolute tolerance on constraint margins for ``v`` (rounding in ``G v``)."""
-    return FEAS_RTOL * (_scale_of(constraint_rhs(model, which, constant=constant)) + float(np.sum(np.abs(v))))
+def _tolerance(scale: float, v: np.ndarray) -> float:
+    """Absolute tolerance on the constraint margins of ``v`` (rounding in ``G v``): a vector counts as
+    feasible when every margin is ``>= -FEAS_RTOL (scale + ||v||_1)``, ``scale`` from :func:`_scale_of`."""
+    return FEAS_RTOL * (scale + float(np.sum(np.abs(v))))
 
 
 def is_feasible(model: POMDP, v: np.ndarray, which: str, *, constant: str = DEFAULT_CONSTANT) -> bool:
-    """Exact post-check: every constraint margin (for ``constant``) is ``>= -tol``."""
-    if model.S < 2:
-        return True
-    rhs = constraint_rhs(model, which, constant=constant)
-    tol = FEAS_RTOL * (_scale_of(rhs) + float(np.sum(np.abs(v))))
-    return bool(_margins(model, v, which, rhs).min() >= -tol)
+    """Exact post-check: every constraint margin (for ``constant``) is ``>= -tol`` (:func:`_tolerance`)."""
+    return _System.build(model, which, constant).feasible(v)
 
 
 @dataclass
@@ -324,8 +328,7 @@ class _System:
     def feasible(self, v: np.ndarray) -> bool:
         if self.model.S < 2:
             return True
-        tol = FEAS_RTOL * (self.scale + float(np.sum(np.abs(v))))
-        return bool(self.margins(v).min() >= -tol)
+        return bool(self.margins(v).min() >= -_tolerance(self.scale, v))
 
 
 # ---------------------------------------------------------------- structure: the least element
@@ -661,7 +664,7 @@ def _infeasible_report(system: _System, solver: str) -> _VectorResult:
     v[0] = 0.0
     viol = rhs - _matvec(G, v)  # > 0 where violated
     t_star = float(viol.max())
-    if t_star <= FEAS_RTOL * (system.scale + float(np.sum(np.abs(v)))):
+    if t_star <= _tolerance(system.scale, v):
         return _VectorResult(True, v, f"{which}: feasible only at the boundary (phase-1 vector)", None, -t_star)
     m = G.shape[0]
     duals = np.zeros(m)
@@ -882,13 +885,11 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, constant: str = DEFAUL
     previous path, for cross-checks). The solution is feasible only if both vectors are; each
     returned vector satisfies every constraint of ``constant`` (post-checked).
     """
-    if variant not in BOUND_VARIANTS:
-        raise ValueError(f"variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
+    check_variant(variant)
     check_constant(constant)
-    if solver not in BOUND_SOLVERS:
-        raise ValueError(f"solver: expected one of {', '.join(BOUND_SOLVERS)}, got {solver!r}")
-    if not isinstance(samples, (int, np.integer)) or samples < 1:
-        raise ValueError(f"samples: expected a positive integer, got {samples!r}")
+    check_choice(solver, BOUND_SOLVERS, "solver")
+    check_int(samples, "samples", 1)
+    require_discount_below_one(model, "the bound LP (Theorem 2)")
     t0 = time.perf_counter()
     constants = bound_constants(model, constant)
     sg, sh = _System.build(model, "g", constant), _System.build(model, "h", constant)
@@ -939,15 +940,10 @@ def solve_bounds(model: POMDP, variant: str = "tight", *, constant: str = DEFAUL
                "h": None if h is None or model.S < 2 else float(sh.margins(h).min())}
     return BoundsSolution(
         model=model, variant=variant, constant=constant, feasible=feasible, g_feasible=rg.feasible,
-        h_feasible=rh.feasible, g=None if g is None else _ro(g), h=None if h is None else _ro(h),
+        h_feasible=rh.feasible, g=None if g is None else frozen_copy(g), h=None if h is None else frozen_copy(h),
         solve_time=time.perf_counter() - t0, message="; ".join(parts), constants=constants,
         covers=covers, most_violated=most, min_margin=margins, samples=n_samples,
         sample_agreement=agreement, sample_mean_gap=gap, sample_crossed=crossed, tightening=tightening,
         solver=solver,
     )
 
-
-def _ro(v: np.ndarray) -> np.ndarray:
-    v = np.array(v, dtype=float, copy=True)
-    v.setflags(write=False)
-    return v

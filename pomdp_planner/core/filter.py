@@ -12,14 +12,14 @@ An *epoch* is one transition of the target under one action ``a`` followed by on
    state, so the result is ``b^a * prod_k O_k[a][:, z_k]`` normalised, whatever their order.
 3. **Recovery** when a reading is impossible under the belief (``eta = 0``, i.e.
    ``<= belief.ETA_MIN``). The Bayes update is then undefined, and the reading proves that the
-   belief excluded the true state: the belief is wrong, not the reading. Two rules were in use
-   before this module (issue 11) and neither is kept:
+   belief excluded the true state: the belief is wrong, not the reading. Two simpler rules
+   fail:
 
-   * *discard the reading and keep the prediction* (the belief filter node): a belief that
+   * *discard the reading and keep the prediction*: a belief that
      excludes the truth can stay wrong for ever. With a static target and a perfect sensor,
      ``b = [1, 0]`` while the target is in state 1, every later reading is impossible too and
      is discarded in turn, so the filter never moves again;
-   * *re-initialise to the normalised likelihood* ``O[a][:, z]`` (``simulate``): it ignores
+   * *re-initialise to the normalised likelihood* ``O[a][:, z]``: it ignores
      the transition of this epoch, so it can put mass on states that no state reaches under
      ``a``.
 
@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .belief import ETA_MIN, BeliefError, check_action, check_belief
+from .checks import check_int
 from .model import POMDP, ModelError
 
 
@@ -104,13 +105,9 @@ class EpochFilter:
         return self.sensors[sensor].shape[2]
 
     def _check_reading(self, sensor: int, z: int) -> tuple[int, int]:
-        if isinstance(sensor, bool) or not isinstance(sensor, (int, np.integer)) \
-                or not 0 <= sensor < self.num_sensors:
-            raise BeliefError(f"sensor: index {sensor!r} out of range 0..{self.num_sensors - 1}")
-        Z = self.num_observations(sensor)
-        if isinstance(z, bool) or not isinstance(z, (int, np.integer)) or not 0 <= z < Z:
-            raise BeliefError(f"observation: index {z!r} of sensor {sensor} out of range 0..{Z - 1}")
-        return int(sensor), int(z)
+        sensor = check_int(sensor, "sensor", 0, self.num_sensors - 1, error=BeliefError)
+        z = check_int(z, f"observation (sensor {sensor})", 0, self.num_observations(sensor) - 1, error=BeliefError)
+        return sensor, z
 
     def step(self, belief: np.ndarray, action: int | None, readings: Mapping[int, int]) -> EpochUpdate:
         """Apply one epoch: ``action`` (0-based; ``None`` = unknown, only for a gap) and

@@ -11,16 +11,18 @@ policies, the benchmarks and experiments, the planner node) builds its planner w
 2. Assumption 1 (:func:`assumption_report`, cached per model content): if it fails or is
    unproven, ``on_assumption_failure="exhaustive"`` falls back to exhaustive search with the
    reason, ``"refuse"`` gives no planner at all (``mode="refuse"``).
-3. The LP (:func:`~.bounds.solve_bounds`, with the chosen ``variant`` and ``constant``):
+3. A discount of 1 (a finite-horizon model): Theorem 2 needs ``gamma < 1``, so there are no
+   bounds -> exhaustive search with that reason (also with the override below).
+4. The LP (:func:`~.bounds.solve_bounds`, with the chosen ``variant`` and ``constant``):
    infeasible -> exhaustive search with the LP's message.
-4. Shannon bounds whose guarantee covers no domain (``covers`` starts with ``"none"``) ->
+5. Shannon bounds whose guarantee covers no domain (``covers`` starts with ``"none"``) ->
    exhaustive search with the reason.
-5. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
+6. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
    bounds certify it (Proposition 1).
 
-``prune_without_guarantee=True`` is the explicit override: where 2 or 4 would stop pruning, the
+``prune_without_guarantee=True`` is the explicit override: where 2 or 5 would stop pruning, the
 planner prunes anyway with ``guaranteed=False``, and every output says that no guarantee holds
-(an infeasible LP gives no bounds to prune with, so 3 still falls back). A planner built
+(a discount of 1 or an infeasible LP gives no bounds to prune with, so 3 and 4 still fall back). A planner built
 without the guarantee never reports a decision as certified and, in the anytime search, does
 not stop early when the root bounds agree (:class:`~.search.Planner`).
 
@@ -37,8 +39,9 @@ from dataclasses import dataclass, replace
 from typing import Any
 from weakref import WeakKeyDictionary
 
-from .bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT, BoundsSolution, solve_bounds
-from .model import POMDP, ModelError, array_digest
+from .bounds import DEFAULT_CONSTANT, BoundsSolution, check_constant, check_variant, solve_bounds
+from .checks import check_choice
+from .model import POMDP, array_digest, infinite_horizon_refusal
 from .myopic import MyopicBounds
 from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner
 from .structure import AssumptionReport, check_assumptions
@@ -151,7 +154,7 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     ``variant`` (:data:`~.bounds.BOUND_VARIANTS`) and ``constant`` (:data:`~.bounds.BOUND_CONSTANTS`:
     ``"mlr"``, the default, exact for the MLR monotonicity Corollary 1 needs, or ``"fosd"``, the
     stronger first-order dominance constant ``C_S``) choose the LP's bounds; both are checked first
-    (a ``ModelError`` naming the field and the choices), also when ``use_bounds`` is off; the
+    (an ``OptionError`` naming the field and the choices), also when ``use_bounds`` is off; the
     result records both (``variant``, ``constant``, in :meth:`PlannerSetup.to_dict` and in the
     reason). ``report``: an Assumption 1 report already computed for ``model``
     (else :func:`assumption_report`). ``override_name`` is how the caller's user spells the
@@ -159,13 +162,9 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     ``chunk_bytes`` and ``memory_budget`` (bytes, checked before every search) go to the
     :class:`~.search.Planner`.
     """
-    if variant not in BOUND_VARIANTS:
-        raise ModelError(f"variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
-    if constant not in BOUND_CONSTANTS:
-        raise ModelError(f"constant: expected one of {', '.join(BOUND_CONSTANTS)}, got {constant!r}")
-    if on_assumption_failure not in ON_ASSUMPTION_FAILURE:
-        raise ModelError(f"on_assumption_failure: expected one of {', '.join(ON_ASSUMPTION_FAILURE)}, "
-                         f"got {on_assumption_failure!r}")
+    check_variant(variant)
+    check_constant(constant)
+    check_choice(on_assumption_failure, ON_ASSUMPTION_FAILURE, "on_assumption_failure")
 
     def planner(bounds: MyopicBounds | None, guaranteed: bool) -> Planner:
         return Planner(model, bounds, chunk_bytes=chunk_bytes, guaranteed=guaranteed, memory_budget=memory_budget)
@@ -182,10 +181,13 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     unguaranteed = ""  # why the guarantee is lost, if it is
     if not rep.holds:
         unguaranteed = f"{assumption_failure(rep)}: the myopic bounds are not valid for this model"
-        if not prune_without_guarantee:
-            if on_assumption_failure == "refuse":
-                return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
-            return exhaustive(unguaranteed, rep)
+        if not prune_without_guarantee and on_assumption_failure == "refuse":
+            return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
+    horizon = infinite_horizon_refusal(model, "the bound LP (Theorem 2)")
+    if horizon:  # no bounds to prune with, forced or not
+        return exhaustive(horizon + (f"; also, {unguaranteed}" if unguaranteed else ""), rep)
+    if unguaranteed and not prune_without_guarantee:
+        return exhaustive(unguaranteed, rep)
     sol = solve_bounds(model, variant, constant=constant)
     lp = f"the bound LP ({variant}, constant {constant})"
     if not sol.feasible or sol.myopic is None:

@@ -4,7 +4,7 @@ how long an input may stay silent before the node reports it.
 
 Every rule here is a pure function of epochs, counts and times; the nodes (``nodes/``) feed in what
 arrives and publish what the rules decide. Time comes from ``clock`` (default ``time.monotonic``),
-so tests drive it by hand. The numbers are parameters of the nodes (README, "Parameters"); the
+so tests drive it by hand. The numbers are parameters of the nodes (docs/ros.md, "Parameters"); the
 defaults are the module constants below.
 
 **Epoch window.** Epochs come from other processes and are not trusted: a node that is at epoch

@@ -21,12 +21,14 @@ import hashlib
 import json
 import math
 import numbers
-import reprlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .checks import check_int, is_integer
+from .errors import MESSAGE_VALUE_CHARS as MESSAGE_VALUE_CHARS  # re-exported
+from .errors import BeliefError, ModelError, kind_of, short_repr
 from .uncertainty import Uncertainty, get_uncertainty
 
 #: Rows of ``P`` and ``O`` must sum to one within this absolute tolerance.
@@ -36,64 +38,26 @@ STOCHASTIC_ATOL = 1e-6
 #: (:func:`check_model_size`). Building a model needs a few times this transiently. 128 MiB
 #: holds e.g. S = Z = 1600 with A = 3, or S = Z = 256 with A = 64.
 MAX_MODEL_BYTES = 128 * 2**20
-#: Longest text of a value quoted in an error message (:func:`short_repr`).
-MESSAGE_VALUE_CHARS = 80
 #: Longest model name; a name is one line of text (it is written into exported files).
 MAX_NAME_CHARS = 256
+#: Largest magnitude of a reward ``r(s, a)`` (and of every reward-generator parameter): a search
+#: sums at most ``MAX_DEPTH_RANGE[1] + 1`` rewards and the bound LP's right-hand sides are
+#: differences of rewards plus ``|w_a| K_f``, so every value stays finite and far inside the range
+#: the LP solver treats as finite (HiGHS reads ``1e20`` as infinity).
+MAX_REWARD_MAGNITUDE = 1e12
+#: Largest magnitude of a weight ``w_a``: the information reward ``w_a f(b)`` and the LP's
+#: ``|w_a| K_f`` (``K_f`` at most ``-log(epsilon)``, below 745 for any positive double) stay
+#: within :data:`MAX_REWARD_MAGNITUDE`.
+MAX_WEIGHT_MAGNITUDE = 1e9
+#: ``epsilon`` (the Shannon bounds' domain ``B_eps``) when a model gives none: this value, or
+#: ``1 / (2 S)`` when that is smaller (S > 500), so that ``0 < epsilon < 1/S`` holds at any size
+#: (:func:`default_epsilon`).
+DEFAULT_EPSILON = 1e-3
 
 
-class ModelError(ValueError):
-    """A model is malformed: the message names the field and the problem (one line)."""
-
-
-class _ShortRepr(reprlib.Repr):
-    """``reprlib`` limits, plus integers too long to print (Python refuses > 4300 digits)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.maxlevel, self.maxlist, self.maxtuple, self.maxdict = 3, 6, 6, 4
-        self.maxstring, self.maxlong, self.maxother = MESSAGE_VALUE_CHARS, 40, MESSAGE_VALUE_CHARS
-
-    def repr_int(self, x: int, level: int) -> str:
-        if x.bit_length() > 128:
-            return f"<integer of about {int(x.bit_length() * math.log10(2)) + 1} digits>"
-        return repr(x)
-
-
-_SHORT = _ShortRepr()
-
-
-def short_repr(value: object, limit: int = MESSAGE_VALUE_CHARS) -> str:
-    """``repr(value)`` cut to at most ``limit`` characters, on one line, whatever ``value`` is.
-
-    Containers show their first few items only (:mod:`reprlib`), so quoting a value never costs
-    more than a few hundred operations, and an error message never embeds an unbounded value.
-    """
-    try:
-        text = _SHORT.repr(value)
-    except Exception:
-        text = f"<{type(value).__name__}>"
-    text = " ".join(text.split("\n"))
-    return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
-def kind_of(value: object) -> str:
-    """What a parsed value is, in words, for messages ("a string '0.5'", "a list", "null")."""
-    if value is None:
-        return "null"
-    if isinstance(value, (bool, np.bool_)):
-        return f"a boolean ({value})"
-    if isinstance(value, str):
-        return f"a string {short_repr(value)}"
-    if isinstance(value, dict):
-        return "a mapping"
-    if isinstance(value, (list, tuple)):
-        return "a list"
-    if isinstance(value, numbers.Integral):
-        return f"the integer {short_repr(value)}"
-    if isinstance(value, numbers.Real):
-        return f"the number {short_repr(value)}"
-    return f"{type(value).__name__} {short_repr(value)}"
+def default_epsilon(S: int) -> float:
+    """:data:`DEFAULT_EPSILON`, or ``1 / (2 S)`` when that is smaller: inside ``(0, 1/S)`` for every S."""
+    return min(DEFAULT_EPSILON, 0.5 / S)
 
 
 def as_number(value: object, field_name: str, finite: bool = True) -> float:
@@ -117,7 +81,7 @@ def as_count(value: object, field_name: str) -> int:
 
     A float is refused even when integral (``3.0``): counts in model files are written as integers.
     """
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+    if not is_integer(value):
         raise ModelError(f"{field_name}: must be an integer count, got {kind_of(value)}")
     n = int(value)
     if n < 1:
@@ -171,11 +135,7 @@ def priority_of(action: int | np.ndarray) -> int | np.ndarray:
 
 def action_of_priority(priority: int, num_actions: int) -> int:
     """Tracking priority 1..A -> 0-based action index, with a clear error when out of range."""
-    if isinstance(priority, bool) or not isinstance(priority, (int, np.integer)):
-        raise ModelError(f"action: priority must be an integer in 1..{num_actions}, got {priority!r}")
-    if not 1 <= priority <= num_actions:
-        raise ModelError(f"action: priority {priority} is out of range 1..{num_actions}")
-    return int(priority) - 1
+    return check_int(priority, "action: priority", 1, num_actions, error=BeliefError) - 1
 
 
 def array_digest(*arrays: np.ndarray, digest_size: int = 20) -> bytes:
@@ -206,7 +166,8 @@ def model_digest(model: POMDP, digest_size: int = 20) -> bytes:
     return hashlib.blake2b(array_digest(model.P, model.O, model.r, model.w) + text, digest_size=digest_size).digest()
 
 
-def _frozen(x: np.ndarray) -> np.ndarray:
+def frozen_copy(x: np.ndarray) -> np.ndarray:
+    """A read-only float copy of ``x`` (the arrays of a model and of a bounds solution)."""
     x = np.array(x, dtype=float, copy=True)
     x.setflags(write=False)
     return x
@@ -236,7 +197,7 @@ def per_action_vector(field: str, value: object, A: int, noun: str = "value") ->
     if isinstance(value, (list, tuple)):
         for i, x in enumerate(value):
             if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real):
-                raise ModelError(f"{field}: must be numbers, got {kind_of(x)} at index {i}")
+                raise ModelError(f"{field}[{i}]: must be a number, got {kind_of(x)}")
     elif isinstance(value, (str, dict, bool, np.bool_)):
         raise ModelError(f"{field}: must be numbers, got {kind_of(value)}")
     try:
@@ -253,10 +214,23 @@ def per_action_vector(field: str, value: object, A: int, noun: str = "value") ->
 
 
 def _weights(w: object, A: int) -> np.ndarray:
-    """The weights ``w_a`` of Eq. 3: ``None`` (zeros), one number for all actions, or ``A`` numbers."""
+    """The weights ``w_a`` of Eq. 3: ``None`` (zeros), one number for all actions, or ``A`` numbers,
+    each of magnitude at most :data:`MAX_WEIGHT_MAGNITUDE`."""
     if w is None:
         return np.zeros(A)
-    return per_action_vector("uncertainty.weights", w, A, "weight")
+    arr = per_action_vector("uncertainty.weights", w, A, "weight")
+    _check_magnitude("uncertainty.weights", arr, MAX_WEIGHT_MAGNITUDE, "MAX_WEIGHT_MAGNITUDE")
+    return arr
+
+
+def _check_magnitude(field_name: str, values: np.ndarray, limit: float, limit_name: str) -> None:
+    """Refuse (naming the first entry) finite values whose magnitude exceeds ``limit``."""
+    big = np.abs(values) > limit
+    if np.any(big):
+        idx = np.argwhere(big)[0]
+        where = "".join(f"[{int(k)}]" for k in idx)
+        raise ModelError(f"{field_name}{where}: magnitude must be at most {limit:g} ({limit_name}: searches and the "
+                         f"bound LP must stay finite), got {values[tuple(idx)]:g}")
 
 
 def _names(field_name: str, names: Sequence[str] | None, n: int) -> tuple[str, ...] | None:
@@ -278,7 +252,13 @@ class POMDP:
 
     Arrays are copied and made read-only on construction, and validated: shapes, finite
     values, non-negative probabilities, rows summing to 1 within :data:`STOCHASTIC_ATOL`,
-    ``0 <= gamma < 1``, finite weights. Errors are :class:`ModelError` naming the field.
+    ``0 <= gamma <= 1``, rewards and weights within :data:`MAX_REWARD_MAGNITUDE` and
+    :data:`MAX_WEIGHT_MAGNITUDE`, ``0 < epsilon < 1/S`` (``None``: :func:`default_epsilon`).
+    Errors are :class:`ModelError` naming the field.
+
+    ``gamma = 1`` is valid for a finite horizon only (the paper, Sec. II: a depth-limited search,
+    a simulation of finitely many steps, an export); what needs an infinite horizon (the bound LP
+    of Theorem 2, the reference solvers) refuses it (:func:`require_discount_below_one`).
     """
 
     P: np.ndarray
@@ -287,7 +267,7 @@ class POMDP:
     gamma: float
     uncertainty: Uncertainty | str = "none"
     w: np.ndarray | Sequence[float] | None = None
-    epsilon: float = 1e-3
+    epsilon: float | None = None
     name: str = "pomdp"
     state_names: Sequence[str] | None = None
     action_names: Sequence[str] | None = None
@@ -319,9 +299,10 @@ class POMDP:
         if not np.all(np.isfinite(r)):
             s, a = np.argwhere(~np.isfinite(r))[0]
             raise ModelError(f"reward[{s}][{a}]: value is not finite ({r[s, a]})")
-        gamma = as_number(self.gamma, "discount", finite=False)
-        if not (0.0 <= gamma < 1.0):
-            raise ModelError(f"discount: must satisfy 0 <= gamma < 1, got {gamma}")
+        _check_magnitude("reward", r, MAX_REWARD_MAGNITUDE, "MAX_REWARD_MAGNITUDE")
+        gamma = as_number(self.gamma, "discount")
+        if not (0.0 <= gamma <= 1.0):
+            raise ModelError(f"discount: must satisfy 0 <= gamma <= 1 (1: a finite horizon only), got {gamma}")
         unc = self.uncertainty
         if isinstance(unc, str):
             try:
@@ -332,15 +313,15 @@ class POMDP:
             raise ModelError(f"uncertainty.function: must be the name of a function (none, renyi2, shannon), "
                              f"got {kind_of(unc)}")
         w = _weights(self.w, A)
-        eps = as_number(self.epsilon, "uncertainty.epsilon", finite=False)
+        eps = default_epsilon(S) if self.epsilon is None else as_number(self.epsilon, "uncertainty.epsilon")
         if not (0.0 < eps < 1.0 / S or (S == 1 and 0.0 < eps <= 1.0)):
             raise ModelError(f"uncertainty.epsilon: must satisfy 0 < epsilon < 1/S = {1.0 / S:.6g}, got {eps}")
-        set_(self, "P", _frozen(P))
-        set_(self, "O", _frozen(O))
-        set_(self, "r", _frozen(r))
+        set_(self, "P", frozen_copy(P))
+        set_(self, "O", frozen_copy(O))
+        set_(self, "r", frozen_copy(r))
         set_(self, "gamma", gamma)
         set_(self, "uncertainty", unc)
-        set_(self, "w", _frozen(w))
+        set_(self, "w", frozen_copy(w))
         set_(self, "epsilon", eps)
         set_(self, "name", check_name(self.name))
         set_(self, "state_names", _names("states", self.state_names, S))
@@ -385,7 +366,24 @@ class POMDP:
 
     def describe(self) -> str:
         """A one-line summary for logs and the CLI."""
+        horizon = " (finite horizon only)" if self.gamma >= 1.0 else ""
         return (
-            f"{self.name}: S={self.S} A={self.A} Z={self.Z} gamma={self.gamma:g} "
+            f"{self.name}: S={self.S} A={self.A} Z={self.Z} gamma={self.gamma:g}{horizon} "
             f"uncertainty={self.uncertainty.name}"
         )
+
+
+def infinite_horizon_refusal(model: POMDP, what: str) -> str:
+    """``""`` if ``model.gamma < 1``; else one line saying that ``what`` (a computation over an
+    infinite horizon) needs a discount below 1 and what a discount of 1 is valid for."""
+    if model.gamma < 1.0:
+        return ""
+    return (f"discount: {what} needs discount < 1 (an infinite horizon); this model's discount is 1, valid for "
+            "a finite horizon only (depth-limited search: plan, simulate, export)")
+
+
+def require_discount_below_one(model: POMDP, what: str) -> None:
+    """Raise :class:`ModelError` (:func:`infinite_horizon_refusal`) if ``model.gamma`` is 1."""
+    reason = infinite_horizon_refusal(model, what)
+    if reason:
+        raise ModelError(reason)

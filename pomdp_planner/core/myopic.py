@@ -97,11 +97,6 @@ class MyopicBounds:
         return self.lower(B, rho), self.upper(B, rho)
 
 
-def trivial_bounds(model: POMDP) -> TrivialBounds:
-    """Bounds that prune nothing (lower = 0, upper = A-1): exhaustive search."""
-    return TrivialBounds(model)
-
-
 @dataclass(frozen=True, eq=False)
 class TrivialBounds:
     """The non-informative bounds ``[0, A-1]``; same interface as :class:`MyopicBounds`."""

@@ -25,31 +25,15 @@ import numpy as np
 
 from .belief_mcts import POLICY_OPTIONS as MCTS_OPTIONS
 from .belief_mcts import make_belief_mcts_policy
-from .bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
+from .bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT, check_constant, check_variant
+from .checks import check_choice, parse_flag
+from .errors import OptionError, short_repr
 from .gate import PlannerSetup, build_planner
-from .model import POMDP, ModelError, short_repr
+from .model import POMDP
 from .myopic import MyopicBounds
-from .search import (
-    MAX_DEPTH_RANGE,
-    TIME_BUDGET_RANGE,
-    SearchResult,
-    check_depth,
-    check_time_budget,
-    check_tree_size,
-)
-
-#: Seeds a user may give (``--seed``, the ``seed`` option): integers in this range, inclusive
-#: (numpy takes any non-negative integer; the cap keeps a seed an int64 for JSON readers).
-SEED_RANGE = (0, 2**63 - 1)
-
-
-def check_seed(seed: Any, field: str = "seed") -> int:
-    """``seed`` as an int after checking it is an integer in :data:`SEED_RANGE` (``ModelError``
-    naming ``field``)."""
-    lo, hi = SEED_RANGE
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not lo <= seed <= hi:
-        raise ModelError(f"{field}: must be an integer in {lo}..{hi}, got {short_repr(seed)}")
-    return int(seed)
+from .options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_seed, check_time_budget
+from .options import SEED_RANGE as SEED_RANGE  # re-exported: the ranges live in options.py
+from .search import SearchResult, check_tree_size
 
 
 class PolicyObject(Protocol):
@@ -99,7 +83,7 @@ class SearchPolicy:
     def __init__(self, setup: PlannerSetup, depth: int = 3, time_budget: float | None = None, max_depth: int = 10,
                  no_limit: bool = False):
         if setup.planner is None:
-            raise ModelError(f"policy: no planner ({setup.reason})")
+            raise OptionError(f"policy: no planner ({setup.reason})")
         self.setup = setup
         self.planner = planner = setup.planner
         self.depth = check_depth(depth, "option depth", MAX_DEPTH_RANGE)
@@ -141,8 +125,7 @@ class BoundPolicy:
     """
 
     def __init__(self, bounds: MyopicBounds, which: str, setup: PlannerSetup | None = None):
-        if which not in ("lower", "upper"):
-            raise ValueError(f"which: expected 'lower' or 'upper', got {which!r}")
+        check_choice(which, ("lower", "upper"), "which")
         self.bounds = bounds
         self.which = which
         self.setup = setup
@@ -154,30 +137,18 @@ class BoundPolicy:
 
 # ------------------------------------------------------------------------- factories
 def _variant(opts: Mapping[str, Any]) -> str:
-    variant = str(opts.get("variant", BOUND_VARIANTS[0]))
-    if variant not in BOUND_VARIANTS:
-        raise ModelError(f"option variant: expected one of {', '.join(BOUND_VARIANTS)}, got {variant!r}")
-    return variant
+    """The option ``variant`` (the bound LP's vectors, ``tight`` by default)."""
+    return check_variant(opts.get("variant", BOUND_VARIANTS[0]), "option variant")
 
 
 def _constant(opts: Mapping[str, Any]) -> str:
     """The option ``constant`` (the bound LP's belief-independent constant, ``mlr`` by default)."""
-    constant = opts.get("constant", DEFAULT_CONSTANT)
-    if constant not in BOUND_CONSTANTS:
-        raise ModelError(f"option constant: expected one of {', '.join(BOUND_CONSTANTS)}, "
-                         f"got {short_repr(constant)}")
-    return constant
+    return check_constant(opts.get("constant", DEFAULT_CONSTANT), "option constant")
 
 
 def _flag(opts: Mapping[str, Any], name: str) -> bool:
-    """A yes/no option: 1/0, true/false, yes/no (``--option prune_without_guarantee=1``)."""
-    value = opts.get(name, False)
-    text = str(value).strip().lower()
-    if text in ("1", "true", "yes", "on"):
-        return True
-    if text in ("0", "false", "no", "off", ""):
-        return False
-    raise ModelError(f"option {name}: expected 1/0 (true/false), got {value!r}")
+    """A yes/no option (:func:`~.checks.parse_flag`: 1/0, true/false, yes/no, on/off)."""
+    return parse_flag(opts.get(name, False), f"option {name}")
 
 
 OVERRIDE = "prune_without_guarantee"
@@ -204,17 +175,17 @@ def _bound_policy(model: POMDP, opts: Mapping[str, Any], which: str) -> BoundPol
     if setup.myopic is None:
         hint = (f"; --option {OVERRIDE}=1 uses them anyway, without guarantee"
                 if setup.bounds is None or (setup.bounds.feasible and not setup.guaranteed) else "")
-        raise ModelError(f"policy {which}: no valid bounds: {setup.reason}{hint}")
+        raise OptionError(f"policy {which}: no valid bounds: {setup.reason}{hint}")
     return BoundPolicy(setup.myopic, which, setup)
 
 
 def _mcts_policy(model: POMDP, opts: Mapping[str, Any]) -> Policy:
     """``mcts``: the information-aware belief-space MCTS (``core/belief_mcts.py``); its option
-    errors (``ValueError`` naming the option) become model errors for the edges."""
+    errors (:class:`~.errors.OptionError` naming the option) say which policy they are for."""
     try:
         return make_belief_mcts_policy(model, opts)
-    except ValueError as exc:
-        raise ModelError(f"policy mcts: option {exc}") from None
+    except OptionError as exc:
+        raise OptionError(f"policy mcts: option {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -264,10 +235,10 @@ def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
     """Build policy ``name`` for ``model`` (``options`` go to its factory; unknown ones are errors)."""
     entry = POLICIES.get(name)
     if entry is None:
-        raise ModelError(f"policy: unknown policy {name!r} (known: {', '.join(policy_names())})")
+        raise OptionError(f"policy: unknown policy {short_repr(name)} (known: {', '.join(policy_names())})")
     unknown = sorted(set(options) - set(entry.options))
     if unknown:
-        raise ModelError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
+        raise OptionError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
                          f"(known: {', '.join(entry.options)})")
     if options.get("seed") is not None:
         options = {**options, "seed": check_seed(options["seed"], "option seed")}

@@ -74,7 +74,8 @@ import scipy.sparse as sp
 from scipy.optimize import linprog
 from scipy.sparse.linalg import splu
 
-from .model import POMDP
+from .checks import check_int
+from .model import POMDP, require_discount_below_one
 
 __all__ = [
     "AlphaVectorSolution",
@@ -135,10 +136,8 @@ class FreudenthalGrid:
     """
 
     def __init__(self, S: int, n: int):
-        if not isinstance(S, (int, np.integer)) or S < 2:
-            raise ValueError(f"S: a grid needs at least 2 states, got {S!r}")
-        if not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n: grid resolution must be a positive integer, got {n!r}")
+        check_int(S, "S", 2, note="(a grid needs at least 2 states)")
+        check_int(n, "n", 1, note="(the grid resolution)")
         self.S = int(S)
         self.n = int(n)
         m = self.S - 1
@@ -293,6 +292,8 @@ def solve_grid(model: POMDP, n: int, horizon: int | None = None, tol: float = 1e
     """
     if model.S < 2:
         raise ValueError("model: grid value iteration needs S >= 2")
+    if horizon is None:
+        require_discount_below_one(model, "the reference policy iteration (infinite horizon)")
     grid = FreudenthalGrid(model.S, n)
     R, T = _backup_operator(model, grid)
     N, A, gamma = grid.size, model.A, model.gamma
@@ -495,6 +496,8 @@ def alpha_vector_value_iteration(model: POMDP, horizon: int, tol: float = 1e-9) 
     The returned solution holds ``Gamma_{H-1}``.
     """
     _linear_reward_check(model)
+    require_discount_below_one(model, "the exact alpha-vector value iteration (its start and error bound are "
+                               "infinite-horizon)")
     if horizon < 1:
         raise ValueError(f"horizon: must be >= 1, got {horizon}")
     m, gamma = model, model.gamma

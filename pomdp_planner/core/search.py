@@ -72,8 +72,13 @@ from typing import Any
 import numpy as np
 
 from .belief import ETA_MIN, check_belief
-from .model import POMDP, ModelError, format_bytes, priority_of, short_repr
+from .checks import check_int
+from .errors import BeliefError, OptionError, short_repr
+from .model import POMDP, format_bytes, priority_of
 from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
+from .options import MAX_DEPTH_RANGE as MAX_DEPTH_RANGE  # re-exported: the ranges live in options.py
+from .options import TIME_BUDGET_RANGE as TIME_BUDGET_RANGE
+from .options import check_depth, check_time_budget
 
 #: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
 ETA_SKIP = ETA_MIN
@@ -102,42 +107,7 @@ MAX_SEARCH_DEPTH = 100
 MAX_TREE_NODES = 10**10
 #: Fixed part of :func:`search_memory_estimate` (root arrays, results, small temporaries).
 SEARCH_OVERHEAD_BYTES = 64 * 2**10
-#: The search depths a user may ask for (Table II convention; ``--depth``/``--max-depth`` of the
-#: CLI, the ``simulate`` options, the planner node's ``max_depth``), inclusive.
-MAX_DEPTH_RANGE = (1, 50)
-#: The time budgets a user may ask for, seconds (``--time-budget``, the ``simulate`` option,
-#: the planner node's ``time_budget``), inclusive.
-TIME_BUDGET_RANGE = (0.001, 60.0)
-
 Bounds = MyopicBounds | TrivialBounds
-
-
-def check_depth(depth: Any, field: str = "depth", allowed: tuple[int, int | None] = (1, None)) -> int:
-    """``depth`` as an int after checking it is an integer in ``allowed`` (inclusive; ``None``: no
-    upper limit). The planner's own guard is ``>= 1``; user-facing edges pass :data:`MAX_DEPTH_RANGE`.
-    Raises :class:`~.model.ModelError` naming ``field``."""
-    lo, hi = allowed
-    ok = not isinstance(depth, bool) and isinstance(depth, (int, np.integer))
-    if not ok or depth < lo or (hi is not None and depth > hi):
-        want = f"an integer >= {lo}" if hi is None else f"an integer in {lo}..{hi}"
-        raise ModelError(f"{field}: must be {want}, got {depth!r}")
-    return int(depth)
-
-
-def check_time_budget(seconds: Any, field: str = "time_budget",
-                      allowed: tuple[float, float | None] = (0.0, None)) -> float:
-    """``seconds`` as a float after checking it is a finite number in ``allowed`` (inclusive). The
-    planner's own guard is ``>= 0`` (0: depth 1 only); user-facing edges pass :data:`TIME_BUDGET_RANGE`.
-    Raises :class:`~.model.ModelError` naming ``field``."""
-    lo, hi = allowed
-    try:
-        t = float(seconds)
-    except (TypeError, ValueError):
-        t = math.nan
-    if isinstance(seconds, bool) or not math.isfinite(t) or t < lo or (hi is not None and t > hi):
-        want = f">= {lo:g}" if hi is None else f"in {lo:g}..{hi:g}"
-        raise ModelError(f"{field}: must be a number of seconds {want}, got {seconds!r}")
-    return t
 
 
 def complete_level_sizes(A: int, Z: int, depth: int) -> tuple[int, ...]:
@@ -155,9 +125,9 @@ def count_text(n: int) -> str:
     return f"{n:.3g}" if n < 10**300 else f"about 1e{len(str(n)) - 1}"
 
 
-class SearchSizeError(ModelError):
+class SearchSizeError(OptionError):
     """A fixed-depth search whose tree is too large to finish in reasonable time (:data:`MAX_TREE_NODES`);
-    a :class:`~.model.ModelError`, so the command line reports it as exit code 2."""
+    an :class:`~.errors.OptionError`, so the command line reports it as exit code 2."""
 
 
 def check_tree_size(A: int, Z: int, depth: int, field: str = "depth", limit: int | None = None,
@@ -194,10 +164,10 @@ def next_depth_cannot_finish(depth_times: Sequence[float], remaining: float, mar
     return t_last * max(1.0, growth) > margin * max(remaining, 0.0)
 
 
-class SearchMemoryError(ModelError):
+class SearchMemoryError(OptionError):
     """A search would need more memory than the planner's budget (the message gives both figures).
 
-    A :class:`~.model.ModelError` (hence a ``ValueError``), like the other refusals of a request
+    An :class:`~.errors.OptionError` (hence a ``ValueError``), like the other refusals of a request
     the planner cannot serve, so the command line reports it as exit code 2."""
 
 
@@ -379,9 +349,7 @@ class Planner:
         self.clock = clock
         self.guaranteed = bool(guaranteed) and bounds is not None
         self.chunk_bytes = chunk_bytes
-        if isinstance(memory_budget, bool) or not isinstance(memory_budget, (int, np.integer)) or memory_budget < 1:
-            raise ModelError(f"memory_budget: must be a positive integer number of bytes, got {memory_budget!r}")
-        self.memory_budget = int(memory_budget)
+        self.memory_budget = check_int(memory_budget, "memory_budget", 1, note="(bytes)")
         self.trivial = TrivialBounds(model)
         self.bounds = self.trivial if bounds is None else bounds
         if getattr(self.bounds, "model", model) is not model:
@@ -526,8 +494,8 @@ class Planner:
         except (TypeError, ValueError):
             c = np.full(0, np.nan)
         if c.shape != (A,) or not np.all(np.isfinite(c)):
-            raise ModelError(f"action_cost: expected {A} finite numbers (one per action), "
-                             f"got {short_repr(action_cost)}")
+            raise OptionError(f"action_cost: expected {A} finite numbers (one per action), "
+                              f"got {short_repr(action_cost)}")
         new = copy.copy(self)
         new._rT = np.ascontiguousarray(self._rT - c[:, None])
         # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
@@ -546,7 +514,7 @@ class Planner:
         depth = check_depth(depth, "depth", (0, None))
         B = np.asarray(beliefs, dtype=float)
         if B.ndim != 2 or B.shape[1] != self.model.S:
-            raise ModelError(f"beliefs: expected shape n x {self.model.S}, got {B.shape}")
+            raise BeliefError(f"beliefs: expected shape n x {self.model.S}, got {B.shape}")
         BT = np.ascontiguousarray(np.stack([check_belief(self.model, b, field=f"beliefs[{i}]")
                                             for i, b in enumerate(B)], axis=1) if len(B) else B.T)
         rhoT = self._rho(BT)

@@ -32,9 +32,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .belief import check_belief, start_belief, uniform_belief
+from .checks import check_int, is_integer
 from .filter import EpochFilter
 from .model import POMDP, short_repr
-from .policies import Policy, as_callable, check_seed, make_policy
+from .options import check_seed
+from .policies import Policy, as_callable, make_policy
 from .uncertainty import SHANNON
 
 
@@ -210,10 +212,8 @@ def _sample(rng: np.random.Generator, p: np.ndarray) -> int:
 
 
 def check_steps(steps: object, field: str = "steps") -> int:
-    """``steps`` as an int after checking it is a non-negative integer (``ValueError`` naming ``field``)."""
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
-        raise ValueError(f"{field}: must be a non-negative integer, got {short_repr(steps)}")
-    return int(steps)
+    """``steps`` as an int after checking it is a non-negative integer (``OptionError`` naming ``field``)."""
+    return check_int(steps, field, 0)
 
 
 class Simulation:
@@ -248,10 +248,7 @@ class Simulation:
         if initial_state is None:
             self.initial_state = _sample(self._rng, b)
         else:
-            if isinstance(initial_state, bool) or not isinstance(initial_state, (int, np.integer)) \
-                    or not 0 <= initial_state < model.S:
-                raise ValueError(f"initial_state: index {short_repr(initial_state)} out of range 0..{model.S - 1}")
-            self.initial_state = int(initial_state)
+            self.initial_state = check_int(initial_state, "initial_state", 0, model.S - 1)
         self._started = False
 
     def __iter__(self) -> Iterator[SimulationStep]:
@@ -266,7 +263,7 @@ class Simulation:
         b, s = self.initial_belief, self.initial_state
         for t in range(self.steps):
             a = act(b.copy())
-            if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < model.A:
+            if not is_integer(a) or not 0 <= a < model.A:
                 raise ValueError(f"policy returned {short_repr(a)} at step {t}: expected a 0-based action in "
                                  f"0..{model.A - 1}")
             a = int(a)

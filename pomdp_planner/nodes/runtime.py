@@ -21,8 +21,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
 
-from ..core.belief import BeliefError
-from ..core.model import ModelError
+from ..core.errors import InputError
 from .executor import NodeExecutor, shutdown_executor
 
 
@@ -36,7 +35,7 @@ def config_errors() -> Iterator[None]:
     their messages name the field) into :class:`NodeConfigError`."""
     try:
         yield
-    except (ModelError, BeliefError) as exc:
+    except InputError as exc:  # a model file, parameter value or belief the core refuses
         raise NodeConfigError(str(exc)) from None
 
 

@@ -1,4 +1,4 @@
-"""The paper's experiments (issue 6): ``run_all`` regenerates docs/RESULTS.md and docs/img/*.png.
+"""The paper's experiments: ``run_all`` writes ``RESULTS.md`` and ``img/*.png`` into a folder.
 
 No rclpy: it imports the core and ``bench/search.py``, ``bench/paper.py`` only. Plots need
 matplotlib (optional extra ``experiments``), POUCT needs pomdp-py (optional extra ``bench``);

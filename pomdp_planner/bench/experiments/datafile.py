@@ -1,4 +1,4 @@
-"""The experiments' cache files: JSON data, never code (issue 13, item 3).
+"""The experiments' cache files: JSON data, never code.
 
 ``bench all`` keeps each section's results in ``DIR/.experiments-cache/<section>.json`` and the
 peer comparison its finished chunks of episodes in ``.../peers-chunks/*.json``

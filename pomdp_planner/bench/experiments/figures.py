@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .peer_policies import display_name
+
 PRIORITY_COLOURS = ["#1b9e77", "#d95f02", "#7570b3", "#e7298a", "#66a61e", "#e6ab02"]
 UNDECIDED = "#bbbbbb"
 
@@ -135,7 +137,7 @@ PEER_OFFSETS = {"bnb": 0.92, "exhaustive": 0.97, "mcts": 1.03, "pouct": 1.08}
 
 
 def plot_peers(path: Path, results: Sequence, models: Sequence[str]) -> Path:
-    """Return (top row) and regret against the optimal reference (bottom row) against the time
+    """Return (top row) and regret against the reference policy (bottom row) against the time
     budget per decision, one column per model, log x axis; 95 % CI error bars. Planners without a
     budget are horizontal lines (dotted) with their CI as a band. Random is left out of the regret
     row (its regret dwarfs the others)."""
@@ -146,11 +148,11 @@ def plot_peers(path: Path, results: Sequence, models: Sequence[str]) -> Path:
         rows = [r for r in results if r.model == mname]
         budgets = sorted({r.budget for r in rows if r.budget is not None})
         for i, (metric, label) in enumerate((("return", "mean discounted return (true $\\rho$)"),
-                                              ("regret", "regret vs. optimal reference"))):
+                                              ("regret", "regret vs. reference policy"))):
             ax = axes[i][j]
             has_regret = any(r.regret is not None for r in rows)
             if metric == "regret" and not has_regret:
-                ax.text(0.5, 0.5, "no optimal reference\nfor this model", ha="center", va="center",
+                ax.text(0.5, 0.5, "no reference policy\nfor this model", ha="center", va="center",
                         transform=ax.transAxes, fontsize=9)
                 ax.set_axis_off()
                 continue
@@ -163,13 +165,13 @@ def plot_peers(path: Path, results: Sequence, models: Sequence[str]) -> Path:
                 ci = [r.ci if metric == "return" else r.regret_ci for r in pr]
                 if pr[0].budget is None:
                     if budgets:
-                        ax.axhline(mean[0], color=col, ls=":", lw=1.2, label=planner)
+                        ax.axhline(mean[0], color=col, ls=":", lw=1.2, label=display_name(planner))
                         ax.axhspan(ci[0][0], ci[0][1], color=col, alpha=0.12, lw=0)
                     continue
                 xs = [r.budget * PEER_OFFSETS.get(planner, 1.0) for r in pr]
                 pairs = list(zip(mean, ci, strict=True))
                 err = [[m - c[0] for m, c in pairs], [c[1] - m for m, c in pairs]]
-                ax.errorbar(xs, mean, yerr=err, marker=marker, capsize=3, color=col, label=planner)
+                ax.errorbar(xs, mean, yerr=err, marker=marker, capsize=3, color=col, label=display_name(planner))
             if budgets:
                 ax.set_xscale("log")
                 ax.set_xticks(budgets, [f"{b:g}" for b in budgets])

@@ -1,4 +1,4 @@
-"""The planners of the peer comparison (issue 12), each wrapped to record what the tables report.
+"""The planners of the peer comparison, each wrapped to record what the tables report.
 
 Every peer is built by :func:`make_peer` from its name, the model, the budget per decision and
 the plan; the table :data:`PEERS` says which are budgeted. Planners and policies come from the
@@ -38,6 +38,7 @@ from ...core.model import POMDP, model_digest
 from ...core.policies import POLICIES, make_policy
 from ...core.reference import ReferencePolicy, reference_policy
 from ...core.search import complete_tree_nodes
+from ..references import GridReferencePolicy
 from .pouct import POUCTPolicy, POUCTSettings
 
 #: The clock decision times are recorded on (module docstring).
@@ -67,6 +68,16 @@ BUDGET_CLOCK: Callable[[], float] = coarse_cpu_clock()
 BUDGETED = ("bnb", "exhaustive", "mcts", "pouct")
 #: Planners without a budget; ``optimal`` only where the model has a reference.
 UNBUDGETED = ("optimal", "greedy", "lower-bound", "upper-bound", "random")
+#: How the report names a peer: the internal key ``optimal`` is the model's reference policy,
+#: which is the optimum only where it is a certified grid solution (docs/RESULTS.md).
+DISPLAY_NAMES = {"optimal": "reference"}
+
+
+def display_name(planner: str) -> str:
+    """The name a peer has in the report, the plots and the text (:data:`DISPLAY_NAMES`)."""
+    return DISPLAY_NAMES.get(planner, planner)
+
+
 #: What each peer is, for the report.
 DESCRIPTIONS = {
     "bnb": "branch-and-bound (Algorithm 1, default `tight` bounds through the assumption gate), anytime iterative "
@@ -75,7 +86,9 @@ DESCRIPTIONS = {
     "mcts": "belief-space MCTS on exact Bayes beliefs with the true belief reward rho (`core/belief_mcts.py`, "
             "its default settings)",
     "pouct": "pomdp-py POUCT on the state reward, tuned (`bench/experiments/pouct.py`)",
-    "optimal": "the optimal reference policy of the model",
+    "optimal": "the reference policy of the model, which the models table names: grid policy iteration (its "
+               "decisions certified optimal up to the grid's tie margin), or exhaustive search to a fixed depth at "
+               "every decision, a finite lookahead of the same family as `bnb` and `exhaustive`, not the optimum",
     "greedy": "argmax_a rho(b, a) (depth-1 search)",
     "lower-bound": "the myopic lower-bound policy of Theorem 2 (no search)",
     "upper-bound": "the myopic upper-bound policy of Theorem 2 (no search)",
@@ -84,7 +97,7 @@ DESCRIPTIONS = {
 
 
 def mcts_available() -> bool:
-    """Whether the belief MCTS is in the policy table (``core/policies.py``; issue 12)."""
+    """Whether the belief MCTS is in the policy table (``core/policies.py``)."""
     return "mcts" in POLICIES
 
 
@@ -147,16 +160,16 @@ def grid_reference(model: POMDP, n: int) -> ReferencePolicy:
     return _CACHE[key]
 
 
-# ------------------------------------------------------------------ the optimal reference
+# ------------------------------------------------------------------ the reference policy
 @dataclass(frozen=True)
 class ReferenceSpec:
-    """How a model's optimal reference acts.
+    """How a model's reference policy acts.
 
     ``kind="grid"``: grid policy iteration (``core.reference.reference_policy`` at resolution
     ``param``, checked against ``2 param``); the action is the argmax of one exact Bellman
     backup of the fine grid's ``V`` at the belief, *certified* where its Q gap exceeds the
     measured tie margin. ``kind="search"``: exhaustive search to depth ``param`` at every
-    decision (for S >= 8, where no grid is feasible; optimal only as far as that depth is).
+    decision (for S >= 8, where no grid is feasible): a finite lookahead, not the optimum.
     """
 
     kind: str
@@ -175,10 +188,6 @@ class ReferenceSpec:
 
 def _reference_decider(model: POMDP, spec: ReferenceSpec) -> Callable[[np.ndarray], tuple[int, dict]]:
     if spec.kind == "grid":
-        # the reference policy of the model search (bench/lookahead_models.py); imported here
-        # because that module imports this package
-        from ..lookahead_models import GridReferencePolicy
-
         pol = GridReferencePolicy(grid_reference(model, spec.param))
 
         def decide(b: np.ndarray) -> tuple[int, dict]:

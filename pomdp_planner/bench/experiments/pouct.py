@@ -1,4 +1,4 @@
-"""pomdp-py's POUCT as a peer of the comparison, tuned (issue 12, item 3).
+"""pomdp-py's POUCT as a peer of the comparison, tuned.
 
 POUCT (Silver and Veness 2010, the POMCP tree without particle beliefs) samples a state from
 the root belief and descends a tree of action-observation histories with UCB1. It plans on
@@ -14,7 +14,7 @@ The settings of :data:`TUNED` and why:
   of the rollout policy from the sampled state, ``V_pi(s)``, the solution of
   ``(I - gamma P_pi) V = r_pi`` (``P_pi[s] = P[pi(s), s]``, ``r_pi[s] = r[s, pi(s)]``), computed
   once per model (:func:`rollout_values`). pomdp-py's own rollout samples one trajectory of that
-  policy up to the tree's ``max_depth`` (20 in the old comparison): at ``gamma = 0.99`` that
+  policy up to the tree's ``max_depth`` (20 with pomdp-py's defaults): at ``gamma = 0.99`` that
   drops ``0.99^20 = 82 %`` of the discounted weight and adds the noise of one trajectory;
   ``V_pi(s)`` is that rollout's expectation over the infinite horizon, exactly.
 * **Rollout policy** (``rollout="greedy-state"``): ``pi(s) = argmax_a r(s, a)``. pomdp-py's
@@ -29,20 +29,7 @@ The settings of :data:`TUNED` and why:
   ``c = exploration_scale * R`` with ``R = (max r - min r) + gamma (max V_pi - min V_pi)``, the
   range of a one-step return with an exact leaf (:func:`return_spread`; printed in the report).
   pomdp-py's default is ``sqrt(2)``, the UCB1 constant for returns in ``[0, 1]``. The scale,
-  0.25, was measured: regret against the optimal reference, 20 paired episodes of 50 steps at
-  0.05 s per decision (greedy's regret: 1.17 on ``perimeter_s3``, 1.74 on ``perimeter_s8``):
-
-  ============  ==========================  ==========================
-  scale         perimeter_s3 (R = 4.95)     perimeter_s8 (R = 5.92)
-  ============  ==========================  ==========================
-  0.25          0.004 [-0.029, 0.036]       0.014 [-0.022, 0.049]
-  0.5           0.006 [-0.012, 0.024]       0.034 [-0.015, 0.084]
-  1             0.000 [0.000, 0.000]        0.086 [0.023, 0.148]
-  ============  ==========================  ==========================
-
-  On 10 episodes, scale 4 lost 0.02 / 0.13, the random rollout (with the exact leaf) 0.15 /
-  0.21, and pomdp-py's defaults (:data:`POMDP_PY_DEFAULTS`) 2.14 on ``perimeter_s3``, more than
-  greedy; without tree reuse the regret on ``perimeter_s3`` was the same (0.00).
+  0.25, was measured (docs/benchmarks.md, "The POUCT peer").
 * Nodes start with 0 visits (``num_visits_init=0``, pomdp-py's current default; UCB1 then tries
   every action once), and the decision is the tried root action of largest value (pomdp-py's
   ``argmax`` would also consider untried actions at their initial value 0, which wins when all
@@ -53,7 +40,7 @@ every other planner (``clock``, the process CPU time in the experiments; pomdp-p
 reads ``time.time()``, so its ``_search`` is replaced by the same loop on ``clock``), and the
 **tree is reused** between decisions like the belief MCTS does: the new belief is matched to
 the posterior ``tau(b, a, z)`` of the last belief and action, and the subtree of ``(a, z)``
-becomes the root (pomdp-py's ``update``). :data:`POMDP_PY_DEFAULTS` is the old, untuned
+becomes the root (pomdp-py's ``update``). :data:`POMDP_PY_DEFAULTS` is pomdp-py's untuned
 configuration (random rollouts truncated at depth 20, ``c = sqrt(2)``, a fresh tree per
 decision), kept for the sanity check's diagnostic line.
 """

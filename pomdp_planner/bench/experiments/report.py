@@ -257,11 +257,12 @@ def section_looseness(data: dict) -> list[str]:
     with_opt = [c for c in cells if c.upper_minus_opt is not None]
     lines = ["## Looseness of the bounds (the paper's Fig. 4)", "", f"![looseness](img/{data['looseness_image']})", "",
              f"Bounds variant `{variant}`. Solid: mean `upper - optimal` over the Table III beliefs; dashed: mean "
-             "`upper - lower`. The optimal action comes from point-based value iteration "
+             "`upper - lower`. The optimal action is approximated by point-based value iteration "
              "(`bench/experiments/pbvi.py`, run on the very beliefs evaluated plus the simplex vertices, to a value "
              "change < 1e-6) for S <= "
-             f"{data['configs']['table3']['looseness_max_states']}; on S = 4 it agrees with the exact alpha-vector "
-             "solver (table above). For larger S no optimal reference was feasible in our time budget (the paper "
+             f"{data['configs']['table3']['looseness_max_states']}; on S = 4 and 5 (A = 4) it agrees with the exact "
+             "alpha-vector solver at every belief (table above); larger cells are not cross-checked. For larger S "
+             "no optimal reference was feasible in our time budget (the paper "
              "ran incremental pruning; a deep tree search is no substitute at gamma = 0.99 with Z = S up to 256 "
              "observations), so "
              "only `upper - lower` is shown there.", ""]
@@ -325,20 +326,24 @@ def section_differences(data: dict) -> list[str]:
                          "elements where the model's structure makes them tightest at every belief, a sampled "
                          "hinge-loss search otherwise.")
     lines += [
-        "- **The Renyi constant.** The paper's constraint for Renyi quadratic entropy (steps of "
-        "`phi_a = r_a + (I - gamma P_a) g` at least `2 w_a`, its constant 1 in Example 3) is **exact** for what "
-        "Corollary 1 needs, MLR monotonicity of the transformed reward (docs/THEORY.md, \"Theorem M\": necessary "
-        "and sufficient for every S). The paper derives it through Theorem 2's first-order-dominance argument, "
-        "bounding `(b(i+1) - b(i)) / sum_j b(j)^2` by -1; that bound is false for S >= 3 (the supremum is "
-        "(1 + sqrt(S - 1)) / 2, `core/bounds.py: renyi_constant`), so the constant is wrong for FOSD "
-        "monotonicity and right for MLR. Our default (`mlr`) uses the paper's constraint; the FOSD constant stays "
-        "selectable (`constant=\"fosd\"`).",
-        "- **Shannon entropy** is offered only on `B_eps`, and the guarantee needs the posteriors to stay in "
-        "`B_eps`. For every tracking model with S >= 3 the observation matrix is banded, so some posterior "
-        "coordinate is 0: the posterior floor is 0, no `eps > 0` qualifies, and **Shannon bounds are never "
-        "guaranteed on these models** (the assumption gate says so and falls back to exhaustive search).",
+        "- **The Renyi constant.** The paper's constraint for Renyi quadratic entropy, with its signs corrected, "
+        "is **exact** for what Corollary 1 needs, MLR monotonicity of the transformed reward (docs/THEORY.md, "
+        "\"Theorem M\": necessary and sufficient for every S). Example 3 prints the chain "
+        "`phi^a_i - phi^a_{i+1} >= 2 w_a (b(i+1) - b(i)) / sum_j b(j)^2 >= -2 w_a` "
+        "(`phi_a = r_a + (I - gamma P_a) g`), with the signs reversed; we corrected it to steps "
+        "`phi^a_{i+1} - phi^a_i >= 2 w_a`, the paper's constant 1. The paper derives the constant through "
+        "Theorem 2's first-order-dominance argument, bounding `(b(i+1) - b(i)) / sum_j b(j)^2` by -1; that "
+        "bound is false for S >= 3 (the supremum is (1 + sqrt(S - 1)) / 2, `core/bounds.py: renyi_constant`), so "
+        "the constant is wrong for FOSD monotonicity and right for MLR. Our default (`mlr`) uses the corrected "
+        "constraint; the FOSD constant stays selectable (`constant=\"fosd\"`).",
+        "- **Shannon entropy** is offered only on `B_eps`, and the package's guarantee there (a sufficient "
+        "condition, docs/THEORY.md) needs the posteriors to stay in `B_eps`. For every tracking model with "
+        "S >= 3 the observation matrix is banded, so some posterior coordinate is 0: the posterior floor is 0, "
+        "no `eps > 0` qualifies, and **the package never treats Shannon bounds as guaranteed on these models** "
+        "(the assumption gate says so and falls back to exhaustive search).",
         "- **Looseness figure**: the paper computed the optimal policy with incremental pruning for every size; "
-        "our optimal reference (PBVI, cross-checked with exact alpha vectors on S = 4) reaches S = "
+        "our reference (PBVI, an approximation of the optimum that agrees with exact alpha vectors on S = 4 "
+        "and 5, A = 4) reaches S = "
         f"{data.get('configs', {}).get('table3', {}).get('looseness_max_states', '?')} in our time budget, larger "
         "sizes show `upper - lower` only.",
         "- **Peers** are not in the paper" + _peer_episode_note(data.get("peers")),

@@ -1,4 +1,4 @@
-"""Run every experiment of issue 6 and write ``RESULTS.md`` and ``img/*.png`` (``run_all``).
+"""Run every experiment of the paper and write ``RESULTS.md`` and ``img/*.png`` (``run_all``).
 
 ``quick=True`` shrinks every experiment (a CI smoke test, < 2 minutes); the report then says
 so at the top. Sizes of both modes are in :data:`FULL` and :data:`QUICK` and are printed into
@@ -86,8 +86,9 @@ FULL = ExperimentConfig(
     peers_models=PEER_MODELS, peers_budgets=(0.01, 0.05, 0.2, 1.0),
     peers_cheap_episodes=100, peers_episodes=(50, 50, 50, 20), peers_steps=50, peers_max_depth=12,
     peers_references=PEER_REFERENCES,
-    # The compute plan (README, "Results"): the 1 s cells are three quarters of the cost, so they
-    # run 20 episodes on the perimeter models and 10 on the paper's, where lookahead is worth nothing.
+    # The compute plan (docs/benchmarks.md, "The peer comparison"): the 1 s cells are three quarters of
+    # the cost, so they run 20 episodes on the perimeter models and 10 on the paper's, where lookahead
+    # is worth nothing.
     peers_model_episodes=(("tracking_s3_info", 1.0, 10), ("tracking_s8_info", 1.0, 10)),
 )
 
@@ -388,7 +389,7 @@ def load_section(cache: Path, name: str, then: str = "the section is left out of
     return read_entry(cache / f"{name}.json", accept, lambda e: check_cached_section(name, e, accept), then=then)
 
 
-def run_all(output: str | Path = "docs", quick: bool = False, progress: bool = True,
+def run_all(output: str | Path = ".", quick: bool = False, progress: bool = True,
             sections: tuple[str, ...] = SECTIONS, jobs: int = 1, resume: bool = False) -> dict:
     """Run the experiments and write ``output/RESULTS.md`` and ``output/img/*.png``.
 

@@ -1,4 +1,4 @@
-"""Sanity check of every peer before its numbers are reported (issue 12): can it find a known
+"""Sanity check of every peer before its numbers are reported: can it find a known
 optimum?
 
 The check model is the *state-reward-only* version of a shipped model: the same dynamics and

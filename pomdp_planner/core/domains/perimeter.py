@@ -55,7 +55,7 @@ Not wired into ``core/io`` yet: a YAML ``generator: {domain: perimeter, S, A, Z,
 set_points, process_sd, sensor_sd}`` plus ``reward_generator: {kind: perimeter, effort_cost,
 damage, damage_from, interception}`` would map one-to-one onto :func:`perimeter_model`'s
 arguments (the shipped ``config/models/perimeter_*.yaml`` are written in explicit form by
-``python -m pomdp_planner.bench.lookahead_models --write-models`` from :data:`PRESETS`).
+``python -m tools.lookahead_models --write-models`` from :data:`PRESETS`, in the source tree).
 """
 
 from __future__ import annotations
@@ -66,6 +66,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.special import ndtr
 
+from ..checks import check_int
 from ..model import POMDP, ModelError, per_action_vector
 
 __all__ = [
@@ -121,8 +122,7 @@ def _per_action(name: str, value: float | Sequence[float], A: int) -> np.ndarray
 
 def _check_sizes(S: int, A: int) -> None:
     for name, n in (("S", S), ("A", A)):
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < (2 if name == "S" else 1):
-            raise ModelError(f"generator.{name}: must be an integer >= {2 if name == 'S' else 1}, got {n!r}")
+        check_int(n, f"generator.{name}", 2 if name == "S" else 1, error=ModelError)
 
 
 def _positive(name: str, v: np.ndarray | float) -> None:
@@ -153,8 +153,7 @@ def perimeter_observations(S: int, A: int, sensor_sd: float | Sequence[float], Z
     """``O[a, s, :]`` = bands (``Z`` of them) of ``N(x_s, sensor_sd[a]^2)`` (A x S x Z)."""
     _check_sizes(S, A)
     Z = S if Z is None else Z
-    if isinstance(Z, bool) or not isinstance(Z, (int, np.integer)) or Z < 2:
-        raise ModelError(f"generator.Z: must be an integer >= 2, got {Z!r}")
+    check_int(Z, "generator.Z", 2, error=ModelError)
     sd = _per_action("sensor_sd", sensor_sd, A)
     _positive("sensor_sd", sd)
     x = band_centres(S)

@@ -12,12 +12,26 @@ documents it: the header (``discount``, ``values: reward|cost``, ``states``/``ac
 a single state, ``start include: ...``, ``start exclude: ...``), ``T:``/``O:`` entries in
 element, row and matrix form (with ``uniform`` and ``identity``), ``R:`` entries in element,
 row and matrix form, wildcards ``*``, names or 0-based indices, and ``#`` comments. Later
-entries overwrite earlier ones. The file's ``R(s, a, s', z)`` is reduced to our ``r(s, a)``
-by expectation, ``r(s,a) = sum_{s',z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``; ``values: cost``
-negates it. The model has no uncertainty term (``function: none``). Errors are
-:class:`~pomdp_planner.core.model.ModelError` with the line number and what is wrong.
+entries overwrite earlier ones. ``discount: 1`` is accepted (a finite horizon: see
+:class:`~pomdp_planner.core.model.POMDP`). A row of ``T:`` or ``O:`` must sum to 1 within
+pomdp-solve's tolerance, :data:`PEER_ROW_TOLERANCE`; a row off by more than the model's
+``STOCHASTIC_ATOL`` (and within it) is divided by its sum, with one
+:class:`~pomdp_planner.core.errors.InputWarning` that names the first such row. The file's
+``R(s, a, s', z)`` is reduced to our ``r(s, a)`` by expectation,
+``r(s,a) = sum_{s',z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``, as pomdp-solve computes it: with the
+rows as written, before renormalising (``R: a : s : * : * v`` gives ``v`` times the mass of its
+rows); ``values: cost`` negates it. The model has no uncertainty term (``function: none``).
+Errors are :class:`~pomdp_planner.core.model.ModelError` with the line number and what is wrong,
+after the file name.
 
-Import is bounded (issue 13): the file is read by
+Epsilon. The format has no ``epsilon`` (the Shannon bounds' domain, unused without an
+uncertainty term but part of every model): it is ``model.default_epsilon(S)`` (``1e-3``, or
+``1/(2S)`` when smaller, so a file of any size loads), or the ``"epsilon"`` of a
+``# pomdp_planner: {...}`` comment line, or the ``epsilon`` argument of :func:`parse_pomdp` and
+:func:`load_pomdp_file`, which wins. Export writes it in that comment when the model's differs
+from the default.
+
+Import is bounded, since a model file is untrusted input: the file is read by
 :func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8 file of at most
 ``MAX_MODEL_FILE_BYTES``); a token longer than :data:`MAX_TOKEN_CHARS` is refused; the declared
 sizes are checked against ``MAX_MODEL_BYTES`` as soon as each header line is read, before any
@@ -54,13 +68,16 @@ from typing import NamedTuple
 import numpy as np
 
 from ..belief import start_belief
+from ..errors import InputWarning, prefixed
 from ..model import (
     MAX_MODEL_BYTES,
     POMDP,
     STOCHASTIC_ATOL,
     ModelError,
+    as_number,
     check_model_size,
     check_name,
+    default_epsilon,
     format_bytes,
     short_repr,
 )
@@ -76,6 +93,9 @@ MAX_ENTRY_CELLS = 400_000_000
 #: of CPU per word (measured: 1.8 s for a million), so this bounds the time of any file to a
 #: few seconds; the export of a model with S = Z = 200 and A = 5 has about 400 000.
 MAX_TOKENS = 1_000_000
+#: A row of ``T:`` or ``O:`` may sum to 1 within this (pomdp-solve's ``EPSILON``); a row off by more
+#: than ``STOCHASTIC_ATOL`` (and at most this) is renormalised, with a warning.
+PEER_ROW_TOLERANCE = 1e-5
 #: Longest ``# pomdp_planner: {...}`` comment line that is read (longer ones are ignored).
 MAX_META_CHARS = 1 << 20
 
@@ -162,6 +182,8 @@ def export_pomdp(model: POMDP) -> str:
             renamed = ", ".join(f"{o!r} -> {s}" for o, s in zip(names, safe, strict=True) if o != s)
             lines.append(f"# {kind} renamed to valid .POMDP identifiers: {renamed}")
     meta = {"name": model.name, **originals}
+    if model.epsilon != default_epsilon(S):
+        meta["epsilon"] = model.epsilon
     lines.append("# pomdp_planner: " + json.dumps(meta))
     lines += ["", f"discount: {_num(model.gamma)}", "values: reward"]
     for kind in ("states", "actions", "observations"):
@@ -211,9 +233,8 @@ class _Lexer:
     ``meta`` collects the ``# pomdp_planner: {...}`` comment (see the module docstring).
     """
 
-    def __init__(self, text: str, source: str = "<string>"):
+    def __init__(self, text: str):
         self.meta: dict = {}
-        self.source = source
         self.last: _Tok | None = None  # the last token consumed
         self._it = self._tokens(text)
         self.head: _Tok | None = next(self._it, None)
@@ -233,9 +254,9 @@ class _Lexer:
             for t in _TOKEN.findall(raw):
                 count += 1
                 if count > MAX_TOKENS:
-                    raise ModelError(f"{self.source}: line {lineno}: more than {MAX_TOKENS:,} words (MAX_TOKENS)")
+                    raise ModelError(f"line {lineno}: more than {MAX_TOKENS:,} words (MAX_TOKENS)")
                 if len(t) > MAX_TOKEN_CHARS:
-                    raise ModelError(f"{self.source}: line {lineno}: a word of {len(t)} characters "
+                    raise ModelError(f"line {lineno}: a word of {len(t)} characters "
                                      f"(at most {MAX_TOKEN_CHARS}): {short_repr(t, 40)}")
                 yield _Tok(t, lineno)
 
@@ -276,18 +297,20 @@ class _Rewards:
         return self.full
 
     def expected(self, P: np.ndarray, O: np.ndarray) -> np.ndarray:
-        """``r(s, a) = sum_{s', z} P(s'|s,a) O(z|s',a) R(s,a,s',z)`` (rows of P, O sum to 1), S x A."""
+        """``r(s, a) = sum_{s', z} P(s'|s,a) O(z|s',a) R(s,a,s',z)``, S x A, with the file's ``P`` and
+        ``O`` as they are (not renormalised), as pomdp-solve computes it (``computeRewards``): a
+        value given for all end states and observations is multiplied by the mass of its row."""
         if self.full is None:
-            return self.whole.T.copy()
-        num = np.einsum("asj,ajz,asjz->as", P, O, self.full)
-        den = np.einsum("asj,ajz->as", P, O)
-        return (num / den).T
+            mass = np.einsum("asj,ajz->as", P, O)
+            return (self.whole * mass).T
+        return np.einsum("asj,ajz,asjz->as", P, O, self.full).T
 
 
 class _Parser:
-    def __init__(self, text: str, source: str):
+    def __init__(self, text: str, source: str, epsilon: float | None = None):
         self.source = source
-        self.lex = _Lexer(text, source)
+        self.epsilon = epsilon
+        self.lex = _Lexer(text)
         self.cells = 0  # matrix cells written by the entries so far (MAX_ENTRY_CELLS)
         self.gamma: float | None = None
         self.sign = 1.0
@@ -302,7 +325,7 @@ class _Parser:
         if tok is None:
             tok = self.lex.head if self.lex.head is not None else self.lex.last
         where = f"line {tok.line}" if tok is not None else "end of file"
-        return ModelError(f"{self.source}: {where}: {msg}")
+        return ModelError(f"{where}: {msg}")
 
     def peek(self) -> _Tok | None:
         return self.lex.head
@@ -410,10 +433,8 @@ class _Parser:
     def check_size(self, kind: str, tok: _Tok) -> None:
         """The sizes declared so far (1 for those still missing) against ``MAX_MODEL_BYTES``."""
         S, A, Z = (self.sizes.get(k, 1) for k in ("states", "actions", "observations"))
-        try:
+        with prefixed(f"line {tok.line}"):
             check_model_size(S, A, Z, kind)
-        except ModelError as exc:
-            raise self.error(str(exc), tok) from None
 
     def write(self, cells: int, tok: _Tok) -> None:
         """Account for an entry writing ``cells`` matrix cells (refused past ``MAX_ENTRY_CELLS``)."""
@@ -546,8 +567,9 @@ class _Parser:
             if t == "discount":
                 self.colon("discount")
                 g = self.number("discount")
-                if not 0.0 <= g < 1.0:
-                    raise self.error(f"discount: must satisfy 0 <= discount < 1 (infinite horizon), got {g}", tok)
+                if not 0.0 <= g <= 1.0:
+                    raise self.error(f"discount: must satisfy 0 <= discount <= 1 (1: a finite horizon only), got {g}",
+                                     tok)
                 self.gamma = g
             elif t == "values":
                 self.colon("values")
@@ -579,31 +601,58 @@ class _Parser:
                 expected = "discount, values, states, actions, observations, start, T, O or R"
                 raise self.error(f"unexpected {t!r} (expected one of {expected})", tok)
         if self.gamma is None:
-            raise ModelError(f"{self.source}: 'discount:' is missing")
+            raise ModelError("'discount:' is missing")
         for kind in ("states", "actions", "observations"):
             if kind not in self.sizes:
-                raise ModelError(f"{self.source}: '{kind}:' is missing")
+                raise ModelError(f"'{kind}:' is missing")
         if P is None:
-            raise ModelError(f"{self.source}: no T: or O: entries")
-        self.check_rows("T", "transition", P, P_lines, "start state", "states")
-        self.check_rows("O", "observation", O, O_lines, "end state", "observations")
-        r = self.sign * R.expected(P, O)
+            raise ModelError("no T: or O: entries")
+        off = [self.check_rows("T", "transition", P, P_lines, "start state", "states"),
+               self.check_rows("O", "observation", O, O_lines, "end state", "observations")]
+        r = self.sign * R.expected(P, O)  # with the file's probabilities, as pomdp-solve computes it
+        self.renormalise(off, P, O)
         return self.build(P, O, r)
 
-    def check_rows(self, key: str, field: str, M: np.ndarray, lines: np.ndarray, row_label: str, over: str) -> None:
+    def check_rows(self, key: str, field: str, M: np.ndarray, lines: np.ndarray, row_label: str, over: str
+                   ) -> list[tuple[int, int, str]]:
+        """Refuse a row of ``M`` whose sum is off 1 by more than :data:`PEER_ROW_TOLERANCE`; return
+        ``(action, row, description)`` of the rows off by more than ``STOCHASTIC_ATOL`` (within it),
+        which :meth:`renormalise` divides by their sums."""
         sums = M.sum(axis=-1)
-        bad = np.argwhere(np.abs(sums - 1.0) > STOCHASTIC_ATOL)
-        if bad.size == 0:
+        dev = np.abs(sums - 1.0)
+        bad = np.argwhere(dev > PEER_ROW_TOLERANCE)
+        if bad.size:
+            a, s = bad[0]
+            an, sn = self.label("actions", a), self.label("states", s)
+            if lines[a, s] == 0:
+                raise ModelError(f"{key}: no probabilities given for action {an}, {row_label} {sn} "
+                                 f"({field} row sums to {sums[a, s]:.9g})")
+            raise ModelError(f"line {lines[a, s]}: {key}: {field} row for action {an}, {row_label} {sn} sums to "
+                             f"{sums[a, s]:.9g} over {over}, not 1 (tolerance {PEER_ROW_TOLERANCE:g}; after the "
+                             f"last {key}: entry touching it, on this line)")
+        return [(int(a), int(s), f"line {lines[a, s]}: {key}: {field} row for action {self.label('actions', a)}, "
+                 f"{row_label} {self.label('states', s)} sums to {sums[a, s]:.9g}")
+                for a, s in np.argwhere(dev > STOCHASTIC_ATOL)]
+
+    def renormalise(self, off: list[list[tuple[int, int, str]]], *matrices: np.ndarray) -> None:
+        """Divide the rows ``off`` (of ``P``, then ``O``) by their sums and say so in one warning
+        (:class:`~pomdp_planner.core.errors.InputWarning`) that names the first of them."""
+        rows = [(M, a, i, text) for M, found in zip(matrices, off, strict=True) for a, i, text in found]
+        if not rows:
             return
-        a, s = bad[0]
-        an = self.names["actions"][a] if self.names["actions"] else str(a)
-        sn = self.names["states"][s] if self.names["states"] else str(s)
-        if lines[a, s] == 0:
-            raise ModelError(f"{self.source}: {key}: no probabilities given for action {an}, {row_label} {sn} "
-                             f"({field} row sums to {sums[a, s]:.9g})")
-        raise ModelError(f"{self.source}: line {lines[a, s]}: {key}: {field} row for action {an}, {row_label} {sn} "
-                         f"sums to {sums[a, s]:.9g} over {over}, not 1 (after the last {key}: entry touching it, "
-                         f"on this line)")
+        for M, a, i, _ in rows:
+            M[a, i] /= M[a, i].sum()
+        more = len(rows) - 1
+        counts = ", ".join(f"{len(found)} {key}" for key, found in zip(("T", "O"), off, strict=True) if found)
+        warnings.warn(InputWarning(
+            f"{self.source}: {rows[0][3]}, not 1 but within pomdp-solve's tolerance {PEER_ROW_TOLERANCE:g}: "
+            "renormalised" + (f" ({more} more row{'s' * (more != 1)} likewise; in all {counts})" if more else "")),
+            stacklevel=4)
+
+    def label(self, kind: str, i: int) -> str:
+        """The name of state/action ``i`` if the file names them, else the index."""
+        names = self.names[kind]
+        return names[i] if names else str(i)
 
     def build(self, P: np.ndarray, O: np.ndarray, r: np.ndarray) -> POMDP:
         names = dict(self.names)
@@ -625,20 +674,23 @@ class _Parser:
         metadata: dict = {"source_format": "cassandra"}
         if self.start is not None:
             metadata["start"] = self.start.tolist()
-        try:
-            return POMDP(P=P, O=O, r=r, gamma=self.gamma, uncertainty="none", name=name,
-                         state_names=names["states"], action_names=names["actions"],
-                         observation_names=names["observations"], metadata=metadata)
-        except ModelError as exc:
-            raise ModelError(f"{self.source}: {exc}") from None
+        epsilon = self.epsilon
+        if epsilon is None and "epsilon" in self.lex.meta:
+            epsilon = as_number(self.lex.meta["epsilon"], "epsilon (# pomdp_planner: comment)")
+        return POMDP(P=P, O=O, r=r, gamma=self.gamma, uncertainty="none", name=name,
+                     epsilon=default_epsilon(P.shape[1]) if epsilon is None else epsilon,
+                     state_names=names["states"], action_names=names["actions"],
+                     observation_names=names["observations"], metadata=metadata)
 
 
-def parse_pomdp(text: str, source: str = "<string>") -> POMDP:
-    """Parse the text of a ``.POMDP`` file into a :class:`POMDP` (linear reward, no uncertainty)."""
-    return _Parser(text, source).parse()
+def parse_pomdp(text: str, source: str = "<string>", epsilon: float | None = None) -> POMDP:
+    """Parse the text of a ``.POMDP`` file into a :class:`POMDP` (linear reward, no uncertainty);
+    errors start with ``source``. ``epsilon``: the model's ``epsilon`` (module docstring, "Epsilon")."""
+    with prefixed(source):
+        return _Parser(text, source, epsilon).parse()
 
 
-def load_pomdp_file(path: str | Path) -> POMDP:
+def load_pomdp_file(path: str | Path, epsilon: float | None = None) -> POMDP:
     """Load a Cassandra ``.POMDP`` file (see :func:`parse_pomdp`)."""
     path = Path(path)
-    return parse_pomdp(read_model_text(path, ".POMDP file"), source=str(path))
+    return parse_pomdp(read_model_text(path, ".POMDP file"), str(path), epsilon)

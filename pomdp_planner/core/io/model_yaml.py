@@ -1,4 +1,4 @@
-"""YAML model files (schema in README.md, "Model files").
+"""YAML model files (schema in docs/models.md).
 
 Field names are fixed so that files written by others load::
 
@@ -17,7 +17,7 @@ instead of ``reward``, ``reward_generator: {kind: tracking_comparison, c_a, c_p,
 Every error is a :class:`~pomdp_planner.core.model.ModelError` of one line that starts with the
 file name and the field.
 
-A model file is untrusted input, so loading is bounded by design (issue 13):
+A model file is untrusted input, so loading is bounded by design:
 
 * the file is read by :func:`~pomdp_planner.core.io.file_text.read_model_text` (a regular UTF-8
   file of at most ``MAX_MODEL_FILE_BYTES``);
@@ -27,7 +27,10 @@ A model file is untrusted input, so loading is bounded by design (issue 13):
   integers longer than :data:`MAX_INT_CHARS` characters, more than :data:`MAX_YAML_NODES` values
   (parsing time grows with them), and the tags PyYAML's safe loader would
   turn into bytes, dates, sets or ordered pairs. It composes without recursion, so no input
-  reaches Python's recursion limit. As in YAML 1.2, ``1e-3`` is a number;
+  reaches Python's recursion limit. Scalars are YAML 1.2's: ``1e-3`` is a number, while YAML
+  1.1's other number forms (``0b11``, ``017``, ``0x1f``, ``1_000``, ``1:00``) and booleans
+  (``yes``, ``no``) are strings, which a numeric field refuses naming it; a key given twice in
+  one mapping is an error;
 * values are typed strictly: a number is an int or a float, never a bool or a string
   (``discount: "0.5"`` is an error); a count (``states``, ``generator.S``) is an integer, never
   a float (``S: 3.9`` and ``S: 3.0`` are errors: counts are written as integers); NaN and
@@ -39,7 +42,7 @@ A model file is untrusted input, so loading is bounded by design (issue 13):
 
 from __future__ import annotations
 
-import numbers
+import contextlib
 import re
 from pathlib import Path
 from typing import Any, ClassVar
@@ -60,8 +63,19 @@ from yaml.events import (
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from ..belief import start_belief
+from ..checks import is_integer
 from ..domains.tracking import comparison_reward, tracking_observations, tracking_transitions
-from ..model import POMDP, ModelError, as_count, as_number, check_model_size, check_name, kind_of, short_repr
+from ..errors import prefixed
+from ..model import (
+    MAX_REWARD_MAGNITUDE,
+    POMDP,
+    ModelError,
+    as_count,
+    as_number,
+    check_model_size,
+    kind_of,
+    short_repr,
+)
 from .cassandra import load_pomdp_file
 from .file_text import read_model_text
 
@@ -87,19 +101,28 @@ except ImportError:  # pragma: no cover - PyYAML built without libyaml
     from yaml import SafeLoader as _BaseLoader  # type: ignore[assignment]
 
 _UNSAFE_TAGS = ("binary", "timestamp", "set", "omap", "pairs")
+#: Implicit types that model files read as YAML 1.2 does, not as YAML 1.1 (PyYAML's default):
+#: their YAML 1.1 resolvers are replaced below; ``<<`` (merge) and ``=`` (value) keys are plain strings.
+_YAML11_RESOLVED = ("bool", "int", "float", "timestamp", "merge", "value")
 
 
 class ModelLoader(_BaseLoader):  # type: ignore[misc, valid-type]
-    """A safe YAML loader for model files: no anchors or aliases, bounded depth and integers.
+    """A safe YAML loader for model files: no anchors or aliases, bounded depth and integers,
+    YAML 1.2 scalars, no duplicate keys.
 
     Composes nodes from the parser's events with an explicit stack (no recursion); refuses any
-    anchor or alias at the event that carries it, so nothing is ever expanded. Dates stay
-    strings (no implicit timestamp resolution); ``!!binary``, ``!!timestamp``, ``!!set``,
-    ``!!omap`` and ``!!pairs`` are refused like any unknown tag.
+    anchor or alias at the event that carries it, so nothing is ever expanded. Scalars resolve as
+    in YAML 1.2's core schema: a number is plain decimal (``3``, ``-0.5``, ``1e-3``, ``.inf``), a
+    boolean is ``true`` or ``false``; YAML 1.1's other forms (``0b11``, ``017``, ``0x1f``,
+    ``1_000``, ``1:00`` = 60, ``yes``/``no``, dates) stay strings, which a field expecting a number
+    refuses (naming it). A key given twice in one mapping is an error (YAML forbids it; PyYAML
+    would keep the last). ``!!binary``, ``!!timestamp``, ``!!set``, ``!!omap`` and ``!!pairs`` are
+    refused like any unknown tag.
     """
 
     yaml_implicit_resolvers: ClassVar[dict] = {
-        first: [(tag, regexp) for tag, regexp in resolvers if not tag.endswith(":timestamp")]
+        first: [(tag, regexp) for tag, regexp in resolvers
+                if not tag.endswith(tuple(":" + t for t in _YAML11_RESOLVED))]
         for first, resolvers in _BaseLoader.yaml_implicit_resolvers.items()
     }
     yaml_constructors: ClassVar[dict] = {tag: fn for tag, fn in SafeConstructor.yaml_constructors.items()
@@ -110,7 +133,28 @@ class ModelLoader(_BaseLoader):  # type: ignore[misc, valid-type]
         if len(text) > MAX_INT_CHARS:
             raise ConstructorError(None, None, f"an integer of {len(text)} characters (at most {MAX_INT_CHARS})",
                                    node.start_mark)
-        return SafeConstructor.construct_yaml_int(self, node)
+        if not _INT_12.fullmatch(text):  # an explicit !!int in another notation
+            raise ConstructorError(None, None, f"{short_repr(text)} is not a plain decimal integer", node.start_mark)
+        return int(text)
+
+    def construct_yaml_float(self, node):
+        text = self.construct_scalar(node)
+        if not (_FLOAT_12.fullmatch(text) or _INT_12.fullmatch(text) or _SPECIAL_12.fullmatch(text)):
+            raise ConstructorError(None, None, f"{short_repr(text)} is not a plain decimal number", node.start_mark)
+        return SafeConstructor.construct_yaml_float(self, node)
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, MappingNode):
+            first_line: dict = {}
+            for key_node, _ in node.value:
+                if not isinstance(key_node, ScalarNode):
+                    continue  # a collection as a key: PyYAML refuses it as unhashable
+                key = self.construct_object(key_node, deep=deep)
+                if key in first_line:
+                    raise ConstructorError(None, None, f"duplicate key {short_repr(key, 40)} (first given on line "
+                                           f"{first_line[key] + 1}): give each field once", key_node.start_mark)
+                first_line[key] = key_node.start_mark.line
+        return SafeConstructor.construct_mapping(self, node, deep=deep)
 
     def get_single_node(self):
         self.get_event()  # stream start
@@ -176,13 +220,20 @@ class ModelLoader(_BaseLoader):  # type: ignore[misc, valid-type]
                 stack.append([node, None])
 
 
+_INT_12 = re.compile(r"[-+]?(?:0|[1-9][0-9]*)")
+_FLOAT_12 = re.compile(r"[-+]?(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|[-+]?[0-9]+[eE][-+]?[0-9]+")
+_SPECIAL_12 = re.compile(r"[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN)")
 ModelLoader.add_constructor("tag:yaml.org,2002:int", ModelLoader.construct_yaml_int)
-# YAML 1.2 floats: an exponent without a decimal point (``1e-3``) is a number, as users expect
-# (YAML 1.1, PyYAML's default, reads it as a string).
-ModelLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."))
+ModelLoader.add_constructor("tag:yaml.org,2002:float", ModelLoader.construct_yaml_float)
+# YAML 1.2 core schema scalars (the class docstring); an exponent without a decimal point
+# (``1e-3``) is a number, as users expect (YAML 1.1 reads it as a string).
+ModelLoader.add_implicit_resolver("tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+                                  list("tTfF"))
+ModelLoader.add_implicit_resolver("tag:yaml.org,2002:int", re.compile(f"^(?:{_INT_12.pattern})$"),
+                                  list("-+0123456789"))
+ModelLoader.add_implicit_resolver("tag:yaml.org,2002:float",
+                                  re.compile(f"^(?:{_FLOAT_12.pattern}|{_SPECIAL_12.pattern})$"),
+                                  list("-+0123456789."))
 
 
 def _yaml_problem(exc: yaml.YAMLError) -> str:
@@ -239,8 +290,8 @@ def _size(doc: dict, key: str) -> tuple[int | None, list[str] | None]:
     if isinstance(v, list):
         if not v:
             raise ModelError(f"{key}: expected a positive count or a non-empty list of names, got an empty list")
-        return len(v), [check_name(x, f"{key}[{i}]") for i, x in enumerate(v)]
-    if isinstance(v, numbers.Integral) and not isinstance(v, bool):
+        return len(v), v  # the names are checked by POMDP
+    if is_integer(v):
         return as_count(v, key), None
     raise ModelError(f"{key}: expected a positive count or a non-empty list of names, got {kind_of(v)}")
 
@@ -290,6 +341,16 @@ def _vector(value: Any, field: str) -> np.ndarray:
     return _numbers(value, field, 1)
 
 
+def _reward_parameter(value: Any, field: str) -> float:
+    """A parameter of ``reward_generator``: a finite number of magnitude at most ``MAX_REWARD_MAGNITUDE``
+    (checked before the rewards are computed, so that none can overflow)."""
+    x = as_number(value, field)
+    if abs(x) > MAX_REWARD_MAGNITUDE:
+        raise ModelError(f"{field}: magnitude must be at most {MAX_REWARD_MAGNITUDE:g} (MAX_REWARD_MAGNITUDE: "
+                         f"searches and the bound LP must stay finite), got {x:g}")
+    return x
+
+
 def _text(value: Any, field: str) -> str:
     if isinstance(value, bool) or not isinstance(value, (str, int, float)):
         raise ModelError(f"{field}: must be a string, got {kind_of(value)}")
@@ -307,11 +368,13 @@ def _start(value: Any, S: int) -> str | list[float]:
 
 # ------------------------------------------------------------------------ the schema
 def model_from_dict(doc: Any, source: str = "<dict>") -> POMDP:
-    """Build a :class:`POMDP` from a parsed YAML document."""
-    try:
+    """Build a :class:`POMDP` from a parsed YAML document; errors start with ``source``.
+
+    The schema is checked here (fields, shapes, types of the matrices, generators); what every
+    model needs (names, discount, weights, epsilon, probabilities, magnitudes) is checked once,
+    by :class:`POMDP`, whose messages name the same fields."""
+    with prefixed(source):
         return _model_from_dict(doc)
-    except ModelError as exc:
-        raise ModelError(f"{source}: {exc}") from None
 
 
 def _generated(doc: dict, S: int | None, A: int | None, Z: int | None) -> tuple[np.ndarray, np.ndarray]:
@@ -342,8 +405,6 @@ def _model_from_dict(doc: Any) -> POMDP:
     _check_fields(doc, KNOWN_FIELDS, "")
     if "discount" not in doc:
         raise ModelError("discount: missing")
-    gamma = as_number(doc["discount"], "discount")
-    name = check_name(doc.get("name", "pomdp"))
     S, state_names = _size(doc, "states")
     A, action_names = _size(doc, "actions")
     Z, obs_names = _size(doc, "observations")
@@ -368,7 +429,7 @@ def _model_from_dict(doc: Any) -> POMDP:
         if rg.get("kind") != "tracking_comparison":
             raise ModelError("reward_generator.kind: only 'tracking_comparison' is known, "
                              f"got {kind_of(rg.get('kind'))}")
-        kw = {k: as_number(v, f"reward_generator.{k}") for k, v in rg.items() if k != "kind"}
+        kw = {k: _reward_parameter(v, f"reward_generator.{k}") for k, v in rg.items() if k != "kind"}
         r = comparison_reward(P.shape[1], P.shape[0], **kw)
         metadata["reward_generator"] = dict(rg)
     elif "reward" in doc:
@@ -379,37 +440,32 @@ def _model_from_dict(doc: Any) -> POMDP:
     unc = {"function": "none"} if unc is None else _mapping(unc, "uncertainty", "function, weights, epsilon")
     _check_fields(unc, UNCERTAINTY_FIELDS, "uncertainty: ")
     func = unc.get("function", "none")
-    if not isinstance(func, str):
-        raise ModelError(f"uncertainty.function: must be the name of a function (none, renyi2, shannon), "
-                         f"got {kind_of(func)}")
     weights = unc.get("weights")
     if func != "none" and weights is None:
         raise ModelError("uncertainty.weights: missing (one weight per action)")
-    if isinstance(weights, list):
-        weights = _vector(weights, "uncertainty.weights")
-    elif weights is not None:
-        weights = as_number(weights, "uncertainty.weights")
-    epsilon = as_number(unc.get("epsilon", 1e-3), "uncertainty.epsilon")
     if "start" in doc:
         metadata["start"] = _start(doc["start"], P.shape[1])
     if "description" in doc:
         metadata["description"] = _text(doc["description"], "description")
     model = POMDP(
-        P=P, O=O, r=r, gamma=gamma, uncertainty=func, w=weights, epsilon=epsilon, name=name,
-        state_names=state_names, action_names=action_names, observation_names=obs_names,
-        metadata=metadata,
+        P=P, O=O, r=r, gamma=doc["discount"], uncertainty=func, w=weights, epsilon=unc.get("epsilon"),
+        name=doc.get("name", "pomdp"), state_names=state_names, action_names=action_names,
+        observation_names=obs_names, metadata=metadata,
     )
     start_belief(model)  # validates 'start' now (ModelError naming the field), not at first use
     return model
 
 
-def load_model(path: str | Path) -> POMDP:
-    """Load a YAML model file (or a Cassandra ``.POMDP`` file, by extension)."""
+def load_model(path: str | Path, field: str | None = None) -> POMDP:
+    """Load a YAML model file (or a Cassandra ``.POMDP`` file, by extension). Every error is one
+    :class:`ModelError` that starts with the file name (after ``field``, the parameter or option
+    that named the file, if given); nothing re-wraps it."""
     path = Path(path)
-    if path.suffix.lower() == ".pomdp":
-        return load_pomdp_file(path)
-    text = read_model_text(path, "model file")
-    return model_from_dict(parse_model_yaml(text, str(path)), source=str(path))
+    with prefixed(field) if field else contextlib.nullcontext():
+        if path.suffix.lower() == ".pomdp":
+            return load_pomdp_file(path)
+        text = read_model_text(path, "model file")
+        return model_from_dict(parse_model_yaml(text, str(path)), source=str(path))
 
 
 def model_to_dict(model: POMDP) -> dict:

@@ -18,11 +18,7 @@ from .paths import resolve_path
 def load_model_file(path: str, field: str = "model_file") -> POMDP:
     """The model in the file ``path`` names (found by :func:`~.paths.resolve_path`); a
     :class:`ModelError` names ``field`` (and, for a malformed file, the file and its field)."""
-    resolved = resolve_path(path, field)
-    try:
-        return load_model(resolved)
-    except ModelError as exc:
-        raise ModelError(f"{field}: {exc}") from None
+    return load_model(resolve_path(path, field), field)
 
 
 def load_observation_models(model: POMDP, files: Sequence[str] | None, num_sensors: int) -> list[np.ndarray]:

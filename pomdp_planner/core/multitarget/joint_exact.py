@@ -29,7 +29,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from ..model import ModelError
+from ..errors import ModelError, OptionError
 from .problem import MultiTargetProblem
 
 #: Largest expectimax tree (belief nodes) :class:`ExactJointPlanner` builds.
@@ -59,7 +59,7 @@ class ExactJointPlanner:
         self.problem = problem
         self.depth = int(depth)
         if self.depth < 0:
-            raise ModelError(f"depth: must be >= 0, got {depth!r}")
+            raise OptionError(f"depth: must be >= 0, got {depth!r}")
         models = problem.models
         self.sizes = tuple(m.S for m in models)
         self.N = math.prod(self.sizes)
@@ -73,7 +73,7 @@ class ExactJointPlanner:
         F = len(joint)
         nodes = sum((F * self.Zj) ** i for i in range(self.depth + 1))
         if nodes > MAX_JOINT_NODES:
-            raise ModelError(f"depth: the exact joint tree has {nodes:.3g} belief nodes ({F} joint actions within "
+            raise OptionError(f"depth: the exact joint tree has {nodes:.3g} belief nodes ({F} joint actions within "
                              f"the budget, {self.Zj} joint observations), more than MAX_JOINT_NODES = "
                              f"{MAX_JOINT_NODES}")
         self.gamma = problem.gamma

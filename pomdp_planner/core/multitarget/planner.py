@@ -69,18 +69,12 @@ import numpy as np
 
 from ..belief import ETA_MIN, check_belief, posteriors_all
 from ..bounds import DEFAULT_CONSTANT
+from ..checks import check_choice, check_number
+from ..errors import BeliefError, ModelError, OptionError
 from ..gate import PlannerSetup, build_planner
-from ..model import POMDP, ModelError, short_repr
-from ..search import (
-    DEFAULT_MEMORY_BUDGET,
-    MAX_DEPTH_RANGE,
-    TIME_BUDGET_RANGE,
-    DeadlineExceeded,
-    check_depth,
-    check_time_budget,
-    check_tree_size,
-    next_depth_cannot_finish,
-)
+from ..model import POMDP
+from ..options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_time_budget
+from ..search import DEFAULT_MEMORY_BUDGET, DeadlineExceeded, check_tree_size, next_depth_cannot_finish
 from .dual import horizon_sum, lambda_ceiling, minimise_convex
 from .knapsack import solve_knapsack
 from .problem import MultiTargetProblem, format_effort
@@ -217,7 +211,7 @@ class RestrictedPlanners:
         keep = np.flatnonzero(p.units[k] <= level) if units else \
             np.array([a for a, e in enumerate(p.efforts[k]) if e <= level], dtype=int)
         if keep.size == 0:
-            raise ModelError(f"efforts[{k}]: no priority of {p.names[k]} costs at most {level}")
+            raise OptionError(f"efforts[{k}]: no priority of {p.names[k]} costs at most {level}")
         model = p.models[k]
         key = (id(model), tuple(int(x) for x in keep))
         hit = self._cache.get(key)
@@ -253,8 +247,7 @@ class MultiTargetPlanner:
                  variant: str = "tight", constant: str = DEFAULT_CONSTANT, prune_without_guarantee: bool = False,
                  no_limit: bool = False, memory_budget: int = DEFAULT_MEMORY_BUDGET,
                  clock: Callable[[], float] = time.perf_counter):
-        if search not in SEARCH_MODES:
-            raise ModelError(f"search: expected one of {', '.join(SEARCH_MODES)}, got {short_repr(search)}")
+        check_choice(search, SEARCH_MODES, "search")
         self.problem = problem
         self.search_mode = search
         self.clock = clock
@@ -263,14 +256,7 @@ class MultiTargetPlanner:
         self.time_budget = None if time_budget is None else check_time_budget(time_budget, "time_budget",
                                                                               TIME_BUDGET_RANGE)
         self.max_evaluations = check_depth(max_evaluations, "max_evaluations", MAX_EVALUATIONS_RANGE)
-        if price is not None:
-            try:
-                price = float(price)
-            except (TypeError, ValueError):
-                price = math.nan
-            if isinstance(price, bool) or not PRICE_RANGE[0] <= price <= PRICE_RANGE[1]:
-                raise ModelError(f"price: must be a number in {PRICE_RANGE[0]:g}..{PRICE_RANGE[1]:g}, got {price!r}")
-        self.fixed_price = price
+        self.fixed_price = None if price is None else check_number(price, "price", *PRICE_RANGE)
         self._gate = {"variant": variant, "constant": constant, "prune_without_guarantee": prune_without_guarantee,
                       "memory_budget": memory_budget, "use_bounds": search == "bnb"}
         self._setups: dict[int, PlannerSetup] = {}
@@ -342,7 +328,7 @@ class MultiTargetPlanner:
     def check_beliefs(self, beliefs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """The K beliefs, each checked against its target's model (``BeliefError`` naming ``beliefs[k]``)."""
         if len(beliefs) != self.problem.K:
-            raise ModelError(f"beliefs: {len(beliefs)} beliefs for {self.problem.K} targets")
+            raise BeliefError(f"beliefs: {len(beliefs)} beliefs for {self.problem.K} targets")
         return [check_belief(m, b, field=f"beliefs[{k}]") for k, (m, b) in enumerate(zip(self.problem.models,
                                                                                           beliefs, strict=True))]
 
@@ -386,9 +372,8 @@ class MultiTargetPlanner:
         kept): what :meth:`decide` computes for one price. ``dual_bound`` is ``U(lam)``."""
         bs = self.check_beliefs(beliefs)
         depth = check_depth(depth)
-        if not lam >= 0.0:
-            raise ModelError(f"lam: must be >= 0, got {lam!r}")
-        ev = self._evaluate(bs, float(lam), depth, None)
+        lam = check_number(lam, "lam", *PRICE_RANGE)
+        ev = self._evaluate(bs, lam, depth, None)
         return self._joint(bs, ev, depth, ((ev.lam, ev.upper),), None)
 
     def _decide_at(self, bs: list[np.ndarray], depth: int, lam0: float, deadline: float | None) -> JointDecision:

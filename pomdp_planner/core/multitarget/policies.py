@@ -27,9 +27,10 @@ from typing import Any
 import numpy as np
 
 from ..belief import start_belief, uniform_belief
-from ..bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
-from ..model import ModelError, short_repr
-from ..search import MAX_DEPTH_RANGE, check_depth
+from ..bounds import BOUND_VARIANTS, DEFAULT_CONSTANT, check_constant, check_variant
+from ..checks import check_choice, parse_flag
+from ..errors import OptionError, short_repr
+from ..options import MAX_DEPTH_RANGE, check_depth
 from .joint_exact import ExactJointPlanner
 from .knapsack import solve_knapsack
 from .planner import SEARCH_MODES, JointDecision, MultiTargetPlanner, RestrictedPlanners
@@ -129,29 +130,16 @@ class ExactJointPolicy:
 
 # ----------------------------------------------------------------------------- options
 def _flag(opts: Mapping[str, Any], name: str) -> bool:
-    text = str(opts.get(name, False)).strip().lower()
-    if text in ("1", "true", "yes", "on"):
-        return True
-    if text in ("0", "false", "no", "off", ""):
-        return False
-    raise ModelError(f"option {name}: expected 1/0 (true/false), got {short_repr(opts.get(name))}")
+    return parse_flag(opts.get(name, False), f"option {name}")
 
 
 def _search(opts: Mapping[str, Any]) -> str:
-    search = opts.get("search", SEARCH_MODES[0])
-    if search not in SEARCH_MODES:
-        raise ModelError(f"option search: expected one of {', '.join(SEARCH_MODES)}, got {short_repr(search)}")
-    return search
+    return check_choice(opts.get("search", SEARCH_MODES[0]), SEARCH_MODES, "option search")
 
 
 def _gate(opts: Mapping[str, Any]) -> dict[str, Any]:
-    variant = opts.get("variant", BOUND_VARIANTS[0])
-    if variant not in BOUND_VARIANTS:
-        raise ModelError(f"option variant: expected one of {', '.join(BOUND_VARIANTS)}, got {short_repr(variant)}")
-    constant = opts.get("constant", DEFAULT_CONSTANT)
-    if constant not in BOUND_CONSTANTS:
-        raise ModelError(f"option constant: expected one of {', '.join(BOUND_CONSTANTS)}, got {short_repr(constant)}")
-    return {"variant": variant, "constant": constant,
+    return {"variant": check_variant(opts.get("variant", BOUND_VARIANTS[0]), "option variant"),
+            "constant": check_constant(opts.get("constant", DEFAULT_CONSTANT), "option constant"),
             "prune_without_guarantee": _flag(opts, "prune_without_guarantee")}
 
 
@@ -219,9 +207,9 @@ def make_joint_policy(name: str, problem: MultiTargetProblem, **options: Any) ->
     """Build joint policy ``name`` for ``problem`` (unknown names and options are errors)."""
     entry = JOINT_POLICIES.get(name)
     if entry is None:
-        raise ModelError(f"policy: unknown joint policy {short_repr(name)} (known: {', '.join(joint_policy_names())})")
+        raise OptionError(f"policy: unknown joint policy {short_repr(name)} (known: {', '.join(joint_policy_names())})")
     unknown = sorted(set(options) - set(entry.options))
     if unknown:
-        raise ModelError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
+        raise OptionError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
                          f"(known: {', '.join(entry.options) or 'none'})")
     return entry.factory(problem, options)

@@ -20,11 +20,12 @@ for the 0-based action: the lowest priority (``A``, "not tracked") costs nothing
 up in priority costs one unit, so priority 1 costs ``A - 1``. With these defaults the joint
 action "every target at the lowest priority" is always within any budget ``B >= 0``.
 
-All targets must share one discount: a single Lagrange price per epoch prices every target's
-effort at the same epoch alike, which is a stationary price per target only when the targets
-discount alike (docs/THEORY.md, "Several targets"). :func:`make_problem` refuses models with
-different discounts unless ``discount`` is given, which then replaces every model's discount
-(the gate solves each target's bounds for that discount).
+All targets must share one discount (``0 <= gamma <= 1``; 1 is valid for the finite lookahead):
+a single Lagrange price per epoch prices every target's effort at the same epoch alike, which
+is a stationary price per target only when the targets discount alike (docs/THEORY.md,
+"Several targets"). :func:`make_problem` refuses models with different discounts unless
+``discount`` is given, which then replaces every model's discount (the gate solves each target's
+bounds for that discount).
 """
 
 from __future__ import annotations
@@ -37,7 +38,9 @@ from fractions import Fraction
 
 import numpy as np
 
-from ..model import POMDP, ModelError, as_number, kind_of, short_repr
+from ..checks import check_number
+from ..errors import OptionError, kind_of, short_repr
+from ..model import POMDP
 
 #: Most targets of one problem (the knapsack and the planner are linear in K; the cap keeps a
 #: typo in a list of targets from starting a search over millions of them).
@@ -58,18 +61,18 @@ def as_rational(value: object, field: str) -> Fraction:
         try:
             q = Fraction(value.strip())
         except (ValueError, ZeroDivisionError):
-            raise ModelError(f"{field}: must be a number, got {short_repr(value)}") from None
+            raise OptionError(f"{field}: must be a number, got {short_repr(value)}") from None
     elif isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ModelError(f"{field}: must be a number, got {kind_of(value)}")
+        raise OptionError(f"{field}: must be a number, got {kind_of(value)}")
     elif isinstance(value, numbers.Integral):
         q = Fraction(int(value))
     else:
-        x = as_number(value, field)
+        x = check_number(value, field)
         q = Fraction(repr(float(x)))  # the shortest decimal that round-trips: 0.1 -> 1/10
     if q < 0:
-        raise ModelError(f"{field}: must be >= 0, got {short_repr(value)}")
+        raise OptionError(f"{field}: must be >= 0, got {short_repr(value)}")
     if q.denominator > MAX_DENOMINATOR:
-        raise ModelError(f"{field}: {short_repr(value)} needs a denominator above {MAX_DENOMINATOR} "
+        raise OptionError(f"{field}: {short_repr(value)} needs a denominator above {MAX_DENOMINATOR} "
                          "(give efforts as integers or short decimals)")
     return q
 
@@ -85,10 +88,10 @@ def parse_efforts(value: object, model: POMDP, field: str) -> tuple[Fraction, ..
     if value is None:
         return default_efforts(model)
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
-        raise ModelError(f"{field}: must be a list of {model.A} numbers (one per priority 1..{model.A}), "
+        raise OptionError(f"{field}: must be a list of {model.A} numbers (one per priority 1..{model.A}), "
                          f"got {kind_of(value)}")
     if len(value) != model.A:
-        raise ModelError(f"{field}: expected {model.A} efforts (one per priority 1..{model.A}), got {len(value)}")
+        raise OptionError(f"{field}: expected {model.A} efforts (one per priority 1..{model.A}), got {len(value)}")
     return tuple(as_rational(x, f"{field}[{i}]") for i, x in enumerate(value))
 
 
@@ -167,16 +170,16 @@ class MultiTargetProblem:
     def check_actions(self, actions: Sequence[int], field: str = "actions") -> tuple[int, ...]:
         """A joint action (0-based) as a tuple after checking its length, ranges and the budget."""
         if len(actions) != self.K:
-            raise ModelError(f"{field}: {len(actions)} actions for {self.K} targets")
+            raise OptionError(f"{field}: {len(actions)} actions for {self.K} targets")
         out = []
         for k, a in enumerate(actions):
             if isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer)) \
                     or not 0 <= a < self.models[k].A:
-                raise ModelError(f"{field}[{k}]: {short_repr(a)} is not an action 0..{self.models[k].A - 1}")
+                raise OptionError(f"{field}[{k}]: {short_repr(a)} is not an action 0..{self.models[k].A - 1}")
             out.append(int(a))
         used = self.effort_of(out)
         if used > self.budget:
-            raise ModelError(f"{field}: effort {format_effort(used)} exceeds the budget {format_effort(self.budget)}")
+            raise OptionError(f"{field}: effort {format_effort(used)} exceeds the budget {format_effort(self.budget)}")
         return tuple(out)
 
     def describe(self) -> str:
@@ -198,46 +201,45 @@ def format_effort(q: Fraction) -> str:
 
 def make_problem(models: Sequence[POMDP], budget: object, efforts: Sequence[object] | None = None,
                  discount: float | None = None, names: Sequence[str] | None = None) -> MultiTargetProblem:
-    """Check and build a :class:`MultiTargetProblem`; errors are one-line :class:`ModelError` s
-    naming the field (``targets``, ``efforts[k]``, ``budget``, ``discount``).
+    """Check and build a :class:`MultiTargetProblem`; errors are one-line
+    :class:`~pomdp_planner.core.errors.OptionError` s naming the field (``targets``, ``efforts[k]``,
+    ``budget``, ``discount``).
 
     ``efforts``: ``None`` (every target the default), or one entry per target, each ``None`` (that
     target's default) or ``A_k`` numbers in priority order. ``discount``: ``None`` (the models'
-    common discount; refused if they differ) or a number in ``[0, 1)`` that replaces every model's.
+    common discount; refused if they differ) or a number in ``[0, 1]`` that replaces every model's.
     """
     models = list(models)
     if not models:
-        raise ModelError("targets: at least one target model is needed")
+        raise OptionError("targets: at least one target model is needed")
     if len(models) > MAX_TARGETS:
-        raise ModelError(f"targets: {len(models)} targets, more than the limit of {MAX_TARGETS} (MAX_TARGETS)")
+        raise OptionError(f"targets: {len(models)} targets, more than the limit of {MAX_TARGETS} (MAX_TARGETS)")
     names = tuple(m.name for m in models) if names is None else tuple(str(n) for n in names)
     if len(names) != len(models):
-        raise ModelError(f"targets: {len(names)} names for {len(models)} targets")
+        raise OptionError(f"targets: {len(names)} names for {len(models)} targets")
     if discount is None:
         gammas = sorted({m.gamma for m in models})
         if len(gammas) > 1:
             shown = ", ".join(f"{m.name} {m.gamma:g}" for m in {m.gamma: m for m in models}.values())
-            raise ModelError(f"discount: the targets' models have different discounts ({shown}); one price per epoch "
+            raise OptionError(f"discount: the targets' models have different discounts ({shown}); one price per epoch "
                              "needs one discount: give the joint discount explicitly")
     else:
-        gamma = as_number(discount, "discount")
-        if not 0.0 <= gamma < 1.0:
-            raise ModelError(f"discount: must satisfy 0 <= gamma < 1, got {gamma}")
+        gamma = check_number(discount, "discount", 0.0, 1.0)
         cache: dict[int, POMDP] = {}
         models = [m if m.gamma == gamma else cache.setdefault(id(m), replace(m, gamma=gamma)) for m in models]
     if efforts is None:
         efforts = [None] * len(models)
     elif isinstance(efforts, (str, bytes)) or not isinstance(efforts, Sequence):
-        raise ModelError(f"efforts: must be a list with one entry per target, got {kind_of(efforts)}")
+        raise OptionError(f"efforts: must be a list with one entry per target, got {kind_of(efforts)}")
     if len(efforts) != len(models):
-        raise ModelError(f"efforts: {len(efforts)} entries for {len(models)} targets")
+        raise OptionError(f"efforts: {len(efforts)} entries for {len(models)} targets")
     rows = tuple(parse_efforts(e, m, f"efforts[{k}]") for k, (e, m) in enumerate(zip(efforts, models, strict=True)))
     B = as_rational(budget, "budget")
     problem = MultiTargetProblem(tuple(models), rows, B, names)
     if B < problem.least_effort:
-        raise ModelError(f"budget: {format_effort(B)} is below the least effort of any joint action "
+        raise OptionError(f"budget: {format_effort(B)} is below the least effort of any joint action "
                          f"({format_effort(problem.least_effort)} = the sum of every target's smallest effort)")
     if problem.knapsack_capacity > MAX_CAPACITY_UNITS:
-        raise ModelError(f"budget: {format_effort(B)} is {problem.capacity} units of 1/{problem.scale} (the efforts' "
+        raise OptionError(f"budget: {format_effort(B)} is {problem.capacity} units of 1/{problem.scale} (the efforts' "
                          f"common denominator), more than the limit of {MAX_CAPACITY_UNITS} (MAX_CAPACITY_UNITS)")
     return problem

@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 
 from ..belief import check_belief
+from ..errors import BeliefError, OptionError, short_repr
 from ..filter import EpochFilter
-from ..model import ModelError, short_repr
-from ..policies import check_seed
+from ..options import check_seed
 from ..simulate import check_steps
 from .planner import JointDecision
 from .policies import initial_beliefs as default_beliefs
@@ -128,7 +128,7 @@ class JointSimulation:
             bs = default_beliefs(problem)
         else:
             if len(initial_beliefs) != K:
-                raise ModelError(f"initial_beliefs: {len(initial_beliefs)} beliefs for {K} targets")
+                raise BeliefError(f"initial_beliefs: {len(initial_beliefs)} beliefs for {K} targets")
             bs = [check_belief(m, b, field=f"initial_beliefs[{k}]")
                   for k, (m, b) in enumerate(zip(problem.models, initial_beliefs, strict=True))]
         self.initial_beliefs = [np.asarray(b, dtype=float) for b in bs]
@@ -137,10 +137,10 @@ class JointSimulation:
             self.initial_states = [inverse_cdf(b, u) for b, u in zip(self.initial_beliefs, draws, strict=True)]
         else:
             if len(initial_states) != K:
-                raise ModelError(f"initial_states: {len(initial_states)} states for {K} targets")
+                raise OptionError(f"initial_states: {len(initial_states)} states for {K} targets")
             for k, (s, m) in enumerate(zip(initial_states, problem.models, strict=True)):
                 if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or not 0 <= s < m.S:
-                    raise ModelError(f"initial_states[{k}]: {short_repr(s)} out of range 0..{m.S - 1}")
+                    raise OptionError(f"initial_states[{k}]: {short_repr(s)} out of range 0..{m.S - 1}")
             self.initial_states = [int(s) for s in initial_states]
         self._started = False
 

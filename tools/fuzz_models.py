@@ -1,21 +1,26 @@
-"""Mutation fuzzer for model files (issue 13): hostile YAML and ``.POMDP`` files for the loader.
+"""Mutation fuzzer for model files: hostile YAML and ``.POMDP`` files for the loader.
 
-Seeds are the shipped models (``config/models/*.yaml``), the same models in explicit matrix form
+Development tooling (``tools/`` of the source tree, not installed). Seeds are the shipped models
+(``config/models/*.yaml``, found through ``core/io/paths.py``), the same models in explicit matrix form
 (``core.io.model_yaml.model_to_dict``) and their Cassandra exports (``core.io.cassandra.
 export_pomdp``). Each case applies one mutation (:data:`MUTATIONS`) to one seed: byte flips,
 truncation, binary junk, deleted or repeated spans, other text encodings, huge or non-finite
 numbers, size fields blown up, structured type swaps of a YAML value (on the parsed tree, then
 re-dumped), YAML alias bombs and deep nesting, ``.POMDP`` header bombs, long tokens, shuffled
-lines.
+lines; and values at the edge of what the bound LP and the search take (huge weights, rewards
+and reward-generator parameters, subnormal epsilon, discount 1), YAML 1.1 number forms and
+non-ASCII digits, duplicate keys, ``.POMDP`` rows off 1 by less and more than pomdp-solve's 1e-5.
 
 The loader (``core.io.model_yaml.load_model``) must end every case in a clean ``ModelError``
 (one line, naming the file, at most :data:`MAX_MESSAGE` characters beyond the path) or a valid
-model. This script writes the corpus (never committed) and runs the loader over it in this
-process, each case under a time limit and the whole run under an address-space limit, and prints
-the count of each outcome::
+model, and a valid model must be one the entry points handle (:func:`exercise`: the gate, a
+search, the bound LP, a simulation end with finite values or a one-line refusal; a warning counts
+as a failure). This script writes the corpus (never committed) and runs the loader over it in
+this process, each case under a time limit and the whole run under an address-space limit, and
+prints the count of each outcome::
 
-    python -m pomdp_planner.bench.fuzz_models --count 5000 --out /tmp/fuzz        # write, then run
-    python -m pomdp_planner.bench.fuzz_models --run-only /tmp/fuzz                 # run only
+    python -m tools.fuzz_models --count 5000 --out /tmp/fuzz        # write, then run
+    python -m tools.fuzz_models --run-only /tmp/fuzz                 # run only
 
 ``--run-only`` runs whichever ``pomdp_planner`` is importable (e.g. ``PYTHONPATH=<old checkout>``
 to measure an old loader on the same corpus). ``test/test_fuzz_models.py`` draws the same
@@ -42,17 +47,20 @@ import yaml
 
 #: A clean error message is one line of at most this many characters after the file path.
 MAX_MESSAGE = 400
-#: Folder of the shipped models in a checkout.
-MODELS_DIR = Path(__file__).resolve().parents[2] / "config" / "models"
 
 # ------------------------------------------------------------------------------------ seeds
 
 
-def seeds(models_dir: Path = MODELS_DIR) -> list[tuple[str, str, bytes]]:
+def seeds(models_dir: Path | None = None) -> list[tuple[str, str, bytes]]:
     """``(name, kind, content)`` of every seed: each shipped YAML model as shipped, in explicit
-    matrix form, and as a ``.POMDP`` export (``kind`` is ``"yaml"`` or ``"pomdp"``)."""
+    matrix form, and as a ``.POMDP`` export (``kind`` is ``"yaml"`` or ``"pomdp"``). The shipped
+    models are those of the folder the path resolver finds them in (installed or a checkout)."""
     from pomdp_planner.core.io.cassandra import export_pomdp
     from pomdp_planner.core.io.model_yaml import load_model, model_to_dict
+    from pomdp_planner.core.io.paths import shipped_model_path
+
+    if models_dir is None:
+        models_dir = shipped_model_path("tracking_s3_info").parent
 
     out = []
     for path in sorted(models_dir.glob("*.yaml")):
@@ -137,20 +145,22 @@ def reencode(data: bytes, kind: str, rnd: random.Random) -> bytes:
     return data.replace(b"\n", b"\r", rnd.randint(1, 50))
 
 
-def odd_number(data: bytes, kind: str, rnd: random.Random) -> bytes:
-    matches = list(_NUMBER.finditer(data))
+def _replace(data: bytes, pattern: re.Pattern, group: int, choices: list[str], rnd: random.Random) -> bytes | None:
+    """``data`` with group ``group`` of one match of ``pattern`` replaced by one of ``choices``
+    (``None`` if nothing matches)."""
+    matches = list(pattern.finditer(data))
     if not matches:
-        return data
+        return None
     m = rnd.choice(matches)
-    return data[:m.start()] + rnd.choice(ODD_NUMBERS).encode() + data[m.end():]
+    return data[:m.start(group)] + rnd.choice(choices).encode() + data[m.end(group):]
+
+
+def odd_number(data: bytes, kind: str, rnd: random.Random) -> bytes:
+    return _replace(data, _NUMBER, 0, ODD_NUMBERS, rnd) or data
 
 
 def blow_size(data: bytes, kind: str, rnd: random.Random) -> bytes:
-    matches = list(_SIZE.finditer(data))
-    if not matches:
-        return odd_number(data, kind, rnd)
-    m = rnd.choice(matches)
-    return data[:m.start(3)] + rnd.choice(ODD_SIZES).encode() + data[m.end(3):]
+    return _replace(data, _SIZE, 3, ODD_SIZES, rnd) or odd_number(data, kind, rnd)
 
 
 def shuffle_lines(data: bytes, kind: str, rnd: random.Random) -> bytes:
@@ -234,6 +244,75 @@ def long_token(data: bytes, kind: str, rnd: random.Random) -> bytes:
     return data[:i] + tok + data[i:]
 
 
+#: Values that make the bound LP or the search non-finite unless refused at load time, or that
+#: test the edges of what is accepted (weights, epsilon, rewards, reward-generator parameters, discount).
+HOSTILE_VALUES: dict[tuple, list[Any]] = {
+    ("uncertainty", "weights"): [[1e308, 1, 1], [1e9, 1, 1], [1e10, 0, 0], 1e300, [-1e308, 1, 1]],
+    ("uncertainty", "epsilon"): [1e-320, 5e-324, 1e-300, 1e-12, 0.0, -1e-3],
+    ("reward_generator", "c_a"): [1e308, -1e308, 1e12, 1e13],
+    ("reward_generator", "k_r"): [1e308, 1e-320],
+    ("discount",): [1, 1.0, 0, 0.999999, 1.0000001],
+}
+#: Replacements for a number that only YAML 1.1 (or no YAML) reads as one.
+YAML11_NUMBERS = ["0b11", "1:00", "017", "1_000", "0x1f", "0o7", "1:30.5", "1_0.5", "３", "٣", "+0b1", "00"]
+
+
+def hostile_value(data: bytes, kind: str, rnd: random.Random) -> bytes:
+    """Structured: set one field to a value at or beyond what the LP and the search can take."""
+    doc = yaml.safe_load(data)
+    if not isinstance(doc, dict):
+        return data
+    path = rnd.choice(list(HOSTILE_VALUES))
+    value = rnd.choice(HOSTILE_VALUES[path])
+    if path[0] == "reward_generator" and "reward_generator" not in doc:
+        doc.pop("reward", None)
+        doc["reward_generator"] = {"kind": "tracking_comparison"}
+    node = doc
+    for key in path[:-1]:
+        node = node.setdefault(key, {}) if isinstance(node, dict) else node
+    if isinstance(node, dict):
+        node[path[-1]] = value
+    if rnd.random() < 0.3 and isinstance(doc.get("reward"), list) and doc["reward"]:  # one huge reward
+        row = rnd.choice(doc["reward"])
+        if isinstance(row, list) and row:
+            row[rnd.randrange(len(row))] = rnd.choice([1e308, -1e300, 1e12, -1e13])
+    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=200).encode()
+
+
+def yaml11_number(data: bytes, kind: str, rnd: random.Random) -> bytes:
+    """A number (or a size) written in a YAML 1.1 form, or with non-ASCII digits."""
+    size = _replace(data, _SIZE, 3, YAML11_NUMBERS, rnd) if rnd.random() < 0.5 else None
+    return size or _replace(data, _NUMBER, 0, YAML11_NUMBERS, rnd) or data
+
+
+def duplicate_key(data: bytes, kind: str, rnd: random.Random) -> bytes:
+    """A top-level field given twice (the second value differs), or a key repeated in a flow mapping."""
+    lines = data.split(b"\n")
+    top = [i for i, line in enumerate(lines) if re.match(rb"^[A-Za-z_]+:", line)]
+    flow = [m for m in re.finditer(rb"\{([A-Za-z_]+): ", data)]
+    if flow and rnd.random() < 0.4:
+        m = rnd.choice(flow)
+        return data[:m.end()] + b"1, " + m.group(1) + b": " + data[m.end():]
+    if not top:
+        return data
+    i = rnd.choice(top)
+    key = lines[i].split(b":", 1)[0]
+    return b"\n".join([*lines[:i + 1], key + b": " + rnd.choice([b"0.5", b"3", b"x", b"[1, 2]"]), *lines[i + 1:]])
+
+
+def row_drift(data: bytes, kind: str, rnd: random.Random) -> bytes:
+    """``.POMDP``: scale one probability by ``1 + delta`` (inside and beyond pomdp-solve's 1e-5),
+    or set the discount to 1 (a finite-horizon file)."""
+    if rnd.random() < 0.2:
+        return re.sub(rb"^discount:.*$", rnd.choice([b"discount: 1", b"discount: 1.0"]), data, count=1, flags=re.M)
+    matches = [m for m in _NUMBER.finditer(data) if b"." in m.group(0) and 0.0 < float(m.group(0)) <= 1.0]
+    if not matches:
+        return data
+    m = rnd.choice(matches)
+    delta = rnd.choice([5e-7, -5e-7, 2e-6, 5e-6, -5e-6, 9e-6, 2e-5, -3e-5])
+    return data[:m.start()] + repr(float(m.group(0)) * (1.0 + delta)).encode() + data[m.end():]
+
+
 #: Every mutation, by name, with the kinds of seed it applies to.
 MUTATIONS: dict[str, tuple[Mutation, tuple[str, ...]]] = {
     "flip_bytes": (flip_bytes, ("yaml", "pomdp")),
@@ -250,7 +329,14 @@ MUTATIONS: dict[str, tuple[Mutation, tuple[str, ...]]] = {
     "alias_bomb": (alias_bomb, ("yaml",)),
     "deep_nesting": (deep_nesting, ("yaml",)),
     "pomdp_bomb": (pomdp_bomb, ("pomdp",)),
+    "hostile_value": (hostile_value, ("yaml",)),
+    "yaml11_number": (yaml11_number, ("yaml",)),
+    "duplicate_key": (duplicate_key, ("yaml",)),
+    "row_drift": (row_drift, ("pomdp",)),
 }
+#: The mutations that change values (rather than break the syntax): a model they leave valid is
+#: also run through what the entry points do with it (:func:`exercise`).
+VALUE_MUTATIONS = ("odd_number", "hostile_value", "yaml11_number", "duplicate_key", "row_drift", "swap_value")
 
 
 def mutations_for(kind: str) -> list[str]:
@@ -286,12 +372,45 @@ def _on_alarm(signum, frame):  # pragma: no cover - signal handler
     raise CaseTimeout
 
 
-def classify(path: Path, load: Callable[[Path], Any], model_error: type) -> tuple[str, str]:
+#: Models larger than this (bytes of their matrices) are not exercised: a depth-2 search and the
+#: assumption check of a large model take seconds, and they are what the size guards are for.
+EXERCISE_MAX_BYTES = 2**20
+
+
+def exercise(model: Any) -> None:
+    """What the entry points do with a model ``check`` accepts: the gate (Assumption 1, the bound LP),
+    a depth-2 search, the bound LP itself (discount < 1) and a 3-step simulation of ``bnb``. Raises
+    ``FloatingPointError`` on a value that is not finite; the core's one-line refusals
+    (``InputError``) pass through as they are."""
+    import numpy as np
+
+    from pomdp_planner.core.bounds import solve_bounds
+    from pomdp_planner.core.gate import build_planner
+    from pomdp_planner.core.model import model_bytes
+    from pomdp_planner.core.simulate import simulate
+
+    if model_bytes(model.S, model.A, model.Z) > EXERCISE_MAX_BYTES:
+        return
+    res = build_planner(model).planner.search(np.full(model.S, 1.0 / model.S), 2)
+    if not np.isfinite(res.value) or np.any(np.isinf(res.q_values)):
+        raise FloatingPointError(f"search value {res.value}, Q {res.q_values.tolist()}")
+    if model.gamma < 1.0:
+        sol = solve_bounds(model, samples=50)
+        if sol.feasible and not (np.all(np.isfinite(sol.g)) and np.all(np.isfinite(sol.h))):
+            raise FloatingPointError("bound vectors not finite")
+    ret = simulate(model, "bnb", 3, seed=0).discounted_return
+    if not np.isfinite(ret):
+        raise FloatingPointError(f"discounted return {ret}")
+
+
+def classify(path: Path, load: Callable[[Path], Any], model_error: type,
+             use: Callable[[Any], None] | None = None, input_error: type | None = None) -> tuple[str, str]:
     """``(outcome, detail)`` of loading ``path``: ``valid``, ``clean error``, ``bad message`` (a
     ModelError of several lines, too long or not naming the file), ``memory``, ``timeout`` or
-    ``uncaught <Type>``."""
+    ``uncaught <Type>``. With ``use`` (e.g. :func:`exercise`), a valid model is then used: a
+    refusal of one line (``input_error``) is still ``valid``, anything else ``unusable <Type>``."""
     try:
-        load(path)
+        model = load(path)
     except model_error as exc:
         msg = str(exc)
         if "\n" in msg or not msg.startswith(str(path)) or len(msg) > len(str(path)) + MAX_MESSAGE:
@@ -303,6 +422,13 @@ def classify(path: Path, load: Callable[[Path], Any], model_error: type) -> tupl
         return "uncaught RecursionError", str(exc)[:200]
     except Exception as exc:
         return f"uncaught {type(exc).__name__}", str(exc)[:200].replace("\n", "\\n")
+    if use is not None:
+        try:
+            use(model)
+        except Exception as exc:
+            if input_error is not None and isinstance(exc, input_error) and "\n" not in str(exc):
+                return "valid", ""
+            return f"unusable {type(exc).__name__}", str(exc)[:200].replace("\n", "\\n")
     return "valid", ""
 
 
@@ -314,13 +440,16 @@ def _vm_size() -> int:
     return 0
 
 
-def run_corpus(paths: list[Path], timeout: float = 10.0, memory_limit: int = 2 * 2**30) -> dict:
-    """Load every file; returns counts per outcome, examples and the slowest cases.
+def run_corpus(paths: list[Path], timeout: float = 10.0, memory_limit: int = 2 * 2**30, load_only: bool = False
+               ) -> dict:
+    """Load every file and (unless ``load_only``) :func:`exercise` every valid model; returns counts
+    per outcome, examples and the slowest cases. Warnings count as errors (except ``InputWarning``).
 
     Each case is stopped after ``timeout`` seconds (``SIGALRM``); the address space of this
     process is limited to its current size plus ``memory_limit`` bytes, so a runaway allocation
     ends in ``MemoryError`` instead of exhausting the machine.
     """
+    from pomdp_planner.core.errors import InputError, InputWarning
     from pomdp_planner.core.io.model_yaml import load_model
     from pomdp_planner.core.model import ModelError
 
@@ -333,12 +462,14 @@ def run_corpus(paths: list[Path], timeout: float = 10.0, memory_limit: int = 2 *
     times: list[tuple[float, str, str]] = []
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+            warnings.simplefilter("error")  # a numpy warning is a finding, as an exception is
+            warnings.simplefilter("ignore", InputWarning)  # a renormalised peer row: said on purpose
             for path in paths:
                 t0 = time.perf_counter()
                 signal.setitimer(signal.ITIMER_REAL, timeout)
                 try:
-                    outcome, detail = classify(path, load_model, ModelError)
+                    outcome, detail = classify(path, load_model, ModelError, None if load_only else exercise,
+                                               InputError)
                 except CaseTimeout:
                     outcome, detail = "timeout", ""
                 finally:
@@ -369,12 +500,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timeout", type=float, default=10.0, help="seconds per case (default 10)")
     p.add_argument("--memory-limit", type=float, default=2.0, help="GiB of address space for the run (default 2)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--load-only", action="store_true", help="only load the files (do not exercise valid models)")
     args = p.parse_args(argv)
     if args.out is not None:
         paths = write_corpus(args.out, args.count, args.seed)
     else:
         paths = sorted(q for q in args.run_only.iterdir() if q.is_file())
-    report = run_corpus(paths, args.timeout, int(args.memory_limit * 2**30))
+    report = run_corpus(paths, args.timeout, int(args.memory_limit * 2**30), args.load_only)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
