@@ -74,7 +74,8 @@ from ..errors import BeliefError, ModelError, OptionError
 from ..gate import PlannerSetup, build_planner
 from ..model import POMDP
 from ..options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_time_budget
-from ..search import DEFAULT_MEMORY_BUDGET, DeadlineExceeded, check_tree_size, next_depth_cannot_finish
+from ..policies import search_guards
+from ..search import DEFAULT_MEMORY_BUDGET, DeadlineExceeded, next_depth_cannot_finish
 from .dual import horizon_sum, lambda_ceiling, minimise_convex
 from .knapsack import solve_knapsack
 from .problem import MultiTargetProblem, format_effort
@@ -285,21 +286,13 @@ class MultiTargetPlanner:
         return setup
 
     def _check_resources(self, no_limit: bool) -> None:
-        """The search guards of ``core/search.py``, per distinct model (as ``SearchPolicy`` does)."""
+        """The search guards of ``core/policies.py`` (:func:`~pomdp_planner.core.policies.search_guards`),
+        per distinct model; under a time budget ``max_depth`` is capped for the deepest-limited model."""
         for setup in self._setups.values():
-            p = setup.planner
-            m = p.model
-            if self.time_budget is None:
-                if not no_limit:
-                    check_tree_size(m.A, m.Z, self.depth, "depth",
-                                    hint="use time_budget (anytime search), or no_limit")
-                p.check_memory(self.depth, "depth")
-            else:
-                p.check_memory(1, "max_depth")
-                fits = p.deepest_depth_within_budget(self.max_depth)
-                if fits < self.max_depth:
-                    self.note = f"max_depth capped at {fits} by the memory budget ({self.max_depth} asked for)"
-                    self.max_depth = fits
+            fits, note = search_guards(setup.planner, self.depth, self.time_budget, self.max_depth, no_limit,
+                                       prefix="", hint="use time_budget (anytime search), or no_limit")
+            if fits < self.max_depth:
+                self.max_depth, self.note = fits, note
 
     @property
     def guaranteed_targets(self) -> tuple[bool, ...]:

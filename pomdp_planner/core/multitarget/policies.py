@@ -29,8 +29,8 @@ import numpy as np
 from ..belief import start_belief, uniform_belief
 from ..bounds import BOUND_VARIANTS, DEFAULT_CONSTANT, check_constant, check_variant
 from ..checks import check_choice, parse_flag
-from ..errors import OptionError, short_repr
 from ..options import MAX_DEPTH_RANGE, check_depth
+from ..policies import table_entry
 from .joint_exact import ExactJointPlanner
 from .knapsack import solve_knapsack
 from .planner import SEARCH_MODES, JointDecision, MultiTargetPlanner, RestrictedPlanners
@@ -205,11 +205,4 @@ def joint_policy_names() -> list[str]:
 
 def make_joint_policy(name: str, problem: MultiTargetProblem, **options: Any) -> Any:
     """Build joint policy ``name`` for ``problem`` (unknown names and options are errors)."""
-    entry = JOINT_POLICIES.get(name)
-    if entry is None:
-        raise OptionError(f"policy: unknown joint policy {short_repr(name)} (known: {', '.join(joint_policy_names())})")
-    unknown = sorted(set(options) - set(entry.options))
-    if unknown:
-        raise OptionError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
-                         f"(known: {', '.join(entry.options) or 'none'})")
-    return entry.factory(problem, options)
+    return table_entry(JOINT_POLICIES, name, options, "joint policy").factory(problem, options)
