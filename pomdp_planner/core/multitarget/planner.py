@@ -78,7 +78,7 @@ from ..policies import search_guards
 from ..search import DEFAULT_MEMORY_BUDGET, DeadlineExceeded, next_depth_cannot_finish
 from .dual import horizon_sum, lambda_ceiling, minimise_convex
 from .knapsack import solve_knapsack
-from .problem import MultiTargetProblem, format_effort
+from .problem import MultiTargetProblem
 
 #: How the per-target searches run: branch-and-bound where the gate allows it, or exhaustive.
 SEARCH_MODES = ("bnb", "exhaustive")
@@ -465,7 +465,3 @@ class MultiTargetPlanner:
         _, choice = solve_knapsack(items, levels, p.knapsack_capacity)
         return [float(v[c]) for v, c in zip(items, choice, strict=True)], \
             [int(lv[c]) for lv, c in zip(levels, choice, strict=True)]
-
-    def budget_text(self, decision: JointDecision) -> str:
-        """``effort/budget`` of a decision, exactly (``3/4``)."""
-        return f"{format_effort(decision.effort)}/{format_effort(self.problem.budget)}"
