@@ -182,8 +182,8 @@ JOINT_POLICIES: dict[str, JointPolicyEntry] = {
         "exhaustive, depth=3 | time_budget=S, max_depth, max_evaluations, no_limit=1, variant, constant, "
         "prune_without_guarantee=1)", _PLANNER_OPTIONS),
     "fixed_price": JointPolicyEntry(
-        _fixed_price, "the same at one price fixed before the run (option price; default: the price at the "
-        "initial beliefs)", (*_PLANNER_OPTIONS, "price")),
+        _fixed_price, "as lagrangian, at one price fixed before the run (option price; default: lagrangian's "
+        "price at the initial beliefs; and lagrangian's options)", (*_PLANNER_OPTIONS, "price")),
     "greedy": JointPolicyEntry(lambda p, o: GreedyPolicy(p), "max sum_k rho_k(b_k, a_k) within the budget"),
     "equal_split": JointPolicyEntry(
         lambda p, o: EqualSplitPolicy(p, {**_gate(o), "use_bounds": _search(o) == "bnb"}, _depth(o, 3)),
