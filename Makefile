@@ -20,7 +20,7 @@ SOURCE_LIST := $(VENV)/.package-files
 PIP := $(BIN)/python -m pip --disable-pip-version-check
 
 # Files that end up in the installed package (setup.py: packages, data_files).
-PKG_SOURCES := setup.py setup.cfg package.xml $(sort $(shell find pomdp_planner config resource -type f \
+PKG_SOURCES := setup.py setup.cfg package.xml $(sort $(shell find pomdp_planner config resource launch -type f \
 	! -path '*/__pycache__/*' ! -name '*.pyc' 2>/dev/null))
 
 # The list of those files is rewritten only when it changes, so that deleting or renaming a file

@@ -14,7 +14,7 @@ from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.policies import make_policy
 from pomdp_planner.core.reference import reference_policy
 from pomdp_planner.core.simulate import simulate
-from pomdp_planner.nodes.processes import parameter_set_model
+from pomdp_planner.nodes.processes import node_parameters, parameter_set_model
 from tools import lookahead_models as lm
 
 
@@ -76,7 +76,7 @@ def test_the_shipped_planner_files_search_deep_enough_to_beat_greedy(key):
     (the same seeds), with a 95 % interval of the difference above zero; the search to that depth
     is the gate's, on the file's bounds (variant and constant)."""
     root = Path(__file__).resolve().parents[1]
-    params = yaml.safe_load((root / "config" / f"planner_{key}.yaml").read_text())["planner"]["ros__parameters"]
+    params = node_parameters(yaml.safe_load((root / "config" / f"planner_{key}.yaml").read_text()), "planner")
     model = load_model(parameter_set_model(key))
     assert params["time_budget"] < 0.1 and params["use_bounds"]
     options = {"depth": params["max_depth"], "variant": params["bound_variant"], "constant": params["bound_constant"]}

@@ -238,7 +238,7 @@ def non_tp2_model(tmp_path):
 def test_planner_assumptions_fail_exhaustive_fallback_or_refusal(harness, non_tp2_model, refuse):
     h = harness
     planner = _planner(h, non_tp2_model, refuse_if_assumptions_fail=refuse, max_depth=2)
-    assert not planner.report.holds
+    assert not planner.loop.assumptions.holds
     rec = h.recorder()
     node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
     pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)

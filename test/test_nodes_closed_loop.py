@@ -137,9 +137,9 @@ def test_simulator_waits_for_min_subscribers_then_loses_no_epoch(harness):
     subscribers (the demo uses it so that its monitor sees epoch 1); the held action is applied then."""
     h = harness
     sim, _flt, _planner, rec = start_loop(h, sim_params={"min_subscribers": 3})  # filter + recorder = 2
-    assert h.wait_until(lambda: sim._held_action is not None, timeout=10), "no action reached the simulator"
+    assert h.wait_until(lambda: sim.loop.held is not None, timeout=10), "no action reached the simulator"
     with h.cond:
-        assert rec.observations["observation"] == [] and sim.epoch == 0  # held, not stepped
+        assert rec.observations["observation"] == [] and sim.loop.epoch == 0  # held, not stepped
     late = h.add(Node("late_subscriber", context=h.context))
     late.create_subscription(Int64MultiArray, "observation", lambda msg: None, STREAM_QOS)
     assert h.wait_until(lambda: len(rec.beliefs) > 20, timeout=15), f"only {len(rec.beliefs)} beliefs"

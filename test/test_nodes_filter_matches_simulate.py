@@ -54,10 +54,10 @@ def test_node_and_simulate_give_identical_beliefs_including_impossible_readings(
 
     node = harness.add(BeliefFilter(context=harness.context, parameter_overrides=[
         Parameter("model_file", value=halves_model), Parameter("initial_distribution", value=prior)]))
-    np.testing.assert_array_equal(node.belief, trace.beliefs[0])
+    np.testing.assert_array_equal(node.loop.belief, trace.beliefs[0])
     for t in range(STEPS):
         node._on_observation(0, encode_observation(t + 1, int(trace.actions[t]) + 1, int(trace.observations[t])))
-        assert node.epoch == t + 1
-        np.testing.assert_array_equal(node.belief, trace.beliefs[t + 1], err_msg=f"epoch {t + 1}")
-    assert node.counts["impossible_observations"] == int(trace.recovered.sum())
-    assert node.counts["contradicting_observations"] == 0
+        assert node.loop.epoch == t + 1
+        np.testing.assert_array_equal(node.loop.belief, trace.beliefs[t + 1], err_msg=f"epoch {t + 1}")
+    assert node.loop.health.counts["impossible_observations"] == int(trace.recovered.sum())
+    assert node.loop.health.counts["contradicting_observations"] == 0

@@ -1,5 +1,6 @@
-"""Issue 11, the planner node's side: it builds its planner through the core's assumption gate, so
-on the model failing Assumption 1 it never certifies a decision and plans exhaustively."""
+"""The planner node builds its planner through the core's assumption gate: on the model failing
+Assumption 1 it plans exhaustively, and neither its diagnostics nor ``plan_info`` claim a
+certificate or a guarantee (the loop's rule is tested without ROS in test_loop_planner.py)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from std_msgs.msg import Float64MultiArray
 
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.core.search import Planner
-from pomdp_planner.nodes.messages import encode_belief
+from pomdp_planner.nodes.messages import decode_plan_info, encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.qos import LATCHED_QOS
 
@@ -34,9 +35,12 @@ def _planner(h, model_file, **params):
 def test_node_on_a_failing_model_plans_exhaustively_and_certifies_nothing(harness):
     h = harness
     node = _planner(h, FAILING, max_depth=3, time_budget=30.0)
-    assert node.setup.mode == "exhaustive" and not node.setup.guaranteed and not node.report.holds
-    assert "Assumption 1 fails" in node.setup.reason
+    setup = node.loop.setup
+    assert setup.mode == "exhaustive" and not setup.guaranteed and not node.loop.assumptions.holds
+    assert "Assumption 1 fails" in setup.reason
     rec = h.recorder()
+    infos = []
+    rec.create_subscription(Float64MultiArray, "plan_info", lambda m: infos.append(decode_plan_info(m)), LATCHED_QOS)
     pub_node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
     pub = pub_node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     h.start()
@@ -48,18 +52,23 @@ def test_node_on_a_failing_model_plans_exhaustively_and_certifies_nothing(harnes
         assert rec.actions[epoch] == (epoch + 1, expected)
     assert h.wait_until(lambda: (rec.diag_values("planner") or [{}])[-1].get("decisions") == "2", timeout=5)
     d = rec.diag_values("planner")[-1]
-    assert d["certified"] == "0" and d["last.certified"] == "false" and d["last.use_bounds"] == "false"
+    assert "certified" not in d and "last.certified" not in d and d["last.use_bounds"] == "false"
+    assert d["guaranteed"] == "false" and d["guarantee"].startswith("exhaustive search: Assumption 1 fails")
     assert d["assumptions_hold"] == "false" and d["_level"] == DiagnosticStatus.WARN
+    assert "certif" not in d["_message"] and "guarantee covers" not in str(d)
+    assert h.wait_until(lambda: len(infos) == 2, timeout=5)
+    assert [i["certified"] for i in infos] == [0.0, 0.0]
 
 
 def test_node_on_a_valid_model_prunes_with_the_guarantee(harness):
     node = _planner(harness, S3)
-    assert node.setup.mode == "prune" and node.setup.guaranteed and node._planner.guaranteed
+    setup = node.loop.setup
+    assert setup.mode == "prune" and setup.guaranteed and setup.planner.guaranteed
 
 
 def test_node_refusal_is_the_gates_refusal(harness):
     node = _planner(harness, FAILING, refuse_if_assumptions_fail=True)
-    assert node.refusing and node.setup.mode == "refuse" and node.setup.planner is None
+    assert node.loop.refusing and node.loop.setup.mode == "refuse" and node.loop.setup.planner is None
 
 
 def test_node_on_a_discount_one_model_plans_exhaustively_and_says_why(harness, tmp_path):
@@ -69,9 +78,10 @@ def test_node_on_a_discount_one_model_plans_exhaustively_and_says_why(harness, t
     path.write_text(Path(S3).read_text().replace("discount: 0.99", "discount: 1"))
     h = harness
     node = _planner(h, str(path), max_depth=2, time_budget=30.0)
-    assert node.report.holds and node.setup.mode == "exhaustive" and not node.setup.guaranteed
-    assert node.setup.reason.startswith("discount: the bound LP (Theorem 2) needs discount < 1")
-    assert "discount: the bound LP (Theorem 2) needs discount < 1" in node._bounds_message
+    setup = node.loop.setup
+    assert node.loop.assumptions.holds and setup.mode == "exhaustive" and not setup.guaranteed
+    assert setup.reason.startswith("discount: the bound LP (Theorem 2) needs discount < 1")
+    assert "discount: the bound LP (Theorem 2) needs discount < 1" in node.loop.bounds_message
     rec = h.recorder()
     pub_node = h.add(rclpy.node.Node("test_belief_pub", context=h.context))
     pub = pub_node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)

@@ -1,6 +1,6 @@
-"""Liveness of the node loop (issue 13), in-process: forged and malformed messages, stray and
-lost samples, dead and restarted nodes. The rules themselves are tested without ROS in
-test_liveness.py; here the nodes must apply them.
+"""Liveness of the node loop, in-process: forged and malformed messages, stray and lost samples,
+dead and restarted nodes. The rules themselves are tested without ROS in test_loop_*.py; here
+the nodes must apply them.
 
 Every test waits on events with generous upper bounds (a loaded 2-core machine); none asserts a
 duration. A node is "killed" in-process by taking it off the executor: it stops taking input and
@@ -60,8 +60,8 @@ def _latest(rec, prefix):
 
 
 def _advances(h, flt, by, timeout=30):
-    start = flt.epoch
-    return h.wait_until(lambda: flt.epoch >= start + by, timeout=timeout)
+    start = flt.loop.epoch
+    return h.wait_until(lambda: flt.loop.epoch >= start + by, timeout=timeout)
 
 
 # ----------------------------------------------------------------- point 1: epochs from the wire
@@ -72,15 +72,15 @@ def test_forged_belief_far_ahead_is_dropped_and_the_loop_goes_on(harness):
     (which the simulator would jump to, and the filter then walk epoch by epoch)."""
     h = harness
     sim, flt, planner, rec = _loop(h)
-    assert h.wait_until(lambda: flt.epoch > 20, timeout=30)
+    assert h.wait_until(lambda: flt.loop.epoch > 20, timeout=30)
     forger = _publisher(h, Float64MultiArray, "belief")
     forger.publish(encode_belief(10**15, [0.2, 0.3, 0.5]))
-    assert _advances(h, flt, 100), f"loop stalled at epoch {flt.epoch}"
-    assert h.wait_until(lambda: planner.counts.get("out_of_window", 0) == 1, timeout=10)
+    assert _advances(h, flt, 100), f"loop stalled at epoch {flt.loop.epoch}"
+    assert h.wait_until(lambda: planner.loop.health.counts.get("out_of_window", 0) == 1, timeout=10)
     with h.cond:
         assert max(t for t, _ in rec.actions) < 10**6  # no action for the forged epoch
-    assert sim.epoch < 10**6 and flt.epoch < 10**6
-    assert flt.buffer.pending_epochs <= 1
+    assert sim.loop.epoch < 10**6 and flt.loop.epoch < 10**6
+    assert flt.loop.buffer.pending_epochs <= 1
 
 
 def test_observation_far_ahead_neither_stalls_nor_walks_the_filter(harness):
@@ -88,17 +88,17 @@ def test_observation_far_ahead_neither_stalls_nor_walks_the_filter(harness):
     buffered, never walked; the filter keeps pace with the simulator."""
     h = harness
     sim, flt, _planner, rec = _loop(h)
-    assert h.wait_until(lambda: flt.epoch > 20, timeout=30)
-    ahead = flt.epoch + 50_000
+    assert h.wait_until(lambda: flt.loop.epoch > 20, timeout=30)
+    ahead = flt.loop.epoch + 50_000
     _publisher(h, Int64MultiArray, "observation").publish(encode_observation(ahead, 1, 0))
-    assert _advances(h, flt, 100), f"filter stalled at epoch {flt.epoch} (simulator at {sim.epoch})"
+    assert _advances(h, flt, 100), f"filter stalled at epoch {flt.loop.epoch} (simulator at {sim.loop.epoch})"
     # two more diagnostics reports: longer than epoch_timeout, after which a buffered reading would be
     # reached by releasing every epoch in between as lost
     n = len(rec.diag_values("belief_filter"))
     assert h.wait_until(lambda: len(rec.diag_values("belief_filter")) >= n + 2, timeout=10)
-    assert _advances(h, flt, 100), f"filter stalled at epoch {flt.epoch} (simulator at {sim.epoch})"
-    assert flt.epoch < ahead and max(rec.belief_epochs(S)) < ahead
-    assert flt.buffer.pending_epochs == 0  # never buffered
+    assert _advances(h, flt, 100), f"filter stalled at epoch {flt.loop.epoch} (simulator at {sim.loop.epoch})"
+    assert flt.loop.epoch < ahead and max(rec.belief_epochs(S)) < ahead
+    assert flt.loop.buffer.pending_epochs == 0  # never buffered
     assert h.wait_until(lambda: int(_latest(rec, "belief_filter").get("out_of_window", -1)) == 1, timeout=10)
 
 
@@ -125,7 +125,7 @@ def test_malformed_messages_on_every_topic_are_counted_and_dropped(harness):
     and no node holds more than it did."""
     h = harness
     _sim, flt, planner, rec = _loop(h)
-    assert h.wait_until(lambda: flt.epoch > 20, timeout=30)
+    assert h.wait_until(lambda: flt.loop.epoch > 20, timeout=30)
     far = 10**15
     beliefs = [
         encode_belief(30, [0.5, 0.5]),                       # wrong length
@@ -144,7 +144,7 @@ def test_malformed_messages_on_every_topic_are_counted_and_dropped(harness):
         for pub, msgs in pubs:
             for msg in msgs:
                 pub.publish(msg)
-    assert _advances(h, flt, 100), f"loop stalled at epoch {flt.epoch}"
+    assert _advances(h, flt, 100), f"loop stalled at epoch {flt.loop.epoch}"
     # counted by each node (diagnostics), nothing acted on
     assert h.wait_until(lambda: int(_latest(rec, "planner").get("bad_beliefs", 0)) >= ROUNDS * 5, timeout=10)
     assert int(_latest(rec, "planner").get("out_of_window", 0)) >= ROUNDS
@@ -155,8 +155,8 @@ def test_malformed_messages_on_every_topic_are_counted_and_dropped(harness):
     with h.cond:  # the recorder has the forged actions too; the planner answered none of the beliefs
         epochs = {a[0] for a in rec.actions}
     assert far + 1 not in epochs and not any(10**6 <= t < far for t in epochs)
-    assert flt.buffer.pending_epochs <= flt.buffer.max_pending + 1
-    assert planner._mailbox is None or planner._mailbox[0].epoch < 10**6
+    assert flt.loop.buffer.pending_epochs <= flt.loop.buffer.max_pending + 1
+    assert planner.loop.mailbox is None or planner.loop.mailbox.epoch < 10**6
 
 
 # ----------------------------------------------------------------- point 2: no single message stops the loop
@@ -198,8 +198,8 @@ def test_one_stale_belief_cannot_stop_the_loop(harness):
     hold = _HoldAfterPublish(planner.action_pub, at, rec, stray, h)
     planner.action_pub = hold
     assert hold.done.wait(timeout=60), "the loop never reached the held decision"
-    assert _advances(h, flt, 50), f"loop stopped at epoch {flt.epoch} after one stale belief"
-    assert planner.counts["stale_beliefs"] >= 3
+    assert _advances(h, flt, 50), f"loop stopped at epoch {flt.loop.epoch} after one stale belief"
+    assert planner.loop.health.counts["stale_beliefs"] >= 3
 
 
 def test_stray_publishers_on_every_topic_cannot_stop_the_loop(harness):
@@ -207,16 +207,16 @@ def test_stray_publishers_on_every_topic_cannot_stop_the_loop(harness):
     (more than the issue's 1 Hz) while the loop runs free: it keeps going."""
     h = harness
     sim, flt, planner, _rec = _loop(h)
-    assert h.wait_until(lambda: flt.epoch > 5, timeout=30)
+    assert h.wait_until(lambda: flt.loop.epoch > 5, timeout=30)
     node = h.add(Node("stray", context=h.context))
     pubs = [(node.create_publisher(Float64MultiArray, "belief", STREAM_QOS), encode_belief(2, [0.2, 0.3, 0.5])),
             (node.create_publisher(Int64MultiArray, "observation", STREAM_QOS), encode_observation(2, 1, 0)),
             (node.create_publisher(Int64MultiArray, "action", STREAM_QOS), encode_action(2, 1))]
     node.create_timer(0.05, lambda: [p.publish(m) for p, m in pubs])
     for _ in range(3):  # keeps going, in three rounds of 100 epochs
-        assert _advances(h, flt, 100), f"loop stalled at epoch {flt.epoch}"
-    assert planner.counts["stale_beliefs"] > 0 and sim.counts["stale_actions"] > 0
-    assert flt.counts["duplicates"] > 0
+        assert _advances(h, flt, 100), f"loop stalled at epoch {flt.loop.epoch}"
+    assert planner.loop.health.counts["stale_beliefs"] > 0 and sim.loop.health.counts["stale_actions"] > 0
+    assert flt.loop.health.counts["duplicates"] > 0
 
 
 class _DropOnce:
@@ -251,9 +251,10 @@ def test_a_lost_sample_is_re_sent(harness, lost):
     else:
         planner.action_pub = drop = _DropOnce(planner.action_pub, at)
     assert h.wait_until(lambda: drop.dropped, timeout=30)
-    assert h.wait_until(lambda: flt.epoch > at + 30, timeout=30), f"loop stopped at epoch {flt.epoch}"
-    resent = {"observation": sim.counts.get("resent_observations"), "belief": flt.counts.get("resent_beliefs"),
-              "action": planner.counts.get("resent_actions")}[lost]
+    assert h.wait_until(lambda: flt.loop.epoch > at + 30, timeout=30), f"loop stopped at epoch {flt.loop.epoch}"
+    node, counter = {"observation": (sim, "resent_observations"), "belief": (flt, "resent_beliefs"),
+                     "action": (planner, "resent_actions")}[lost]
+    resent = node.loop.health.counts[counter]
     assert resent >= 1
 
 
@@ -272,7 +273,7 @@ def test_a_dead_node_is_named_by_the_others_diagnostics(harness, dead):
     h = harness
     *loop, rec = _loop(h)
     nodes = dict(zip(("target_simulator", "belief_filter", "planner"), loop, strict=True))
-    assert h.wait_until(lambda: nodes["belief_filter"].epoch > 20, timeout=30)
+    assert h.wait_until(lambda: nodes["belief_filter"].loop.epoch > 20, timeout=30)
     _kill(h, nodes[dead])
     n0 = len(rec.diagnostics)
     for name, text in DEAD[dead].items():
@@ -293,17 +294,17 @@ def test_restarted_timer_simulator_continues_the_loops_numbering(harness):
     duplicates (with diagnostics OK) until the old count was reached."""
     h = harness
     old, flt, _planner, rec = _loop(h, sim_params={"step_period": 0.02})
-    assert h.wait_until(lambda: flt.epoch > 100, timeout=60)
+    assert h.wait_until(lambda: flt.loop.epoch > 100, timeout=60)
     _kill(h, old)
-    t_dead = flt.epoch
+    t_dead = flt.loop.epoch
     new = h.add(TargetSimulator("target_simulator", context=h.context, parameter_overrides=[
         Parameter(k, value=v) for k, v in {"model_file": S3, "seed": 9, "step_period": 0.02, **FAST}.items()]))
-    assert _advances(h, flt, 50), f"filter stuck at epoch {flt.epoch}"
-    assert new.joined_at == f"epoch {t_dead}" or int(new.joined_at.split()[1]) >= t_dead - 1
+    assert _advances(h, flt, 50), f"filter stuck at epoch {flt.loop.epoch}"
+    assert new.loop.joined_at == f"epoch {t_dead}" or int(new.loop.joined_at.split()[1]) >= t_dead - 1
     with h.cond:
         first_new = min(t for t, _, _ in rec.observations["observation"][-40:])
     assert first_new > t_dead - 2
-    assert flt.counts["duplicates"] < 5
+    assert flt.loop.health.counts["duplicates"] < 5
 
 
 def test_filter_resyncs_to_a_simulator_counting_on_a_numbering_of_its_own(harness):
@@ -318,14 +319,14 @@ def test_filter_resyncs_to_a_simulator_counting_on_a_numbering_of_its_own(harnes
     h.start()
     for t in range(1, 1001):
         pub.publish(encode_observation(t, 2, t % 3))
-    assert h.wait_until(lambda: flt.epoch == 1000, timeout=30)
+    assert h.wait_until(lambda: flt.loop.epoch == 1000, timeout=30)
     node = h.add(Node("restarted_sim", context=h.context))
     counter = iter(range(1, 10**6))
     node.create_timer(0.02, lambda: pub.publish(encode_observation(next(counter), 2, 1)))
-    assert h.wait_until(lambda: 0 < flt.epoch < 1000, timeout=20), f"filter at {flt.epoch}"
-    assert flt.counts["resyncs"] == 1
-    resynced = flt.epoch
-    assert h.wait_until(lambda: flt.epoch > resynced + 10, timeout=10)
+    assert h.wait_until(lambda: 0 < flt.loop.epoch < 1000, timeout=20), f"filter at {flt.loop.epoch}"
+    assert flt.loop.health.counts["resyncs"] == 1
+    resynced = flt.loop.epoch
+    assert h.wait_until(lambda: flt.loop.epoch > resynced + 10, timeout=10)
     assert h.wait_until(lambda: any("re-synced from epoch 1000" in d["_message"]
                                     for d in rec.diag_values("belief_filter")), timeout=10)
 
@@ -351,5 +352,5 @@ def test_idle_filter_polls_nothing_and_still_releases_incomplete_epochs_on_time(
     assert running_fast_timers() == []
     radar.publish(encode_observation(1, 2, 1))  # the camera's reading never comes
     assert h.wait_until(lambda: 1 in rec.belief_epochs(S), timeout=10)
-    assert flt.counts["incomplete_epochs"] == 1
+    assert flt.loop.health.counts["incomplete_epochs"] == 1
     assert h.wait_until(lambda: running_fast_timers() == [], timeout=5)

@@ -24,7 +24,7 @@ from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
-from pomdp_planner.nodes.processes import PARAMETER_SETS, parameter_set_model
+from pomdp_planner.nodes.processes import PARAMETER_SETS, node_parameters, parameter_set_model
 from pomdp_planner.nodes.qos import LATCHED_QOS
 from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.target_simulator import TargetSimulator
@@ -113,7 +113,7 @@ def test_bad_startup_parameters_refuse_to_start(harness):
     with pytest.raises(NodeConfigError, match="bound_variant"):
         PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
                                                             Parameter("bound_variant", value="loose")])
-    with pytest.raises(NodeConfigError, match=r"bound_constant: 'paper' is not one of \['mlr', 'fosd'\]"):
+    with pytest.raises(NodeConfigError, match=r"bound_constant: expected one of mlr, fosd, got 'paper'"):
         PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
                                                             Parameter("bound_constant", value="paper")])
     with pytest.raises(NodeConfigError, match="initial_state"):
@@ -149,9 +149,10 @@ def test_shipped_yaml_loads_and_matches_declared_parameters(harness, path):
     doc = yaml.safe_load(path.read_text())
     assert doc, f"{path.name}: no node section"
     for section in doc:
-        node_name = section.lstrip("/")
+        node_name = section.removeprefix("/**/").lstrip("/")
         assert node_name in NODE_CLASSES, f"{path.name}: unknown node {section!r}"
-        params = parameter_dict_from_yaml_file(str(path), target_nodes=[node_name])
+        assert section == f"/**/{node_name}", f"{path.name}: {section!r} would not apply in a namespace"
+        params = parameter_dict_from_yaml_file(str(path), target_nodes=[section])
         assert params, f"{path.name}: {node_name}: no parameters"
         node = h.add(NODE_CLASSES[node_name](
             context=h.context, cli_args=["--ros-args", "--params-file", str(path)]))
@@ -174,13 +175,13 @@ def test_parameter_service_answers_during_a_search(harness):
     planner = h.add(PlannerNode(context=h.context, parameter_overrides=[
         Parameter("model_file", value=S8), Parameter("time_budget", value=0.05), Parameter("max_depth", value=3)]))
     release = threading.Event()
-    search = planner._planner.plan
+    search = planner.loop.setup.planner.plan
 
     def held_search(*args, **kwargs):
         assert release.wait(timeout=30.0), "the test never released the search"
         return search(*args, **kwargs)
 
-    planner._planner.plan = held_search
+    planner.loop.setup.planner.plan = held_search
     node = h.add(rclpy_node(h))
     pub = node.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
     client = AsyncParameterClient(node, "planner")
@@ -188,14 +189,14 @@ def test_parameter_service_answers_during_a_search(harness):
     try:
         assert client.wait_for_services(timeout_sec=10.0)
         pub.publish(encode_belief(0, np.full(8, 1 / 8)))
-        assert h.wait_until(lambda: planner.planning_epoch == 0, timeout=10)
+        assert h.wait_until(lambda: planner.loop.planning == 0, timeout=10)
         (res,) = _set(client, time_budget=0.3)
         assert res.successful
-        assert planner.planning_epoch == 0  # answered while the planning callback was still running
-        assert planner.counts["decisions"] == 0
+        assert planner.loop.planning == 0  # answered while the planning callback was still running
+        assert planner.loop.health.counts["decisions"] == 0
     finally:
         release.set()
-    assert h.wait_until(lambda: planner.counts["decisions"] == 1, timeout=10)  # the held search completes
+    assert h.wait_until(lambda: planner.loop.health.counts["decisions"] == 1, timeout=10)  # the held search completes
 
 
 def test_shipped_files_step_the_simulator_at_a_sensor_rate():
@@ -205,10 +206,10 @@ def test_shipped_files_step_the_simulator_at_a_sensor_rate():
     for model in PARAMETER_SETS:
         for name in (f"target_simulator_{model}.yaml", f"closed_loop_{model}.yaml"):
             doc = yaml.safe_load((REPO / "config" / name).read_text())
-            assert doc["target_simulator"]["ros__parameters"]["step_period"] == 0.1, name
+            assert node_parameters(doc, "target_simulator")["step_period"] == 0.1, name
         for name in (f"planner_{model}.yaml", f"closed_loop_{model}.yaml"):
             doc = yaml.safe_load((REPO / "config" / name).read_text())
-            assert doc["planner"]["ros__parameters"]["time_budget"] < 0.1, name
+            assert node_parameters(doc, "planner")["time_budget"] < 0.1, name
 
 
 def test_an_integer_is_accepted_for_a_float_parameter(harness):
@@ -218,17 +219,17 @@ def test_an_integer_is_accepted_for_a_float_parameter(harness):
     planner = h.add(PlannerNode(context=h.context, cli_args=[
         "--ros-args", "-p", f"model_file:={S3}", "-p", "time_budget:=5", "-p", "deadline_slack:=0"]))
     assert planner.get_parameter("time_budget").value == 5.0
-    assert isinstance(planner.params["time_budget"], float) and planner.params["deadline_slack"] == 0.0
+    assert isinstance(planner.loop.params["time_budget"], float) and planner.loop.params["deadline_slack"] == 0.0
     flt = h.add(BeliefFilter(context=h.context, cli_args=[
         "--ros-args", "-p", f"model_file:={S3}", "-p", "initial_distribution:=[1, 0, 0]", "-p", "epoch_timeout:=2"]))
     assert list(flt.get_parameter("initial_distribution").value) == [1.0, 0.0, 0.0]
-    assert flt.buffer.timeout == 2.0
+    assert flt.loop.buffer.timeout == 2.0
     client = AsyncParameterClient(h.add(rclpy_node(h)), "planner")
     h.start()
     assert client.wait_for_services(timeout_sec=10.0)
     (res,) = _set(client, time_budget=2)
     assert res.successful, res.reason
-    assert planner.get_parameter("time_budget").value == 2.0 and planner.params["time_budget"] == 2.0
+    assert planner.get_parameter("time_budget").value == 2.0 and planner.loop.params["time_budget"] == 2.0
     (res,) = _set(client, time_budget=100)
     assert not res.successful and "time_budget" in res.reason
     (res,) = _set(client, time_budget="5")
@@ -259,7 +260,7 @@ def test_bound_constant_set_at_run_time_re_solves_the_bounds_for_the_next_decisi
     client = AsyncParameterClient(rec, "planner")
     h.start()
     assert client.wait_for_services(timeout_sec=10.0)
-    solved = planner._planner
+    solved = planner.loop.setup.planner
 
     def decision(epoch: int, constant: str, certified: bool) -> None:
         pub.publish(encode_belief(epoch, belief))
@@ -272,14 +273,14 @@ def test_bound_constant_set_at_run_time_re_solves_the_bounds_for_the_next_decisi
         assert d["param.bound_constant"] == d["last.bound_constant"] == constant, d
         assert d["bounds"] == f"tight, constant {constant}: feasible", d
         assert d["last.certified"] == ("true" if certified else "false"), d
-        assert planner.setup.constant == planner.setup.bounds.constant == constant
+        assert planner.loop.setup.constant == planner.loop.setup.bounds.constant == constant
 
     decision(0, "mlr", True)
     (res,) = _set(client, bound_constant="fosd")
     assert res.successful, res.reason
-    assert planner._planner is solved  # nothing re-solved before the next decision
+    assert planner.loop.setup.planner is solved  # nothing re-solved before the next decision
     decision(1, "fosd", False)
-    assert planner._planner is not solved
+    assert planner.loop.setup.planner is not solved
     (res,) = _set(client, bound_constant="mlr")
     assert res.successful, res.reason
     decision(2, "mlr", True)

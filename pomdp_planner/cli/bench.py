@@ -1,7 +1,9 @@
-"""``pomdp-planner bench search|multitarget|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|structure|multitarget|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
+``bench structure`` times the Assumption 1 check, fast path against the previous one
+(``pomdp_planner/bench/structure.py``).
 ``bench multitarget [--quick] [--json FILE] [--plot FILE]`` is the multi-target benchmark (dual
 bound against the exact joint lookahead, closed-loop regret, decision time against K;
 ``pomdp_planner/bench/multitarget.py``).
@@ -16,6 +18,7 @@ import sys
 
 from ..bench import multitarget as multitarget_bench
 from ..bench import search as search_bench
+from ..bench import structure as structure_bench
 from . import experiments
 
 
@@ -29,6 +32,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=search_bench.__doc__.split("\n\n")[0])
     search_bench.add_arguments(s)
     s.set_defaults(func=_run_search)
+    t = sub.add_parser("structure", help="the Assumption 1 check: fast path against the previous one",
+                       description=structure_bench.__doc__.split("\n\n")[0])
+    structure_bench.add_arguments(t)
+    t.set_defaults(func=lambda args: structure_bench.run_from_args(args, "pomdp-planner bench structure"))
     m = sub.add_parser("multitarget", help="several targets, one budget: dual bound, regret, scaling",
                        description=multitarget_bench.__doc__.split("\n\n")[0])
     multitarget_bench.add_arguments(m)

@@ -3,15 +3,19 @@
 Prints the model summary (name, sizes, discount, uncertainty function and weights), then the
 (A1)-(A3) report of :func:`pomdp_planner.core.structure.check_assumptions`. Exit codes:
 0 = Assumption 1 holds, 1 = it fails or could not be proven, 2 = the model is malformed
-(the error names the field and the problem).
+(the error names the field and the problem). A check expected to take more than a few seconds
+(:func:`pomdp_planner.core.structure.estimate_check`) is announced on stderr, with the expected
+time, before it starts.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
+from ..core.gate import check_notice
 from ..core.model import POMDP, infinite_horizon_refusal
-from ..core.structure import EXACT_MAX_STATES, SDP_MAX_STATES, check_assumptions
+from ..core.structure import EXACT_MAX_STATES, SDP_MAX_STATES, check_assumptions, estimate_check
 from ._common import (
     add_json_argument,
     add_model_argument,
@@ -58,6 +62,10 @@ def _text(model: POMDP, report) -> str:
 
 def run(args: argparse.Namespace) -> int:
     model = load_model_arg(args)
+    notice = check_notice(estimate_check(model, sdp_max_states=args.sdp_max_states,
+                                         exact_max_states=args.exact_max_states), model)
+    if notice is not None:
+        print(f"pomdp-planner check: {notice}", file=sys.stderr, flush=True)
     report = check_assumptions(model, tol=args.tol, sdp_max_states=args.sdp_max_states, seed=args.seed,
                                exact_max_states=args.exact_max_states)
     if args.json:

@@ -22,6 +22,12 @@ a fixed depth whose complete tree has more than ``MAX_TREE_NODES`` (1e10) belief
 refused unless ``--no-limit``; a depth whose memory estimate exceeds ``--memory-budget`` (MiB,
 default 1024) is refused with the deepest depth that fits; the anytime search's
 ``--max-depth`` is capped at that depth instead, and the output says so.
+
+Set-up (before the search, never part of ``--time-budget``): loading the model, the assumption
+check, the bound LP and the planner's tables. The gate estimates its memory and time first and
+refuses, with the figures, a set-up needing more memory than is available or expected to take more than
+``MAX_SETUP_SECONDS`` (600 s; ``--no-limit`` lifts the time limit); a set-up expected to take
+more than a few seconds is announced on stderr, with the expected time, before it starts.
 """
 
 from __future__ import annotations
@@ -30,7 +36,8 @@ import argparse
 import sys
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
-from ..core.gate import build_planner
+from ..core.checks import integer
+from ..core.gate import MAX_SETUP_SECONDS, build_planner
 from ..core.search import (
     DEFAULT_MEMORY_BUDGET,
     MAX_DEPTH_RANGE,
@@ -65,11 +72,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_belief_argument(p)
     g = p.add_mutually_exclusive_group()
     depths, budgets = "..".join(map(str, MAX_DEPTH_RANGE)), "..".join(f"{x:g}" for x in TIME_BUDGET_RANGE)
-    g.add_argument("--depth", type=int, default=None, metavar="D",
+    g.add_argument("--depth", type=integer, default=None, metavar="D",
                    help=f"search exactly this depth, {depths} (default {DEFAULT_DEPTH} unless --time-budget is given)")
-    g.add_argument("--time-budget", type=float, default=None, metavar="S",
-                   help=f"anytime search: iterative deepening for at most S seconds, {budgets}")
-    p.add_argument("--max-depth", type=int, default=DEFAULT_MAX_DEPTH, metavar="D",
+    g.add_argument("--time-budget", type=float_in(*TIME_BUDGET_RANGE, " of seconds"), default=None, metavar="S",
+                   help=f"anytime search: iterative deepening for at most S seconds, {budgets}; bounds the search "
+                        "of the decision only, not the set-up before it (model, assumption check, LP, tables), "
+                        "which is announced when expected to take long")
+    p.add_argument("--max-depth", type=integer, default=DEFAULT_MAX_DEPTH, metavar="D",
                    help=f"deepest depth of the anytime search, {depths} (default {DEFAULT_MAX_DEPTH})")
     p.add_argument("--exhaustive", action="store_true", help="search all actions (no myopic bounds)")
     lo, hi = MEMORY_BUDGET_RANGE_MIB
@@ -79,7 +88,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "--max-depth capped")
     p.add_argument("--no-limit", action="store_true",
                    help="run a fixed depth whose complete tree exceeds MAX_TREE_NODES (1e10 belief nodes; "
-                        "refused by default: it would take minutes to hours)")
+                        "refused by default: it would take minutes to hours), and a set-up expected to take more "
+                        f"than MAX_SETUP_SECONDS ({MAX_SETUP_SECONDS:g} s)")
     p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
                    help=f"bound variant of the LP (default {BOUND_VARIANTS[0]})")
     p.add_argument("--constant", default=DEFAULT_CONSTANT, choices=BOUND_CONSTANTS,
@@ -118,7 +128,11 @@ def run(args: argparse.Namespace) -> int:
                         f"memory budget of {args.memory_budget:g} MiB")
     setup = build_planner(model, use_bounds=not args.exhaustive, variant=args.variant, constant=args.constant,
                           prune_without_guarantee=args.prune_without_guarantee,
-                          override_name="--prune-without-guarantee", memory_budget=memory)
+                          override_name="--prune-without-guarantee", memory_budget=memory,
+                          max_setup_seconds=None if args.no_limit else MAX_SETUP_SECONDS,
+                          setup_hint="--no-limit lifts the limit, --exhaustive skips the assumption check and "
+                                     "the LP",
+                          progress=lambda note: print(f"pomdp-planner plan: {note}", file=sys.stderr, flush=True))
     planner = setup.planner
     assert planner is not None  # the gate refuses only when asked to (on_assumption_failure="refuse")
     sol = setup.bounds

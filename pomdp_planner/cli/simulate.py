@@ -8,6 +8,11 @@ names them, else by 0-based index. ``--json`` prints the same as data. For the p
 assumption gate's decision: pruning with valid bounds, exhaustive search and why, or pruning
 without guarantee (``--option prune_without_guarantee=1``).
 
+``--record FILE`` also writes the run as a run record (``core/io/run_record.py``: one CSV row per
+decision with the belief it was made from, the true state, the priority, the root bounds, the
+depth, whether it was certified and the search time), streamed like the output; ``pomdp-planner
+plot FILE`` draws it.
+
 With ``--targets M1,M2,... --budget B`` (no ``MODEL``) it simulates K targets under one effort
 budget per epoch and a joint policy (``cli/simulate_targets.py``, docs/multitarget.md).
 
@@ -21,13 +26,17 @@ policy, the search guards) is checked before the first step is printed.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Iterator, Sequence
 
 from ..core.checks import option_value
 from ..core.errors import OptionError
+from ..core.io.outputs import check_output_file
+from ..core.io.run_record import RunRecordWriter
 from ..core.model import POMDP, short_repr
 from ..core.multitarget.policies import JOINT_POLICIES, joint_policy_names
-from ..core.policies import POLICIES, make_policy, policy_names
+from ..core.options import STEPS_RANGE
+from ..core.policies import POLICIES, last_decision, make_policy, policy_names, setup_notice_for
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
 from . import simulate_targets
 from ._common import (
@@ -60,9 +69,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                   f"  {name:<11} {JOINT_POLICIES[name].help}" for name in joint_policy_names()),
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model", metavar="MODEL", nargs="?", default=None,
-                   help="model file: YAML (see README) or Cassandra .POMDP (not with --targets)")
-    p.add_argument("--steps", type=int_in(0, None), default=20, metavar="N",
-                   help="number of steps, >= 0 (default 20); streamed: any number runs in constant memory")
+                   help="model file: YAML (see README) or Cassandra .POMDP, absolute, relative to the current "
+                        "directory or to the installed share/pomdp_planner, or a shipped model's name "
+                        "(e.g. tracking_s3_info); not with --targets")
+    p.add_argument("--steps", type=int_in(*STEPS_RANGE), default=20, metavar="N",
+                   help=f"number of steps, {STEPS_RANGE[0]}..{STEPS_RANGE[1]:.0e} (default 20); streamed in "
+                   "constant memory")
     add_seed_argument(p, "random seed (default 0); same seed, same run")
     p.add_argument("--policy", default=None,
                    help=f"policy name: {', '.join(policy_names())} (default myopic; see below); with --targets "
@@ -73,6 +85,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: the model's start, else uniform)")
     p.add_argument("--initial-state", default=None, metavar="STATE",
                    help="true initial state: a state name or 0-based index (default: sampled from the belief)")
+    p.add_argument("--record", default=None, metavar="FILE",
+                   help="also write the run as a run-record CSV (one row per decision: belief, action, root "
+                        "bounds, depth, certified, latency; docs/cli.md), e.g. for 'pomdp-planner plot'")
     simulate_targets.add_arguments(p)
     add_json_argument(p)
     p.set_defaults(func=run)
@@ -98,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
         return simulate_targets.run(args)
     simulate_targets.check_single_target(args)
     args.policy = "myopic" if args.policy is None else args.policy
+    if args.record is not None:  # before any work: not after a long run
+        check_output_file(args.record, "--record", stdout=False)  # the steps go to stdout
     model = load_model_arg(args)
     if args.policy not in POLICIES:
         raise OptionError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")
@@ -105,16 +122,28 @@ def run(args: argparse.Namespace) -> int:
     initial_state = _initial_state(args.initial_state, model)
     # The same policy seed as simulate(model, name, seed=K) uses, so both give the same run.
     options = {"seed": args.seed + 1, **dict(args.option)}
+    notice = setup_notice_for(args.policy, model, options)
+    if notice is not None:
+        print(f"pomdp-planner simulate: {notice}", file=sys.stderr, flush=True)
     policy = make_policy(args.policy, model, **options)
     sim = Simulation(model, policy, args.steps, seed=args.seed, initial_state=initial_state, initial_belief=belief)
     setup = getattr(policy, "setup", None)  # the assumption gate's decision, for the planners
     note = getattr(policy, "note", "")  # e.g. the anytime search's max_depth capped by the memory budget
     summary = RunningSummary(model.gamma)
+    record = None if args.record is None else _open_record(args.record, model, policy)
 
     def steps() -> Iterator[SimulationStep]:
-        for st in sim:
-            summary.add(st)
-            yield st
+        belief = sim.initial_belief  # the belief each decision is made from
+        try:
+            for st in sim:
+                summary.add(st)
+                if record is not None:
+                    record.write(st.t, belief, st.action + 1, true_state=st.state, **last_decision(policy, belief))
+                belief = st.belief
+                yield st
+        finally:  # also when the reader stops early (| head)
+            if record is not None:
+                record.stream.close()
 
     if args.json:
         head = {"model": model.name, "policy": args.policy, "seed": args.seed, "gamma": model.gamma,
@@ -147,6 +176,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {s['recovered_steps']} observation(s) impossible under the belief; belief re-initialised "
               "from the observation likelihood")
     return 0
+
+
+def _open_record(path: str, model: POMDP, policy: object) -> RunRecordWriter:
+    """The ``--record`` writer (every row is flushed as written; closed after the last step)."""
+    try:
+        stream = open(path, "w", encoding="utf-8")
+    except OSError as exc:
+        raise OptionError(f"--record: cannot write {path}: {exc.strerror or type(exc).__name__}") from None
+    return RunRecordWriter(stream, model.name, model.S, model.A, getattr(policy, "time_budget", None))
 
 
 class StepTable:

@@ -64,8 +64,8 @@ def load_problem(args: argparse.Namespace) -> MultiTargetProblem:
     """The problem of ``--targets``, ``--budget``, ``--efforts`` and ``--discount``."""
     if args.model is not None:
         raise OptionError("MODEL: not with --targets (give every target in --targets)")
-    for name in ("belief", "initial_state"):
-        if getattr(args, name):
+    for name in ("belief", "initial_state", "record"):
+        if getattr(args, name, None):
             raise OptionError(f"--{name.replace('_', '-')}: not available with --targets (every target starts from "
                              "its model's start belief, else uniform)")
     names = [t.strip() for t in args.targets.split(",")]

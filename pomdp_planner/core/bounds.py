@@ -825,6 +825,36 @@ def _tighten(sg: _System, sh: _System, solver: str, g: np.ndarray, h: np.ndarray
     return best_g, best_h, {"method": "hinge LPs on the samples", "rounds": history}
 
 
+#: Unit costs (seconds) of :func:`estimate_solve_bounds`, measured on the development machine and
+#: rounded up: per ``A S^2`` entry on the least-element path (structure, iterations, samples),
+#: per ``S^3`` of its dense solves, and per ``S^3`` and ``A S^2`` of the HiGHS path.
+COST_LEAST = (2e-7, 1e-9)
+COST_HIGHS = (3e-6, 3e-6)
+#: The tight variant without the least element adds hinge-LP rounds: about this many times the LP.
+TIGHTEN_FACTOR = 5.0
+
+
+def estimate_solve_bounds(model: POMDP, variant: str = "tight") -> tuple[float, int]:
+    """Rough ``(seconds, peak bytes)`` of :func:`solve_bounds` with the default solver, before it runs.
+
+    Runs the structure test the solver starts with (``O(A S^2)``): where the least element applies
+    (monotone transitions, a contraction) the cost is a few passes over the ``A (S-1)``
+    constraints and a few dense solves; otherwise the HiGHS path (the dense constraint matrices
+    of ``g`` and ``h``, ``A (S-1) x S`` each, and the solver's copies), and for ``tight`` the
+    hinge-LP rounds. Good to a factor of a few (the unit costs :data:`COST_LEAST`,
+    :data:`COST_HIGHS`)."""
+    S, A = model.S, model.A
+    if S < 2:
+        return 0.0, 0
+    st = _structure(model)
+    rows = A * S * S
+    memory = 8 * 5 * rows + 8 * 400 * S * (A + 2)  # constraint matrices and copies; the sampled beliefs
+    if st.contraction:
+        return COST_LEAST[0] * rows + COST_LEAST[1] * S**3, memory
+    seconds = COST_HIGHS[0] * S**3 + COST_HIGHS[1] * rows
+    return seconds * (TIGHTEN_FACTOR if variant == "tight" else 1.0), memory
+
+
 # ---------------------------------------------------------------- public API
 @dataclass(frozen=True, eq=False)
 class BoundsSolution:

@@ -20,6 +20,10 @@ policies, the benchmarks and experiments, the planner node) builds its planner w
 6. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
    bounds certify it (Proposition 1).
 
+:func:`bounds_verdict` applies the same rule (steps 2-5) to an LP solution already in hand, for
+the commands that show the bounds themselves (``pomdp-planner bounds``): its
+:class:`BoundsVerdict` says whether they are guaranteed and, if not, why.
+
 ``prune_without_guarantee=True`` is the explicit override: where 2 or 5 would stop pruning, the
 planner prunes anyway with ``guaranteed=False``, and every output says that no guarantee holds
 (a discount of 1 or an infeasible LP gives no bounds to prune with, so 3 and 4 still fall back). A planner built
@@ -31,25 +35,46 @@ The decision covers every action-only price of the model: ``setup.planner.priced
 ``guaranteed`` flag, because such a price changes neither Assumption 1 nor the LP
 (docs/THEORY.md, "Several targets", Theorem P).
 
-``check_assumptions`` takes tens of seconds on large models (27 s measured at S = 256, A = 64),
-so its report is cached by the content of ``P`` and ``O`` (the only inputs of Assumption 1): a
-second gate call for the same model, or an equal copy of it (a model unpickled in a worker
-process), does not recompute it (the same object is not even hashed again).
+``check_assumptions`` can take seconds on large models (about 1 s at S = 256, A = 64; minutes
+where (A2) needs the expensive tests on many matrices), so its report is cached by the content
+of ``P`` and ``O`` (the only inputs of Assumption 1): a second gate call for the same model, or
+an equal copy of it (a model unpickled in a worker process), does not recompute it (the same
+object is not even hashed again).
+
+Set-up cost (:func:`estimate_setup`): before anything expensive, :func:`build_planner` predicts
+the time and peak memory of its set-up (the assumption check, :func:`~.structure.estimate_check`;
+the LP, :func:`~.bounds.estimate_solve_bounds`; the planner's tables,
+:func:`~.search.planner_table_bytes`) and refuses (:class:`SetupCostError`, one line with the
+figures) a set-up whose peak memory exceeds the memory available to the process
+(:func:`available_memory`; a failing allocation would otherwise end it with a ``MemoryError``
+or the kernel's OOM killer) or whose expected time exceeds ``max_setup_seconds`` (default
+:data:`MAX_SETUP_SECONDS`; ``None`` lifts it); a set-up expected
+to take more than :data:`SETUP_NOTICE_SECONDS` is announced through ``progress`` before it starts
+(:func:`setup_notice`). Time budgets of the search never include the set-up.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 from weakref import WeakKeyDictionary
 
-from .bounds import DEFAULT_CONSTANT, BoundsSolution, check_constant, check_variant, solve_bounds
+from .bounds import (
+    DEFAULT_CONSTANT,
+    BoundsSolution,
+    check_constant,
+    check_variant,
+    estimate_solve_bounds,
+    solve_bounds,
+)
 from .checks import check_choice
-from .model import POMDP, array_digest, infinite_horizon_refusal
+from .errors import OptionError
+from .model import POMDP, array_digest, format_bytes, infinite_horizon_refusal
 from .myopic import MyopicBounds
-from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner
-from .structure import AssumptionReport, check_assumptions
+from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner, planner_table_bytes
+from .structure import AssumptionReport, CheckEstimate, check_assumptions, estimate_check, seconds_text
 
 #: What :func:`build_planner` does when Assumption 1 fails or is unproven.
 ON_ASSUMPTION_FAILURE = ("exhaustive", "refuse")
@@ -86,11 +111,217 @@ def assumption_report(model: POMDP) -> AssumptionReport:
     return report if report.model_name == model.name else replace(report, model_name=model.name)
 
 
+#: A set-up expected to take longer than this many seconds is announced (:func:`setup_notice`).
+SETUP_NOTICE_SECONDS = 2.0
+#: :func:`build_planner` refuses a set-up expected to take longer than this many seconds, unless
+#: the caller lifts the limit (``max_setup_seconds=None``: ``--no-limit``, ``no_limit=1``).
+MAX_SETUP_SECONDS = 600.0
+#: Seconds per byte of the planner's tables (filling them: a few passes over memory).
+COST_TABLE_BYTE = 2e-9
+
+
+def available_memory() -> int | None:
+    """Bytes this process may still allocate: the kernel's ``MemAvailable`` (``/proc/meminfo``), or
+    less when a cgroup (v2) limit leaves less; ``None`` where neither can be read (no check then)."""
+    found: list[int] = []
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) * 1024)
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        with open("/sys/fs/cgroup/memory.max") as fh:
+            limit = fh.read().strip()
+        with open("/sys/fs/cgroup/memory.current") as fh:
+            used = int(fh.read().strip())
+        if limit != "max":
+            found.append(max(int(limit) - used, 0))
+    except (OSError, ValueError):
+        pass
+    return min(found) if found else None
+
+
+class SetupCostError(OptionError):
+    """A planner set-up that would exceed the available memory or the set-up time limit (the message
+    gives the figures): a request the planner refuses, an :class:`~.errors.OptionError` (exit code 2)."""
+
+
+@dataclass(frozen=True)
+class SetupEstimate:
+    """The predicted cost of :func:`build_planner` for one model (module docstring).
+
+    ``check`` is ``None`` when no assumption check runs (bounds disabled, or its report is
+    already cached); ``lp_seconds``/``lp_bytes`` are zero when no LP is solved (bounds disabled, a
+    discount of 1; when the check fails no LP is solved either, but that is not known in advance). ``seconds``
+    is the expected total, ``seconds_max`` the most it may take (:class:`~.structure.CheckEstimate`),
+    ``bytes`` the peak of the temporaries and tables (they do not coexist: the check's and the
+    LP's are freed before the tables are built).
+    """
+
+    S: int
+    A: int
+    Z: int
+    check: CheckEstimate | None
+    lp_seconds: float
+    lp_bytes: int
+    table_bytes: int
+
+    @property
+    def table_seconds(self) -> float:
+        return COST_TABLE_BYTE * self.table_bytes
+
+    @property
+    def seconds(self) -> float:
+        return (self.check.seconds if self.check else 0.0) + self.lp_seconds + self.table_seconds
+
+    @property
+    def seconds_max(self) -> float:
+        return (self.check.seconds_max if self.check else 0.0) + self.lp_seconds + self.table_seconds
+
+    @property
+    def bytes(self) -> int:
+        return max(self.check.bytes if self.check else 0, self.lp_bytes, self.table_bytes)
+
+    def parts(self) -> str:
+        """The stages with their figures, e.g. ``"assumption check about 2 s, 195 MiB; ..."``."""
+        out = []
+        if self.check is not None:
+            out.append(f"assumption check {self.check.describe()}, {format_bytes(self.check.bytes)}")
+        if self.lp_bytes:
+            out.append(f"bound LP about {seconds_text(self.lp_seconds)}, {format_bytes(self.lp_bytes)}")
+        out.append(f"planner tables {format_bytes(self.table_bytes)} (they grow like A^2 S Z)")
+        return "; ".join(out)
+
+
+_estimates: OrderedDict[tuple, SetupEstimate] = OrderedDict()
+
+
+def estimate_setup(model: POMDP, *, use_bounds: bool = True, variant: str = "tight",
+                   report: AssumptionReport | None = None) -> SetupEstimate:
+    """Predict the time and memory of ``build_planner(model, use_bounds=..., variant=...)`` before it
+    runs (module docstring; a few tenths of a second at S = 256, A = 64). ``report``: the
+    Assumption 1 report the call will be given (then no check runs). Cached for the last few
+    models, so an entry point may ask before the gate asks again."""
+    cached = report is not None or (use_bounds and model_key(model) in _reports)
+    key = (model_key(model), use_bounds, variant, cached)
+    est = _estimates.get(key)
+    if est is None:
+        check = estimate_check(model) if use_bounds and not cached else None
+        solves_lp = use_bounds and not infinite_horizon_refusal(model, "the bound LP")
+        lp_seconds, lp_bytes = estimate_solve_bounds(model, variant) if solves_lp else (0.0, 0)
+        est = SetupEstimate(model.S, model.A, model.Z, check, lp_seconds, lp_bytes,
+                            planner_table_bytes(model.S, model.A, model.Z))
+        _estimates[key] = est
+        while len(_estimates) > 4:
+            _estimates.popitem(last=False)
+    return est
+
+
+def check_setup_cost(est: SetupEstimate, max_seconds: float | None = MAX_SETUP_SECONDS, time_hint: str = "",
+                     memory: int | None = None) -> None:
+    """Refuse (:class:`SetupCostError`, one line) a set-up whose peak memory exceeds ``memory``
+    bytes (default :func:`available_memory`, read when called) or whose expected time exceeds
+    ``max_seconds`` (``None``: no time limit); ``time_hint`` (how the caller's user lifts the time
+    limit) ends that message."""
+    sizes = f"S={est.S}, A={est.A}, Z={est.Z}"
+    memory = available_memory() if memory is None else memory
+    if memory is not None and est.bytes > memory:
+        raise SetupCostError(f"model: the planner's set-up for {sizes} needs about {format_bytes(est.bytes)} "
+                             f"({est.parts()}), more than the {format_bytes(memory)} of memory available")
+    if max_seconds is not None and est.seconds > max_seconds:
+        raise SetupCostError(f"model: the planner's set-up for {sizes} is expected to take "
+                             f"{seconds_text(est.seconds)} ({est.parts()}), more than the limit of "
+                             f"{seconds_text(max_seconds)} (MAX_SETUP_SECONDS)"
+                             + (f"; {time_hint}" if time_hint else ""))
+
+
+def setup_notice(est: SetupEstimate) -> str | None:
+    """One line announcing a long set-up (expected over :data:`SETUP_NOTICE_SECONDS`), else ``None``."""
+    if est.seconds <= SETUP_NOTICE_SECONDS:
+        return None
+    return (f"set-up for S={est.S}, A={est.A}, Z={est.Z} is running, expected about "
+            f"{seconds_text(est.seconds)} before the first decision ({est.parts()}); no time budget includes it")
+
+
+def check_notice(est: CheckEstimate, model: POMDP) -> str | None:
+    """One line announcing a long assumption check (``pomdp-planner check``; expected over
+    :data:`SETUP_NOTICE_SECONDS`), else ``None``."""
+    if est.seconds <= SETUP_NOTICE_SECONDS:
+        return None
+    return f"checking Assumption 1 for S={model.S}, A={model.A}, Z={model.Z}: expected {est.describe()}"
+
+
 def assumption_failure(report: AssumptionReport) -> str:
     """One line saying how Assumption 1 fails, e.g. ``"Assumption 1 fails (A1 fails, A2 unknown)"``."""
     bad = [k for k, v in report.status.items() if v != "holds"]
     verdict = "fails" if any(report.status[k] == "fails" for k in bad) else "is not proven"
     return f"Assumption 1 {verdict} ({', '.join(f'{k} {report.status[k]}' for k in bad)}; see 'pomdp-planner check')"
+
+
+def _assumption_loss(report: AssumptionReport) -> str:
+    """Why the guarantee is lost when Assumption 1 fails or is unproven (step 2)."""
+    return f"{assumption_failure(report)}: the myopic bounds are not valid for this model"
+
+
+_THEOREM_2 = "the bound LP (Theorem 2)"
+
+
+def _lp_name(variant: str, constant: str) -> str:
+    return f"the bound LP ({variant}, constant {constant})"
+
+
+def _valid_reason(lp: str, covers: str) -> str:
+    """The reason of a guaranteed decision (step 5)."""
+    domain = "the simplex" if covers == "simplex" else covers
+    return f"Assumption 1 holds and {lp} is feasible; the guarantee covers {domain}"
+
+
+@dataclass(frozen=True)
+class BoundsVerdict:
+    """Whether an LP solution gives guaranteed bounds for its model (:func:`bounds_verdict`).
+
+    ``guaranteed``: Assumption 1 holds, the LP is feasible and (Shannon) the guarantee covers a
+    domain, so the lower and upper bound policies bracket an optimal action (Theorem 2) and
+    agreeing bounds certify it (Proposition 1). ``reason`` is one line for people: the gate's
+    reason, the same words :func:`build_planner` would give. ``report``: the Assumption 1 report.
+    """
+
+    guaranteed: bool
+    reason: str
+    report: AssumptionReport
+
+    def describe(self) -> str:
+        """One line, the verdict first: ``"guaranteed: ..."`` or ``"NOT GUARANTEED: ..."``."""
+        return f"{'guaranteed' if self.guaranteed else 'NOT GUARANTEED'}: {self.reason}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``guaranteed``, ``reason`` and the (A1)-(A3) status."""
+        return {"guaranteed": bool(self.guaranteed), "reason": self.reason,
+                "assumptions_hold": bool(self.report.holds), "assumptions": dict(self.report.status)}
+
+
+def bounds_verdict(model: POMDP, sol: BoundsSolution, report: AssumptionReport | None = None) -> BoundsVerdict:
+    """The gate's rule (module docstring, steps 2-4) for the LP solution ``sol`` of ``model``.
+
+    ``report``: an Assumption 1 report already computed for ``model`` (else :func:`assumption_report`,
+    cached). Checked in the gate's order: Assumption 1, the discount, the LP's feasibility, the Shannon
+    domain.
+    """
+    rep = assumption_report(model) if report is None else report
+    lp = _lp_name(sol.variant, sol.constant)
+    if not rep.holds:
+        return BoundsVerdict(False, _assumption_loss(rep), rep)
+    horizon = infinite_horizon_refusal(model, _THEOREM_2)
+    if horizon:
+        return BoundsVerdict(False, horizon, rep)
+    if not sol.feasible or sol.myopic is None:
+        return BoundsVerdict(False, f"{lp} is infeasible: {sol.message}", rep)
+    if sol.covers.startswith("none"):
+        return BoundsVerdict(False, sol.covers.removeprefix("none: "), rep)
+    return BoundsVerdict(True, _valid_reason(lp, sol.covers), rep)
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,15 +367,19 @@ class PlannerSetup:
         return f"{head}: {self.reason}"
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (the report and LP solution as short dictionaries)."""
+        """JSON-ready summary (the report and LP solution as short dictionaries). Without the guarantee,
+        ``bounds.covers`` starts with ``none`` (the LP's own domain is no guarantee then)."""
         sol = self.bounds
+        covers = None if sol is None else sol.covers
+        if covers is not None and not self.guaranteed and not covers.startswith("none"):
+            covers = f"none: not guaranteed ({self.reason})"
         return {
             "mode": self.mode, "guaranteed": bool(self.guaranteed), "forced": bool(self.forced),
             "reason": self.reason, "variant": self.variant, "constant": self.constant,
             "assumptions_hold": None if self.report is None else bool(self.report.holds),
             "assumptions": None if self.report is None else dict(self.report.status),
             "bounds": None if sol is None else {"variant": sol.variant, "constant": sol.constant,
-                                                "feasible": bool(sol.feasible), "covers": sol.covers,
+                                                "feasible": bool(sol.feasible), "covers": covers,
                                                 "message": sol.message, "why": sol.constants.get("why")},
         }
 
@@ -152,8 +387,9 @@ class PlannerSetup:
 def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tight", constant: str = DEFAULT_CONSTANT,
                   on_assumption_failure: str = "exhaustive", prune_without_guarantee: bool = False,
                   chunk_bytes: int = DEFAULT_CHUNK_BYTES, memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                  report: AssumptionReport | None = None, override_name: str = "prune_without_guarantee"
-                  ) -> PlannerSetup:
+                  report: AssumptionReport | None = None, override_name: str = "prune_without_guarantee",
+                  max_setup_seconds: float | None = MAX_SETUP_SECONDS, setup_hint: str = "",
+                  progress: Callable[[str], None] | None = None) -> PlannerSetup:
     """Check Assumption 1, solve the bounds and build the planner (module docstring).
 
     ``variant`` (:data:`~.bounds.BOUND_VARIANTS`) and ``constant`` (:data:`~.bounds.BOUND_CONSTANTS`:
@@ -166,10 +402,21 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     override (``--prune-without-guarantee``, ``prune_without_guarantee=1``), quoted in the reason.
     ``chunk_bytes`` and ``memory_budget`` (bytes, checked before every search) go to the
     :class:`~.search.Planner`.
+
+    Set-up cost (module docstring): the set-up is refused first (:class:`SetupCostError`) when its
+    estimate exceeds the available memory or ``max_setup_seconds`` (then ``setup_hint``, how to
+    lift that limit, ends the message), and announced through ``progress`` (one line) when it
+    is expected to be long.
     """
     check_variant(variant)
     check_constant(constant)
     check_choice(on_assumption_failure, ON_ASSUMPTION_FAILURE, "on_assumption_failure")
+
+    est = estimate_setup(model, use_bounds=use_bounds, variant=variant, report=report)
+    check_setup_cost(est, max_setup_seconds, setup_hint)
+    notice = setup_notice(est)
+    if notice is not None and progress is not None:
+        progress(notice)
 
     def planner(bounds: MyopicBounds | None, guaranteed: bool) -> Planner:
         return Planner(model, bounds, chunk_bytes=chunk_bytes, guaranteed=guaranteed, memory_budget=memory_budget)
@@ -185,16 +432,16 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     rep = assumption_report(model) if report is None else report
     unguaranteed = ""  # why the guarantee is lost, if it is
     if not rep.holds:
-        unguaranteed = f"{assumption_failure(rep)}: the myopic bounds are not valid for this model"
+        unguaranteed = _assumption_loss(rep)
         if not prune_without_guarantee and on_assumption_failure == "refuse":
             return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
-    horizon = infinite_horizon_refusal(model, "the bound LP (Theorem 2)")
+    horizon = infinite_horizon_refusal(model, _THEOREM_2)
     if horizon:  # no bounds to prune with, forced or not
         return exhaustive(horizon + (f"; also, {unguaranteed}" if unguaranteed else ""), rep)
     if unguaranteed and not prune_without_guarantee:
         return exhaustive(unguaranteed, rep)
     sol = solve_bounds(model, variant, constant=constant)
-    lp = f"the bound LP ({variant}, constant {constant})"
+    lp = _lp_name(variant, constant)
     if not sol.feasible or sol.myopic is None:
         return exhaustive(f"{lp} is infeasible: {sol.message}", rep, sol)
     if sol.covers.startswith("none") and not unguaranteed:
@@ -206,6 +453,5 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
                   "the bounds may exclude the optimal action, and they certify nothing")
         return PlannerSetup(planner(sol.myopic, False), "prune", False, reason, rep, sol, variant, forced=True,
                             constant=constant)
-    covers = "the simplex" if sol.covers == "simplex" else sol.covers
-    reason = f"Assumption 1 holds and {lp} is feasible; the guarantee covers {covers}"
-    return PlannerSetup(planner(sol.myopic, True), "prune", True, reason, rep, sol, variant, constant=constant)
+    return PlannerSetup(planner(sol.myopic, True), "prune", True, _valid_reason(lp, sol.covers), rep, sol, variant,
+                        constant=constant)

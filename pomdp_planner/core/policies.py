@@ -28,7 +28,14 @@ from .belief_mcts import make_belief_mcts_policy
 from .bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT, check_constant, check_variant
 from .checks import check_choice, parse_flag
 from .errors import OptionError, short_repr
-from .gate import PlannerSetup, build_planner
+from .gate import (
+    MAX_SETUP_SECONDS,
+    PlannerSetup,
+    build_planner,
+    check_setup_cost,
+    estimate_setup,
+    setup_notice,
+)
 from .model import POMDP
 from .myopic import MyopicBounds
 from .options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_seed, check_time_budget
@@ -178,10 +185,33 @@ def _flag(opts: Mapping[str, Any], name: str) -> bool:
 OVERRIDE = "prune_without_guarantee"
 
 
+#: How a ``simulate`` user lifts the set-up time limit (:func:`~.gate.check_setup_cost`).
+_SETUP_HINT = "the option no_limit=1 lifts the limit (bnb, exhaustive)"
+
+
+def _max_setup_seconds(opts: Mapping[str, Any]) -> float | None:
+    return None if _flag(opts, "no_limit") else MAX_SETUP_SECONDS
+
+
 def _setup(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> PlannerSetup:
     variant, constant = (_variant(opts), _constant(opts)) if use_bounds else (BOUND_VARIANTS[0], DEFAULT_CONSTANT)
     return build_planner(model, use_bounds=use_bounds, variant=variant, constant=constant,
-                         prune_without_guarantee=_flag(opts, OVERRIDE), override_name=f"the option {OVERRIDE}=1")
+                         prune_without_guarantee=_flag(opts, OVERRIDE), override_name=f"the option {OVERRIDE}=1",
+                         max_setup_seconds=_max_setup_seconds(opts), setup_hint=_SETUP_HINT)
+
+
+def setup_notice_for(name: str, model: POMDP, options: Mapping[str, Any]) -> str | None:
+    """The gate's announcement of a long planner set-up for policy ``name`` (:func:`~.gate.setup_notice`),
+    ``None`` when it is short or the policy builds no planner; for an entry point to print before
+    :func:`make_policy` (which then runs the set-up). A set-up the gate would refuse is refused
+    here already (:class:`~.gate.SetupCostError`), so nothing is announced that will not run."""
+    entry = POLICIES.get(name)
+    if entry is None or entry.gate is None:
+        return None
+    variant = _variant(options) if entry.gate else BOUND_VARIANTS[0]
+    est = estimate_setup(model, use_bounds=entry.gate, variant=variant)
+    check_setup_cost(est, _max_setup_seconds(options), _SETUP_HINT)
+    return setup_notice(est)
 
 
 def _search_policy(model: POMDP, opts: Mapping[str, Any], use_bounds: bool) -> SearchPolicy:
@@ -219,6 +249,9 @@ class PolicyEntry:
     factory: PolicyFactory
     help: str
     options: tuple[str, ...] = ("seed",)
+    #: The policy builds a planner through the gate with the bounds (True: assumption check, LP,
+    #: tables), without them (False: tables only), or none (None).
+    gate: bool | None = None
 
 
 _SEARCH_OPTIONS = ("seed", "depth", "time_budget", "max_depth", "no_limit")
@@ -233,16 +266,16 @@ POLICIES: dict[str, PolicyEntry] = {
                        "branch-and-bound search, Algorithm 1; exhaustive (and says why) where the bounds are not "
                        f"valid (options: depth=3 | time_budget=S, max_depth, no_limit=1, variant, "
                        f"constant={_CONSTANTS}, {OVERRIDE}=1)",
-                       (*_SEARCH_OPTIONS, *_BOUND_OPTIONS)),
+                       (*_SEARCH_OPTIONS, *_BOUND_OPTIONS), gate=True),
     "exhaustive": PolicyEntry(lambda m, o: _search_policy(m, o, False),
                               "exhaustive tree search (options: depth=3 | time_budget=S, max_depth, no_limit=1)",
-                              _SEARCH_OPTIONS),
+                              _SEARCH_OPTIONS, gate=False),
     "lower": PolicyEntry(lambda m, o: _bound_policy(m, o, "lower"),
                          f"myopic lower-bound policy of Theorem 2; refused where the bounds are not valid (options: "
-                         f"variant, constant={_CONSTANTS}, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
+                         f"variant, constant={_CONSTANTS}, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS), gate=True),
     "upper": PolicyEntry(lambda m, o: _bound_policy(m, o, "upper"),
                          f"myopic upper-bound policy of Theorem 2; refused where the bounds are not valid (options: "
-                         f"variant, constant={_CONSTANTS}, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS)),
+                         f"variant, constant={_CONSTANTS}, {OVERRIDE}=1)", ("seed", *_BOUND_OPTIONS), gate=True),
     "mcts": PolicyEntry(_mcts_policy,
                         "UCT on exact Bayes beliefs with the true reward rho (options: time_budget=S | "
                         "simulations=N, max_depth, exploration, exploration_scale, leaf, rollout_depth, tail, "
@@ -261,6 +294,24 @@ def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
     if options.get("seed") is not None:
         options = {**options, "seed": check_seed(options["seed"], "option seed")}
     return entry.factory(model, options)
+
+
+def last_decision(policy: Policy, belief: np.ndarray) -> dict[str, Any]:
+    """What a run record (:mod:`~.io.run_record`) keeps of the decision ``policy`` just made at ``belief``:
+    ``bounds`` (lower, upper priorities ``1..A``, or ``None``), ``depth``, ``certified`` and
+    ``latency`` (seconds of search), ``None`` where the policy has no such figure. A search policy
+    reports its last search; a bound policy the bounds at ``belief``."""
+    out: dict[str, Any] = {"bounds": None, "depth": None, "certified": False, "latency": None}
+    last = getattr(policy, "last", None)
+    if isinstance(last, SearchResult):
+        rb = last.root_bounds
+        out.update(bounds=None if rb is None else (rb[0] + 1, rb[1] + 1), depth=last.depth,
+                   certified=last.certified, latency=last.time_used)
+    elif isinstance(policy, BoundPolicy):
+        lo, up = (int(x[0]) for x in policy.bounds.actions(np.asarray(belief, dtype=float)[None, :]))
+        guaranteed = policy.setup is not None and policy.setup.guaranteed
+        out.update(bounds=(lo + 1, up + 1), certified=guaranteed and lo == up)
+    return out
 
 
 def as_callable(policy: Policy) -> Callable[[np.ndarray], int]:

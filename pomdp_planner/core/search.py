@@ -107,6 +107,9 @@ MAX_SEARCH_DEPTH = 100
 MAX_TREE_NODES = 10**10
 #: Fixed part of :func:`search_memory_estimate` (root arrays, results, small temporaries).
 SEARCH_OVERHEAD_BYTES = 64 * 2**10
+#: Fixed part of :func:`planner_table_bytes` (the planner object and its array headers).
+TABLE_OVERHEAD_BYTES = 8 * 2**10
+
 Bounds = MyopicBounds | TrivialBounds
 
 
@@ -206,6 +209,19 @@ def search_memory_estimate(S: int, A: int, Z: int, depth: int, chunk_bytes: int 
     expansion = (8 * (3 * S + 4) + 1) * A * Z * widest if depth > 1 else 0
     leaf_chunk = 3 * per_parent * min(leaf, n) // 2
     return 5 * (total + max(expansion, leaf_chunk)) // 4 + SEARCH_OVERHEAD_BYTES
+
+
+def planner_table_bytes(S: int, A: int, Z: int) -> int:
+    """Peak bytes :class:`Planner` allocates when it is built (its tables, before any search).
+
+    The fused leaf matrix ``WT`` (module docstring: ``O[a][:, z]`` and ``O[a][:, z] r[:, a']``
+    for every ``a'``) has ``A (A + 1) Z S`` floats and dominates for large models; then five
+    ``(A, Z, S)`` tables (``O`` transposed, squared, ``O log O``, ``P O``), ``P`` transposed
+    (``A S^2``), three ``(A, S, Z)`` temporaries while they are built, and the action masks
+    (``A^3`` bytes), plus :data:`TABLE_OVERHEAD_BYTES`. Needs only the sizes, so an entry point
+    can refuse before it builds anything."""
+    floats = A * (A + 1) * Z * S + 5 * A * Z * S + A * S * S + 3 * A * S * Z + 2 * S * A
+    return 8 * floats + A**3 + A * Z + TABLE_OVERHEAD_BYTES
 
 
 def deepest_depth_within_budget(S: int, A: int, Z: int, upto: int, memory_budget: int,
@@ -367,10 +383,12 @@ class Planner:
         self._O = np.ascontiguousarray(O)
         self._OT = np.ascontiguousarray(np.swapaxes(O, 1, 2))  # (A, Z, S)
         # Transposed leaf matrices: WT[a] rows = O[a][:, z] (z = 0..Z-1), then O[a][:, z] * r[:, a']
-        # for a' = 0..A-1 (Z rows each); O2T, OlogOT likewise (Z x S).
-        OR = np.moveaxis(O[:, :, :, None] * r[None, :, None, :], 3, 1)  # (A, A', S, Z)
-        self._WT = np.ascontiguousarray(
-            np.concatenate([np.swapaxes(O, 1, 2)] + [np.swapaxes(OR[:, k], 1, 2) for k in range(A)], axis=1))
+        # for a' = 0..A-1 (Z rows each); O2T, OlogOT likewise (Z x S). Filled in place: the largest
+        # table, A^2 S Z floats (planner_table_bytes).
+        self._WT = np.empty((A, Z * (A + 1), S))
+        self._WT[:, :Z] = self._OT
+        for k in range(A):
+            np.multiply(self._OT, r[:, k], out=self._WT[:, Z * (k + 1):Z * (k + 2)])
         self._PT = np.ascontiguousarray(np.swapaxes(P, 1, 2))
         self._PTs = self._PT.reshape(A * S, S)  # stacked P[a]^T
         self._OS = np.ascontiguousarray(np.swapaxes(O, 0, 1))  # (S, A, Z)

@@ -74,17 +74,25 @@ _POS_EIG = 1e-10
 #: Largest number of (matrix, triple) pairs handled in one numpy block.
 _TRIPLE_BLOCK = 2_000_000
 
-# Status codes of each D^{j,a,z}; codes <= PROVEN_EXACT are proofs.
+#: Relative safety margin of the separable lower bound of the (A2') ratio (:func:`check_copositivity`):
+#: far above the rounding of the few products involved, so that whatever it clears the exact
+#: ratio test clears too.
+_SEPARABLE_MARGIN = 1e-12
+
+# Status codes of each D^{j,a,z}; codes <= PROVEN_DOMINATED are proofs.
 PROVEN_ELEMENTWISE = 0
 PROVEN_SDP = 1
 PROVEN_EXACT = 2
-REFUTED = 3
-UNKNOWN = 4
-UNKNOWN_SDP_SKIPPED = 5
+PROVEN_DOMINATED = 3
+REFUTED = 4
+UNKNOWN = 5
+UNKNOWN_SDP_SKIPPED = 6
 STATUS_NAMES = {
     PROVEN_ELEMENTWISE: "proven (A2': elementwise non-negative)",
     PROVEN_SDP: "proven (certificate D = PSD + N, N >= 0: eigenvalues if N = 0, else SDP)",
     PROVEN_EXACT: "proven (exact: <= 2 positive eigenvalues, minimum over supports of size <= 3)",
+    PROVEN_DOMINATED: "proven (dominated: c D^(j,a,w) + N with c > 0, N >= 0, and D^(j,a,w) proven, "
+                      "w the observation of the largest ratio beta/alpha)",
     REFUTED: "refuted (x >= 0 with x^T D x < 0)",
     UNKNOWN: "unknown (no certificate, no counterexample found)",
     UNKNOWN_SDP_SKIPPED: "unknown (SDP skipped above S = {cap}; no counterexample found)",
@@ -93,7 +101,7 @@ STATUS_NAMES = {
 
 def is_proven(codes: np.ndarray | int) -> np.ndarray | bool:
     """True where a status code is a proof of copositivity."""
-    return np.asarray(codes) <= PROVEN_EXACT
+    return np.asarray(codes) <= PROVEN_DOMINATED
 
 
 def _status(holds: bool, refuted: bool = False) -> str:
@@ -499,7 +507,8 @@ class CopositivityReport:
 
     def counts(self) -> dict[str, int]:
         keys = {PROVEN_ELEMENTWISE: "proven_elementwise", PROVEN_SDP: "proven_sdp", PROVEN_EXACT: "proven_exact",
-                REFUTED: "refuted", UNKNOWN: "unknown", UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped"}
+                PROVEN_DOMINATED: "proven_dominated", REFUTED: "refuted", UNKNOWN: "unknown",
+                UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped"}
         return {name: int(np.count_nonzero(self.codes == code)) for code, name in keys.items()}
 
     def worst_refutation(self) -> tuple[tuple[int, int, int], np.ndarray, float] | None:
@@ -567,6 +576,15 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     for refuted matrices, ``x`` on the simplex with ``x^T D x = value < -tol max|D|`` (NaN
     elsewhere).
     """
+    return _classify(D, tol, sdp_max_states, rng, search, exact_max_states)[:3]
+
+
+def _classify(D: np.ndarray, tol: float, sdp_max_states: int, rng: np.random.Generator | None, search: bool,
+              exact_max_states: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`classify_copositive`, plus ``lower (B,)``: a lower bound of ``min x^T D x`` over the
+    simplex where a test gives one (elementwise: ``min(D)``; PSD: ``min(lambda_min, 0)``; exact:
+    the minimum itself), NaN elsewhere. :func:`check_copositivity` passes it on to dominated
+    matrices."""
     D = np.asarray(D, dtype=float)
     B, S, _ = D.shape
     rng = np.random.default_rng(0) if rng is None else rng
@@ -574,19 +592,22 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
     X = np.full((B, S), np.nan)
     values = np.full(B, np.nan)
     scale = np.abs(D).max(axis=(-2, -1))  # tolerances are relative to max|D|
-    todo = np.nonzero(D.min(axis=(-2, -1)) < -tol * scale)[0]
+    lower = D.min(axis=(-2, -1))  # x^T D x = sum x_m x_n D_mn >= min(D) on the simplex
+    todo = np.nonzero(lower < -tol * scale)[0]
+    lower[todo] = np.nan
     if todo.size == 0:
-        return codes, X, values
+        return codes, X, values, lower
     Xp, vp = _pair_counterexamples(D[todo])
     thr = -tol * scale[todo]
     refuted = vp < thr
     codes[todo[refuted]], X[todo[refuted]], values[todo[refuted]] = REFUTED, Xp[refuted], vp[refuted]
     rest = todo[~refuted]
     if rest.size == 0:
-        return codes, X, values
+        return codes, X, values, lower
     eig = np.linalg.eigvalsh(D[rest] / scale[rest, None, None])
     psd = eig[:, 0] >= -SDP_TOL
     codes[rest[psd]] = PROVEN_SDP
+    lower[rest[psd]] = np.minimum(eig[psd, 0], 0.0) * scale[rest[psd]]  # x^T D x >= lambda_min |x|^2, |x| <= 1
     rest, eig = rest[~psd], eig[~psd]
     if rest.size and S <= exact_max_states:
         low = np.count_nonzero(eig > _POS_EIG, axis=1) <= 2
@@ -600,6 +621,7 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
             vbest = np.minimum(vt, vq)
             bad = vbest < -tol * scale[exact]
             codes[exact[~bad]] = PROVEN_EXACT
+            lower[exact[~bad]] = vbest[~bad]
             codes[exact[bad]], X[exact[bad]], values[exact[bad]] = REFUTED, xbest[bad], vbest[bad]
         rest = rest[~low]
     undecided = []
@@ -614,7 +636,7 @@ def classify_copositive(D: np.ndarray, tol: float = 1e-9, sdp_max_states: int = 
         Xs, vs = _search_counterexamples(D[idx], rng, target=-tol * scale[idx])
         bad = vs < -tol * scale[idx]
         codes[idx[bad]], X[idx[bad]], values[idx[bad]] = REFUTED, Xs[bad], vs[bad]
-    return codes, X, values
+    return codes, X, values, lower
 
 
 def _rank_factors(model: POMDP, a: int, js: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -629,17 +651,83 @@ def _rank_factors(model: POMDP, a: int, js: np.ndarray) -> tuple[np.ndarray, ...
     return Oa[js] * Ob[js + 1], Oa[js + 1] * Ob[js], F1, F2
 
 
+def _min_ratio(num: np.ndarray, den: np.ndarray, axis: int) -> np.ndarray:
+    """``min(num / den)`` over ``den > 0`` along ``axis`` (``inf`` where no entry of ``den`` is positive)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.inf).min(axis=axis)
+
+
+def separable_ratio_bound(model: POMDP, a: int) -> np.ndarray:
+    """A lower bound, in ``O(S)`` per ``j``, of the (A2') ratio ``t(j) = min F1[j] / F2[j]`` over
+    ``F2 > 0`` (:func:`_rank_factors`), for the action pair ``(a, a+1)``; shape ``(S-1,)``.
+
+    With ``u, v, u', v'`` as in :func:`_rank_factors`, every ratio is a mediant,
+    ``(u_m v_n + v_m u_n) / (u'_m v'_n + v'_m u'_n) >= min(u_m v_n / (u'_m v'_n), v_m u_n / (v'_m u'_n))``
+    (terms with a zero denominator left out), and each term is at least
+    ``min_m (u_m / u'_m) min_n (v_n / v'_n)``, so ``t(j) >= min(u / u') min(v / v')``. ``inf``
+    where ``u' = 0`` or ``v' = 0`` (then ``F2 = 0`` and ``t = inf`` too). On TP2 kernels whose
+    likelihood ratios are extreme at the ends (the tracking models) the bound is tight enough to
+    clear every ``D`` of the comparison models without building ``F1``, ``F2``.
+    """
+    P = model.P
+    u, up = P[a, :, :-1], P[a, :, 1:]  # u = P[a, :, j], u' = P[a, :, j+1]
+    v, vp = P[a + 1, :, 1:], P[a + 1, :, :-1]  # v = P[a+1, :, j+1], v' = P[a+1, :, j]
+    ru, rv = _min_ratio(u, up, 0), _min_ratio(v, vp, 0)
+    empty = np.isinf(ru) | np.isinf(rv)
+    return np.where(empty, np.inf, np.where(empty, 0.0, ru) * np.where(empty, 0.0, rv))
+
+
+def _elementwise_clean(model: POMDP, a: int, js: np.ndarray, alpha: np.ndarray, beta: np.ndarray,
+                       t_sep: np.ndarray | None) -> np.ndarray:
+    """``clean[j, z]``: ``D^{j,a,z}`` is proven elementwise non-negative by the ratio test
+    (``beta <= alpha t(j)``, :func:`check_copositivity`), for ``j`` in ``js``. Given ``t_sep``, the
+    separable bound of every ``j`` (:func:`separable_ratio_bound`), it clears first, with a safety margin, and the
+    exact ratio (``O(S^2)`` per ``j``) is computed only for the ``j`` it leaves undecided; it
+    clears a subset of what the exact ratio clears (:data:`_SEPARABLE_MARGIN`), so the
+    result is the same as without it."""
+    clean = np.zeros(alpha.shape, dtype=bool)
+    rest = np.arange(js.size)
+    if t_sep is not None:
+        t = t_sep[js]
+        with np.errstate(invalid="ignore", over="ignore"):
+            clean = (beta == 0) | np.isinf(t)[:, None] | (beta <= (t * (1.0 - _SEPARABLE_MARGIN))[:, None] * alpha)
+        rest = np.nonzero(~clean.all(axis=1))[0]
+    if rest.size:
+        _, _, F1, F2 = _rank_factors(model, a, js[rest])
+        t_elem = _min_ratio(F1, F2, (1, 2))  # (J,)
+        with np.errstate(invalid="ignore", over="ignore"):
+            clean[rest] = (beta[rest] == 0) | np.isinf(t_elem)[:, None] | (beta[rest] <= t_elem[:, None] * alpha[rest])
+    return clean
+
+
 def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
                        seed: int = 0, search: bool = True,
-                       exact_max_states: int = EXACT_MAX_STATES) -> CopositivityReport:
+                       exact_max_states: int = EXACT_MAX_STATES, reduce: bool = True) -> CopositivityReport:
     """(A2): copositivity of every ``D^{j,a,z}`` (:func:`classify_copositive` on each).
 
     Every ``D^{j,a,z}`` is ``alpha F1 - beta F2`` with non-negative rank-2 matrices ``F1``,
     ``F2`` that do not depend on ``z`` (:func:`_rank_factors`), so the elementwise test (A2')
     for all ``z`` at once is a ratio test: ``D >= 0`` iff ``beta <= alpha min(F1 / F2)`` (over
-    ``F2 > 0``). That costs ``O(S^2)`` per ``(j, a)`` instead of ``O(Z S^2)``; only the ``D``
-    that fail it are built (einsum, memory-bounded blocks) and passed on. ``min_entry`` is NaN
-    where the ratio test proved ``D >= 0`` without building it.
+    ``F2 > 0``), i.e. a ratio over states compared with the largest ``beta / alpha`` over the
+    observations. With ``reduce`` (the default) the ratio is first bounded below in ``O(S)``
+    per ``(j, a)`` (:func:`separable_ratio_bound`), and ``F1 / F2`` (``O(S^2)``) is formed only
+    where that bound does not clear every ``z``. Only the ``D`` that fail the test are built
+    (einsum, memory-bounded blocks) and passed on; ``min_entry`` is NaN where the ratio test
+    proved ``D >= 0`` without building it.
+
+    Dominance (``reduce``): for one ``(j, a)`` and ``alpha_z > 0``, with ``t_z = beta_z / alpha_z``
+    and ``w`` the observation of the largest ``t`` among the ``D`` not proven elementwise,
+    ``D^z = (alpha_z / alpha_w) D^w + alpha_z (t_w - t_z) F2``, and the second term is
+    elementwise non-negative; so ``min x^T D^z x >= (alpha_z / alpha_w) min x^T D^w x`` on the
+    simplex. Only ``D^w`` goes through the expensive tests (eigenvalues, the exact support test,
+    the SDP); another ``D^z`` is proven (:data:`PROVEN_DOMINATED`) when that lower bound is at
+    least ``-tol max|D^z|``, its own tolerance, and classified on its own otherwise. On models
+    with one observation model for all actions every ``t_z`` is 1 and one matrix per ``(j, a)``
+    decides all ``Z``. A dominated ``D`` is copositive within its tolerance, so no test could
+    refute it: ``reduce`` changes which test proves a matrix, never whether it is proven or
+    refuted (except where the old path could only say "unknown": above ``exact_max_states``).
+    ``reduce=False`` is the previous path (every ratio exact, every ``D`` classified alone),
+    kept for the benchmark and the tests that compare both.
     """
     S, A, Z = model.S, model.A, model.Z
     shape = (max(A - 1, 0), max(S - 1, 0), Z)
@@ -649,22 +737,60 @@ def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SD
     rng = np.random.default_rng(seed)
     jstep = max(1, _D_BLOCK // max(1, 3 * S * S))
     kstep = max(1, _D_BLOCK // max(1, S * S))
+
+    def classify(a: int, jz: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
+        """Build ``D^{j,a,z}`` for the rows ``(j, z)`` of ``jz`` in blocks, record ``min_entry``,
+        codes and refutations; returns the lower bounds of :func:`_classify`."""
+        lower = np.full(len(jz), np.nan)
+        for k0 in range(0, len(jz), kstep):
+            jj, zz = jz[k0:k0 + kstep, 0], jz[k0:k0 + kstep, 1]
+            _, _, F1, F2 = _rank_factors(model, a, jj)
+            D = alpha[jj, zz, None, None] * F1 - beta[jj, zz, None, None] * F2
+            min_entry[a, jj, zz] = D.min(axis=(1, 2))
+            c, X, v, lower[k0:k0 + kstep] = _classify(D, tol, sdp_max_states, rng, search, exact_max_states)
+            codes[a, jj, zz] = c
+            for k in np.nonzero(c == REFUTED)[0]:
+                refutations[(a, int(jj[k]), int(zz[k]))] = (X[k], float(v[k]))
+        return lower
+
     for a in range(shape[0]):
+        Oa, Ob = model.O[a], model.O[a + 1]
+        alpha, beta = Oa[:-1] * Ob[1:], Oa[1:] * Ob[:-1]  # (S-1, Z)
+        dirty = np.zeros(shape[1:], dtype=bool)
+        t_sep = separable_ratio_bound(model, a) if reduce else None
         for j0 in range(0, shape[1], jstep):
             js = np.arange(j0, min(j0 + jstep, shape[1]))
-            alpha, beta, F1, F2 = _rank_factors(model, a, js)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t_elem = np.where(F2 > 0, F1 / np.where(F2 > 0, F2, 1.0), np.inf).min(axis=(1, 2))  # (J,)
-                clean = (beta == 0) | np.isinf(t_elem)[:, None] | (beta <= t_elem[:, None] * alpha)
-            todo = np.argwhere(~clean)  # (k, 2): (j - j0, z)
-            for k0 in range(0, len(todo), kstep):
-                jj, zz = todo[k0:k0 + kstep, 0], todo[k0:k0 + kstep, 1]
-                D = alpha[jj, zz, None, None] * F1[jj] - beta[jj, zz, None, None] * F2[jj]
-                min_entry[a, j0 + jj, zz] = D.min(axis=(1, 2))
-                c, X, v = classify_copositive(D, tol, sdp_max_states, rng, search, exact_max_states)
-                codes[a, j0 + jj, zz] = c
-                for k in np.nonzero(c == REFUTED)[0]:
-                    refutations[(a, j0 + int(jj[k]), int(zz[k]))] = (X[k], float(v[k]))
+            dirty[js] = ~_elementwise_clean(model, a, js, alpha[js], beta[js], t_sep)
+        todo = np.argwhere(dirty)  # (k, 2): (j, z)
+        if not reduce:
+            classify(a, todo, alpha, beta)
+            continue
+        # dominance: the worst observation of each j first, then the others from its lower bound
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(alpha > 0, beta / np.where(alpha > 0, alpha, 1.0), -np.inf)
+        t_dirty = np.where(dirty & (alpha > 0), t, -np.inf)
+        has = np.isfinite(t_dirty.max(axis=1))
+        worst = np.stack([np.nonzero(has)[0], t_dirty.argmax(axis=1)[has]], axis=1)
+        lower_w = np.full(shape[1], np.nan)
+        lower_w[worst[:, 0]] = classify(a, worst, alpha, beta)
+        others = todo[~np.isin(todo[:, 0] * Z + todo[:, 1], worst[:, 0] * Z + worst[:, 1])]
+        jo, zo = others[:, 0], others[:, 1]
+        wz = t_dirty.argmax(axis=1)[jo]
+        proven_w = is_proven(codes[a, jo, wz]) & np.isfinite(lower_w[jo]) & (alpha[jo, zo] > 0)
+        bound = np.where(proven_w, alpha[jo, zo] / np.where(proven_w, alpha[jo, wz], 1.0), 0.0) * \
+            np.where(proven_w, lower_w[jo], 0.0)
+        scale = np.zeros(len(others))
+        for k0 in range(0, len(others), kstep):
+            jj, zz = jo[k0:k0 + kstep], zo[k0:k0 + kstep]
+            _, _, F1, F2 = _rank_factors(model, a, jj)
+            D = alpha[jj, zz, None, None] * F1 - beta[jj, zz, None, None] * F2
+            min_entry[a, jj, zz] = D.min(axis=(1, 2))
+            scale[k0:k0 + kstep] = np.abs(D).max(axis=(1, 2))
+        elementwise = min_entry[a, jo, zo] >= -tol * scale  # step 1 of _classify, as on its own
+        dominated = ~elementwise & proven_w & (bound >= -tol * scale)
+        codes[a, jo[dominated], zo[dominated]] = PROVEN_DOMINATED
+        alone = ~elementwise & ~dominated
+        classify(a, others[alone], alpha, beta)
     return CopositivityReport(codes=codes, min_entry=min_entry, refutations=refutations,
                               sdp_max_states=sdp_max_states, tol=tol)
 
@@ -760,6 +886,8 @@ class AssumptionReport:
             parts.append(f"{n['proven_sdp']} as PSD + N")
         if n["proven_exact"]:
             parts.append(f"{n['proven_exact']} by the exact small-support test")
+        if n["proven_dominated"]:
+            parts.append(f"{n['proven_dominated']} as dominated by a proven D of the same (j,a)")
         detail = f"{total} matrices D^(j,a,z): proven {' + '.join(parts)}"
         if n["refuted"]:
             detail += f", refuted {n['refuted']}"
@@ -797,15 +925,158 @@ class AssumptionReport:
 
 def check_assumptions(model: POMDP, *, tol: float = 1e-9, sdp_max_states: int = SDP_MAX_STATES,
                       seed: int = 0, search: bool = True,
-                      exact_max_states: int = EXACT_MAX_STATES) -> AssumptionReport:
-    """Check Assumption 1 (A1)-(A3) of the paper for ``model`` (see the module docstring)."""
+                      exact_max_states: int = EXACT_MAX_STATES, reduce: bool = True) -> AssumptionReport:
+    """Check Assumption 1 (A1)-(A3) of the paper for ``model`` (see the module docstring).
+
+    ``reduce=False`` runs the previous (A2) path (:func:`check_copositivity`): same verdicts,
+    for comparisons."""
     t0 = time.perf_counter()
     tp2 = check_tp2(model, tol)
     t1 = time.perf_counter()
     cop = check_copositivity(model, tol=tol, sdp_max_states=sdp_max_states, seed=seed, search=search,
-                             exact_max_states=exact_max_states)
+                             exact_max_states=exact_max_states, reduce=reduce)
     t2 = time.perf_counter()
     dom = check_dominance(model, tol)
     t3 = time.perf_counter()
     return AssumptionReport(model_name=model.name, S=model.S, A=model.A, Z=model.Z, tp2=tp2, copositivity=cop,
                             dominance=dom, seconds={"A1": t1 - t0, "A2": t2 - t1, "A3": t3 - t2, "total": t3 - t0})
+
+
+# ==================================================================== cost estimate
+#: Unit costs (seconds) behind :func:`estimate_check`, measured on the development machine (two
+#: cores shared with other work) and rounded up: one array entry through one numpy pass; one
+#: entry of the exact ratio ``F1 / F2``; one multiply-add of a matrix product; ``eigvalsh`` per
+#: ``S^3``; one (matrix, 3-support) of the exact test; the counterexample search per matrix
+#: (fixed part, part per ``S^2``); one Clarabel SDP.
+COST_ELEMENT = 3e-9
+COST_RATIO = 2e-8
+COST_FLOP = 1e-9
+COST_EIG = 3e-9
+COST_TRIPLE = 5e-7
+COST_SEARCH = (0.05, 5e-6)
+COST_SDP = 0.1
+#: How many (j, a) pairs :func:`estimate_check` samples to predict how many ``D`` must be built.
+ESTIMATE_SAMPLE_PAIRS = 32
+#: Fixed part of the check's memory in :func:`estimate_check` (the reports, small temporaries).
+CHECK_OVERHEAD_BYTES = 256 * 2**10
+
+
+@dataclass(frozen=True)
+class CheckEstimate:
+    """What :func:`check_assumptions` is expected to cost on one model, before running it.
+
+    ``seconds``: the expected time when every undecided ``(j, a)`` is settled by its worst
+    observation (dominance, :func:`check_copositivity`); ``seconds_max``: when each ``D`` that
+    fails (A2') needs the expensive tests on its own (the most a check takes when (A2) fails or
+    dominance does not apply). ``bytes``: peak memory of the check's temporaries (blocks of
+    :data:`_D_BLOCK`, :data:`_TRIPLE_BLOCK`, :data:`_MINOR_BLOCK` entries and the ``(A, S, Z)``
+    arrays of (A3)). ``pairs``: the ``(j, a)`` pairs whose ``D`` are not all cleared by the
+    separable ratio bound; ``dirty``: the expected number of ``D`` built (from
+    :data:`ESTIMATE_SAMPLE_PAIRS` sampled pairs). Good to a factor of a few
+    (:data:`COST_ELEMENT` and the other unit costs; ``python -m pomdp_planner.bench.structure``
+    prints estimate and measurement side by side).
+    """
+
+    seconds: float
+    seconds_max: float
+    bytes: int
+    pairs: int
+    dirty: int
+
+    def describe(self) -> str:
+        """``"about 2 s"`` or ``"about 2 s, up to 40 s if (A2) needs every matrix tested alone"``."""
+        text = f"about {seconds_text(self.seconds)}"
+        if self.seconds_max > 2.0 * self.seconds + 1.0:
+            text += f", up to {seconds_text(self.seconds_max)} if (A2) needs every matrix tested alone"
+        return text
+
+
+def seconds_text(t: float) -> str:
+    """A duration for people: ``"0.3 s"``, ``"12 s"``, ``"34 min"``, ``"2 h"``."""
+    if t < 90:
+        return f"{max(t, 0.1):.2g} s" if t < 10 else f"{t:.0f} s"
+    return f"{t / 60:.0f} min" if t < 5400 else f"{t / 3600:.0f} h"
+
+
+def _tp2_cost(M: np.ndarray) -> tuple[float, int]:
+    """``(seconds, bytes)`` of :func:`worst_tp2_minor` on ``M`` with the method it will choose."""
+    n, m = M.shape
+    if n < 2 or m < 2:
+        return 0.0, 0
+    method = tp2_method(M)
+    if method == "full":
+        entries = n * (n - 1) // 2 * (m * (m - 1) // 2)
+        return 8 * entries * COST_ELEMENT, 8 * 6 * min(entries, _MINOR_BLOCK + m * m)
+    if method == "adjacent":
+        return 16 * n * m * COST_ELEMENT, 8 * 6 * n * m
+    nnz = int(np.count_nonzero(M > 0))
+    return 6 * nnz * nnz * COST_ELEMENT, 8 * 8 * min(nnz * nnz, _MINOR_BLOCK + nnz)
+
+
+def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search: bool = True,
+                   exact_max_states: int = EXACT_MAX_STATES, reduce: bool = True) -> CheckEstimate:
+    """Predict the time and memory of :func:`check_assumptions` with the same options.
+
+    Costs ``O(A S^2)`` (the separable bound of :func:`separable_ratio_bound` for every action
+    pair, as the check starts with it) plus the exact ratio on :data:`ESTIMATE_SAMPLE_PAIRS`
+    sampled ``(j, a)``: at S = 256, A = 64 about a tenth of a second. The time is the sum of the
+    stages' operation counts times the unit costs (:data:`COST_ELEMENT` ...); see
+    :class:`CheckEstimate` for what ``seconds`` and ``seconds_max`` assume.
+    """
+    S, A, Z = model.S, model.A, model.Z
+    seconds, peak = 0.0, 8 * 4 * A * S * Z + CHECK_OVERHEAD_BYTES  # (A3): P @ O and its cumulative sums
+    for stack in (model.P, model.O):  # (A1), one matrix per distinct action (identical ones are cached)
+        for a in range(stack.shape[0]):
+            if a and np.array_equal(stack[a], stack[a - 1]):
+                continue
+            t, b = _tp2_cost(stack[a])
+            seconds, peak = seconds + t, max(peak, b + CHECK_OVERHEAD_BYTES)
+    seconds += A * S * S * Z * COST_FLOP + 4 * A * S * Z * COST_ELEMENT
+    pairs, sample = 0, []
+    for a in range(max(A - 1, 0)):
+        seconds += 12 * S * S * COST_ELEMENT
+        Oa, Ob = model.O[a], model.O[a + 1]
+        alpha, beta = Oa[:-1] * Ob[1:], Oa[1:] * Ob[:-1]
+        if reduce:
+            t_sep = separable_ratio_bound(model, a)
+            with np.errstate(invalid="ignore", over="ignore"):
+                clean = (beta == 0) | np.isinf(t_sep)[:, None] | \
+                    (beta <= (t_sep * (1.0 - _SEPARABLE_MARGIN))[:, None] * alpha)
+            left = np.nonzero(~clean.all(axis=1))[0]
+        else:
+            left = np.arange(S - 1)
+        pairs += left.size
+        sample += [(a, int(j)) for j in left]
+    if not pairs:
+        return CheckEstimate(seconds, seconds, peak, 0, 0)
+    seconds += pairs * S * S * COST_RATIO
+    peak = max(peak, 8 * 5 * min(_D_BLOCK, pairs * 3 * S * S) + CHECK_OVERHEAD_BYTES)
+    rng = np.random.default_rng(0)
+    picked = [sample[k] for k in rng.choice(len(sample), min(ESTIMATE_SAMPLE_PAIRS, len(sample)), replace=False)]
+    dirty_z, dirty_j = 0, 0
+    for a, j in picked:
+        Oa, Ob = model.O[a], model.O[a + 1]
+        js = np.array([j])
+        clean = _elementwise_clean(model, a, js, (Oa[:-1] * Ob[1:])[js], (Oa[1:] * Ob[:-1])[js], None)
+        dirty_z += int(np.count_nonzero(~clean))
+        dirty_j += bool(np.any(~clean))
+    dirty = round(pairs * dirty_z / len(picked))
+    worst = round(pairs * dirty_j / len(picked))
+    if not dirty:
+        return CheckEstimate(seconds, seconds, peak, pairs, 0)
+    build = 10 * S * S * COST_ELEMENT  # D, min, max|D|, the pair test
+    kstep = max(1, _D_BLOCK // max(1, S * S))  # matrices per block
+    hard = COST_EIG * S**3
+    if S <= exact_max_states:
+        hard += COST_TRIPLE * (S * (S - 1) * (S - 2) // 6)
+    else:
+        hard += COST_SDP if S <= sdp_max_states else 0.0
+        hard += (COST_SEARCH[0] + COST_SEARCH[1] * S * S) if search else 0.0
+    peak = max(peak, 8 * 6 * min(_D_BLOCK, dirty * S * S) + CHECK_OVERHEAD_BYTES)
+    # dominance needs a proven worst D: only the exact test (S <= exact_max_states) proves these
+    alone = dirty if not reduce or S > exact_max_states else worst
+    if S <= exact_max_states:  # one block of (matrix, triple) pairs: about 20 arrays of that size
+        peak = max(peak, 8 * 20 * min(_TRIPLE_BLOCK, min(alone, kstep) * (S * (S - 1) * (S - 2) // 6))
+                   + CHECK_OVERHEAD_BYTES)
+    expected = seconds + dirty * build + alone * hard
+    return CheckEstimate(expected, seconds + dirty * (build + hard), peak, pairs, dirty)

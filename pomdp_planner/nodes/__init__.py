@@ -2,6 +2,6 @@
 
 Executables: ``target_simulator``, ``belief_filter``, ``planner`` and ``closed_loop`` (all three in
 one process); ``demo`` (``make demo``) runs the three as processes and prints a live table.
-Message layouts: :mod:`.messages`; epochs and the filter's rules: ``core/epoch_buffer.py`` and
-``core/filter.py``; README ``## ROS 2 nodes``.
+Message layouts: :mod:`.messages`; the loop's rules: ``core/loop/`` (each node is a shell around
+one of its loops, :mod:`.loop_node`) and ``core/filter.py``; docs/ros.md.
 """

@@ -1,12 +1,12 @@
 """``diagnostic_msgs/DiagnosticStatus`` records as the nodes publish them on ``/diagnostics``:
 status name ``"<node name>: <task>"``, ``hardware_id`` the model name, values as ``KeyValue`` strings;
-the core's liveness levels (``core.liveness.Level``) as ``DiagnosticStatus`` levels."""
+the loops' report levels (``core.loop.Level``) as ``DiagnosticStatus`` levels."""
 
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from ..core.liveness import Level, LogThrottle
+from ..core.loop import Level
 
 LEVELS = {Level.OK: DiagnosticStatus.OK, Level.WARN: DiagnosticStatus.WARN, Level.ERROR: DiagnosticStatus.ERROR}
 
@@ -34,26 +34,3 @@ def _fmt(v) -> str:
     if isinstance(v, float):
         return f"{v:.6g}"
     return str(v)
-
-
-class Warnings:
-    """A node's recurring warnings: each is counted (``counts[counter]``) and kept as the last
-    warning for diagnostics, but logged at most once per ``interval`` seconds per counter (the
-    occurrences in between are counted and their number given with the next line): a flood of bad
-    messages, or a sensor that stopped, cannot flood the log."""
-
-    def __init__(self, logger, counts: dict[str, int], interval: float = 10.0):
-        self._logger = logger
-        self.counts = counts
-        self.interval = interval
-        self._throttles: dict[str, LogThrottle] = {}
-        self.last = ""
-
-    def warn(self, counter: str | None, text: str) -> None:
-        if counter is not None:
-            self.counts[counter] += 1
-        self.last = text
-        throttle = self._throttles.setdefault(counter or "", LogThrottle(self.interval))
-        log, suppressed = throttle.ready()
-        if log:
-            self._logger.warning(text + (f" (and {suppressed} similar since the last such line)" if suppressed else ""))

@@ -30,20 +30,21 @@ decision epoch it belongs to, and every observation carries the action it was ta
 Decoders raise :class:`MessageError` with a message that names the field and the problem. They
 bound what they accept before converting anything: epochs are ``0..MAX_EPOCH`` (so that
 ``epoch + 1`` always fits the ``int64`` of the next message, and an epoch label is at most 18
-digits), and the length is checked before the data are copied. Whether an epoch is *plausible* is
-the nodes' epoch window (``core/liveness.py``), not the decoder's business.
+digits), and the length is checked before the data are copied. They return the loops' sample
+types (``core/loop/samples.py``); whether an epoch is *plausible* is the loops' epoch window
+(``core/loop``), not the decoder's business.
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from ..core.belief import BeliefError, check_belief
+from ..core.loop.samples import ActionSample, BeliefSample, ObservationSample
 
 ACTION_LABEL = "epoch,action_priority"
 OBSERVATION_LABEL = "epoch,action_priority,observation"
@@ -63,25 +64,6 @@ class MessageError(ValueError):
 
 class OutOfRangeError(MessageError):
     """A well-formed message whose action priority or observation is out of range."""
-
-
-@dataclass(frozen=True)
-class ActionMsg:
-    epoch: int
-    priority: int
-
-
-@dataclass(frozen=True)
-class ObservationMsg:
-    epoch: int
-    priority: int
-    observation: int
-
-
-@dataclass(frozen=True)
-class BeliefMsg:
-    epoch: int
-    belief: np.ndarray
 
 
 def _short(text: str, limit: int = 60) -> str:
@@ -117,24 +99,24 @@ def encode_action(epoch: int, priority: int) -> Int64MultiArray:
     return _record(ACTION_LABEL, (epoch, priority))
 
 
-def decode_action(msg: Int64MultiArray, num_actions: int) -> ActionMsg:
+def decode_action(msg: Int64MultiArray, num_actions: int) -> ActionSample:
     epoch, priority = _decode_record(msg, ACTION_LABEL, "action")
     if not 1 <= priority <= num_actions:
         raise OutOfRangeError(f"action: action_priority {priority} out of range 1..{num_actions}")
-    return ActionMsg(epoch, priority)
+    return ActionSample(epoch, priority)
 
 
 def encode_observation(epoch: int, priority: int, observation: int) -> Int64MultiArray:
     return _record(OBSERVATION_LABEL, (epoch, priority, observation))
 
 
-def decode_observation(msg: Int64MultiArray, num_actions: int, num_observations: int) -> ObservationMsg:
+def decode_observation(msg: Int64MultiArray, num_actions: int, num_observations: int) -> ObservationSample:
     epoch, priority, z = _decode_record(msg, OBSERVATION_LABEL, "observation")
     if not 1 <= priority <= num_actions:
         raise OutOfRangeError(f"observation: action_priority {priority} out of range 1..{num_actions}")
     if not 0 <= z < num_observations:
         raise OutOfRangeError(f"observation: observation {z} out of range 0..{num_observations - 1}")
-    return ObservationMsg(epoch, priority, z)
+    return ObservationSample(epoch, priority, z)
 
 
 def encode_true_state(epoch: int, state: int) -> Int64MultiArray:
@@ -160,7 +142,7 @@ def encode_belief(epoch: int, belief: np.ndarray) -> Float64MultiArray:
     return msg
 
 
-def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
+def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefSample:
     """Decode a belief message (layout, epoch label, length) and check the belief with the core's
     ``check_belief`` (finite, on the simplex); its error becomes a :class:`MessageError`."""
     dims = list(msg.layout.dim)
@@ -183,7 +165,7 @@ def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefMsg:
         b = check_belief(num_states, np.array(msg.data, dtype=float))
     except BeliefError as exc:
         raise MessageError(str(exc)) from None
-    return BeliefMsg(int(m.group(1)), b)
+    return BeliefSample(int(m.group(1)), b)
 
 
 def encode_plan_info(**fields: float) -> Float64MultiArray:

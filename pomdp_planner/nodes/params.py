@@ -4,19 +4,13 @@ parameters of every node, and integers accepted for floating-point parameters.""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..core.liveness import (
-    DEFAULT_EPOCH_WINDOW,
-    DEFAULT_RESEND_PERIOD,
-    DEFAULT_STALL_ERROR,
-    DEFAULT_STALL_WARN,
-    StallLimits,
-)
+from ..core.loop import Liveness, StallLimits
+from ..core.loop.epochs import DEFAULT_EPOCH_WINDOW, DEFAULT_RESEND_PERIOD
+from ..core.loop.health import DEFAULT_STALL_ERROR, DEFAULT_STALL_WARN
 from .runtime import NodeConfigError
 
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
@@ -117,24 +111,7 @@ def accept_integers_for_doubles(node: Node) -> None:
     node.add_pre_set_parameters_callback(pre_set)
 
 
-@dataclass(frozen=True)
-class LivenessParams:
-    """The liveness parameters every node declares (README, "Liveness"; rules in ``core/liveness.py``)."""
-
-    epoch_window: int
-    resend_period: float
-    stall: StallLimits
-
-    @property
-    def watchdog_period(self) -> float:
-        """How often a node checks its re-send, re-sync and stall rules: a quarter of the shortest
-        of their times, within 0.05..1 s (0.25 s by default)."""
-        shortest = min(self.resend_period if self.resend_period > 0 else self.stall.warn_after,
-                       self.stall.warn_after)
-        return min(1.0, max(0.05, shortest / 4))
-
-
-def declare_liveness(node: Node) -> LivenessParams:
+def declare_liveness(node: Node) -> Liveness:
     """Declare ``epoch_window``, ``resend_period``, ``stall_warn_after`` and ``stall_error_after``
     (read-only) and return them; a warn limit above the error limit stops the node."""
     d = descriptor
@@ -154,4 +131,4 @@ def declare_liveness(node: Node) -> LivenessParams:
         stall = StallLimits(value("stall_warn_after").value, value("stall_error_after").value)
     except ValueError as exc:
         raise NodeConfigError(f"stall_warn_after, stall_error_after: {exc}") from None
-    return LivenessParams(value("epoch_window").value, value("resend_period").value, stall)
+    return Liveness(value("epoch_window").value, value("resend_period").value, stall)

@@ -27,12 +27,21 @@ NODES = ("target_simulator", "belief_filter", "planner")
 PARAMETER_SETS = ("s3", "s8", "perimeter_s3", "perimeter_s8")
 
 
+def node_parameters(doc: dict, node: str) -> dict:
+    """The ``ros__parameters`` of ``node`` in a parameter file's document: under ``/**/<node>`` (the
+    shipped files: the node in any namespace), ``<node>`` or ``/<node>``."""
+    for key in (f"/**/{node}", node, f"/{node}"):
+        if key in doc:
+            return doc[key]["ros__parameters"]
+    raise KeyError(f"no section for node {node!r} (keys: {', '.join(map(str, doc))})")
+
+
 def parameter_set_model(key: str) -> Path:
     """The model file of parameter set ``key``: the ``model_file`` of ``config/planner_<key>.yaml``
     (every node of a set names the same model; a test checks it), resolved as the nodes resolve it."""
     params = resolve_path(f"config/planner_{key}.yaml", "params file")
     doc = yaml.safe_load(params.read_text(encoding="utf-8"))
-    return resolve_path(doc["planner"]["ros__parameters"]["model_file"], "model_file")
+    return resolve_path(node_parameters(doc, "planner")["model_file"], "model_file")
 
 
 def node_command(name: str) -> list[str]:

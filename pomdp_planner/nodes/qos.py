@@ -1,32 +1,29 @@
-"""QoS profiles of the node topics (README, "Topics")."""
+"""QoS profiles of the node topics (docs/ros.md, "Topics")."""
 
 from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-# Two profiles, chosen by what a topic means (README, "Topics"). Both are reliable and
+# Two profiles, chosen by what a topic means (docs/ros.md, "Topics"). Both are reliable and
 # transient-local: reliable because every node acts on every sample it gets; transient-local so
 # that the start order of the nodes does not matter (the prior belief, published before a planner
 # exists, and the first action reach nodes that match later) and so that transient-local readers
 # (recorders, `ros2 topic echo --qos-durability transient_local`) are compatible at all: a
 # volatile writer does not match a transient-local reader. Neither durability nor history depth
-# costs latency: with the executor fixed (NodeExecutor) the measured observation-to-action
-# latency was the same (1.8-1.9 ms median, 2.6-3.1 ms p99 over 300 S = 8 decisions) with the
-# earlier depths (1 for action and belief, 20 for the rest) and with depth 50 everywhere, and the
-# per-hop times were the same with volatile observation streams.
+# costs measurable latency (docs/benchmarks.md, "Latency of the node loop").
 
 #: Per-epoch streams where every sample matters (``action``, ``observation``, ``true_state``,
 #: ``belief`` as published, ``plan_info``), for their writers and for the readers that must see
 #: every epoch (the simulator's and the filter's subscriptions) or must not lose the real sample
 #: to a stray one (the planner's ``belief`` subscription, which plans only the newest valid one:
-#: with depth 1, one stale belief arriving between the real one and the take replaced it, and the
-#: loop stopped for good; issue 13). KEEP_LAST with a depth far beyond
+#: with depth 1, one stale belief arriving between the real one and the take would replace it,
+#: and the loop would stop for good). KEEP_LAST with a depth far beyond
 #: how many epochs a reader can fall behind: a reliable writer keeps a sample until every reader
 #: has it unless ``depth`` newer ones replace it first (then it is lost for good; with depth 1 a
 #: single transport loss of an action could not be repaired once the next one was out). Not
 #: KEEP_ALL: a stuck recorder must not block the loop's publishers. A late joiner gets at most the
 #: last ``depth`` epochs, which the nodes' epoch checks handle (stale epochs are dropped; a
-#: restarted node joins at the newest, ``core/liveness.py``).
+#: restarted node joins at the newest, ``core/loop``).
 STREAM_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: "Latest value" (latched), depth 1: readers for which only the newest sample is useful (a

@@ -14,26 +14,24 @@ epoch is next in line:
 * if the next epoch has no reading at all while later ones wait (same timeout / backlog rule), it
   is released as a *gap* (``action is None``);
 * a reading ``window`` or more epochs ahead of the next one is *out of window* and never buffered
-  (``core/liveness.py``: a jump that far is a restarted peer or a forged message, not a gap to
-  walk), so a gap is at most ``window`` epochs long and the buffer holds at most
+  (the epoch window, :mod:`.epochs`: a jump that far is a restarted peer or a forged message,
+  not a gap to walk), so a gap is at most ``window`` epochs long and the buffer holds at most
   ``max_pending + 1`` epochs whatever arrives. The buffer also remembers the last
   :data:`ACTION_MEMORY` *commanded* actions (:meth:`EpochBuffer.command`, e.g. from the planner's
   action topic): a gap is applied with the commanded action of its epoch if known
   (:attr:`EpochReadings.action_to_apply`; the filter then predicts), otherwise held.
 
-Actions are 0-based here, as everywhere in the core. Time comes from ``clock`` (default
-``time.monotonic``), so tests drive it by hand; :meth:`EpochBuffer.next_deadline` says when the
-next release by time-out is due, so that a node can sleep until then instead of polling.
+Actions are 0-based here, as everywhere in the core. Time is passed in (``now``, seconds on a
+monotonic clock); :meth:`EpochBuffer.next_deadline` says when the next release by time-out is
+due, so that a node can sleep until then instead of polling.
 """
 
 from __future__ import annotations
 
-import time
 from collections import OrderedDict
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from .liveness import DEFAULT_EPOCH_WINDOW
+from .epochs import DEFAULT_EPOCH_WINDOW
 
 #: How many commanded actions (by epoch) are remembered for gaps and cross-checks.
 ACTION_MEMORY = 256
@@ -74,7 +72,7 @@ class EpochBuffer:
     """Orders readings of ``num_sensors`` sensors by epoch (see module docstring)."""
 
     def __init__(self, num_sensors: int, next_epoch: int = 1, timeout: float = 0.5, max_pending: int = 10,
-                 clock: Callable[[], float] = time.monotonic, window: int = DEFAULT_EPOCH_WINDOW):
+                 window: int = DEFAULT_EPOCH_WINDOW):
         if num_sensors < 1:
             raise ValueError("num_sensors: at least one sensor is needed")
         self.num_sensors = num_sensors
@@ -82,7 +80,6 @@ class EpochBuffer:
         self.timeout = timeout
         self.max_pending = max_pending
         self.window = window
-        self._clock = clock
         self._pending: dict[int, EpochReadings] = {}
         self._commanded: OrderedDict[int, int] = OrderedDict()
 
@@ -106,8 +103,8 @@ class EpochBuffer:
             self._commanded.popitem(last=False)
         return True
 
-    def add(self, sensor: int, epoch: int, action: int, observation: int) -> str:
-        """Buffer one reading; returns ``"buffered"``, ``"duplicate"``, ``"conflict"`` or
+    def add(self, sensor: int, epoch: int, action: int, observation: int, now: float) -> str:
+        """Buffer one reading (arrived at ``now``); returns ``"buffered"``, ``"duplicate"``, ``"conflict"`` or
         ``"out_of_window"`` (``window`` or more epochs ahead: not buffered)."""
         if not 0 <= sensor < self.num_sensors:
             raise ValueError(f"sensor: index {sensor} out of range 0..{self.num_sensors - 1}")
@@ -117,7 +114,7 @@ class EpochBuffer:
             return "out_of_window"
         entry = self._pending.get(epoch)
         if entry is None:
-            entry = self._pending[epoch] = EpochReadings(epoch, action, first_seen=self._clock())
+            entry = self._pending[epoch] = EpochReadings(epoch, action, first_seen=now)
         if entry.action != action:
             return "conflict"
         if sensor in entry.readings:
@@ -127,7 +124,7 @@ class EpochBuffer:
         return "buffered"
 
     def next_deadline(self) -> float | None:
-        """When :meth:`pop_ready` will release the next epoch by time-out (``clock`` time), or
+        """When :meth:`pop_ready` will release the next epoch by time-out (the callers' time), or
         ``None`` if nothing waits for a time-out (nothing pending, or the next epoch complete)."""
         if not self._pending:
             return None
@@ -136,10 +133,9 @@ class EpochBuffer:
             return None if entry.complete else entry.first_seen + self.timeout
         return min(e.first_seen for e in self._pending.values()) + self.timeout
 
-    def pop_ready(self) -> list[EpochReadings]:
+    def pop_ready(self, now: float) -> list[EpochReadings]:
         """Release, in epoch order, every epoch that is complete, timed out, or forced by the backlog."""
         out: list[EpochReadings] = []
-        now = self._clock()
         while self._pending:
             entry = self._pending.get(self.next_epoch)
             later = [e for e in self._pending if e > self.next_epoch]

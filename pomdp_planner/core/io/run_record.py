@@ -1,0 +1,250 @@
+"""Run records: one CSV row per decision of a closed-loop run, for pictures and later analysis.
+
+The format (version 1). Line 1 is a comment naming the format and the run::
+
+    # pomdp_planner run record 1; model=perimeter_s8; S=8; A=3; time_budget=0.05
+
+(``time_budget`` in seconds, ``none`` when the run had none). Line 2 is the header, then one
+row per decision, in increasing ``epoch``:
+
+========== ==================================================================================
+column     value
+========== ==================================================================================
+epoch      the decision's epoch: an integer >= 0, increasing from row to row (gaps allowed)
+true_state the hidden state at that epoch, 0-based, where known (a simulation); else empty
+b0..bS-1   the belief the decision was made from (``S`` columns, on the simplex within 1e-6)
+action     the chosen action as a tracking priority ``1..A``
+lower      the root's lower-bound priority ``1..A`` (Theorem 2); empty without bounds
+upper      the root's upper-bound priority ``1..A``; empty without bounds (both or neither)
+depth      the depth searched (Table II convention); empty for a policy that does not search
+certified  ``1`` if the root bounds agree and are guaranteed (Proposition 1), else ``0``
+latency    seconds the decision took; empty where not measured
+========== ==================================================================================
+
+:class:`RunRecordWriter` writes and flushes one row at a time, so a long run (or a node) can
+stream its record and a reader sees every finished decision. :func:`read_run_record` checks
+every line and refuses a malformed file with one line naming the line and the column
+(:class:`RunRecordError`, an :class:`~..errors.OptionError`: a bad argument file).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TextIO
+
+import numpy as np
+
+from ..errors import OptionError, short_repr
+
+FORMAT = "pomdp_planner run record"
+VERSION = 1
+#: Columns before and after the ``S`` belief columns.
+HEAD_COLUMNS = ("epoch", "true_state")
+TAIL_COLUMNS = ("action", "lower", "upper", "depth", "certified", "latency")
+#: A belief row may miss the simplex by this much (the package's belief rule, ``core/belief.py``).
+BELIEF_ATOL = 1e-6
+
+
+class RunRecordError(OptionError):
+    """A malformed run record: the message names the file, the line and the column."""
+
+
+def columns(S: int) -> tuple[str, ...]:
+    """The header of a record with ``S`` states."""
+    return (*HEAD_COLUMNS, *(f"b{i}" for i in range(S)), *TAIL_COLUMNS)
+
+
+def _blank(x: object) -> str:
+    return "" if x is None else str(x)
+
+
+def _float_text(x: float) -> str:
+    return repr(float(x))  # shortest text that reads back to the same float
+
+
+class RunRecordWriter:
+    """Writes a run record to ``stream`` row by row (module docstring), flushing after each row.
+
+    ``model_name``, ``S``, ``A`` and ``time_budget`` (seconds or ``None``) go to the first line.
+    :meth:`write` checks each row as the reader would, so a record the writer produced is always
+    readable."""
+
+    def __init__(self, stream: TextIO, model_name: str, S: int, A: int, time_budget: float | None = None):
+        if any(ch in str(model_name) for ch in ";\n\r"):
+            raise RunRecordError(f"run record: the model name {short_repr(model_name)} contains ';' or a line break")
+        self.stream, self.S, self.A = stream, int(S), int(A)
+        self._last_epoch: int | None = None
+        budget = "none" if time_budget is None else _float_text(time_budget)
+        stream.write(f"# {FORMAT} {VERSION}; model={model_name}; S={self.S}; A={self.A}; time_budget={budget}\n")
+        self._csv = csv.writer(stream, lineterminator="\n")
+        self._csv.writerow(columns(self.S))
+        stream.flush()
+
+    def write(self, epoch: int, belief: Sequence[float] | np.ndarray, priority: int, *, true_state: int | None = None,
+              bounds: tuple[int, int] | None = None, depth: int | None = None, certified: bool = False,
+              latency: float | None = None) -> None:
+        """One decision: ``priority`` and ``bounds`` (lower, upper) as priorities ``1..A``, ``true_state``
+        0-based; ``None`` where unknown."""
+        row = [str(int(epoch)), _blank(true_state), *(_float_text(p) for p in np.asarray(belief, dtype=float)),
+               str(int(priority)), _blank(None if bounds is None else int(bounds[0])),
+               _blank(None if bounds is None else int(bounds[1])), _blank(None if depth is None else int(depth)),
+               "1" if certified else "0", "" if latency is None else _float_text(latency)]
+        self._last_epoch = _check_row(row, self.S, self.A, self._last_epoch, f"run record, epoch {int(epoch)}", None)
+        self._csv.writerow(row)
+        self.stream.flush()
+
+
+@dataclass(frozen=True, eq=False)
+class RunRecord:
+    """A run record read back: ``beliefs`` ``(T, S)``; ``true_state`` ``(T,)`` with -1 where unknown;
+    ``action``, ``lower``, ``upper`` priorities ``1..A`` (bounds 0 where absent); ``depth`` (-1 where
+    absent), ``certified`` (bool), ``latency`` (seconds, NaN where absent)."""
+
+    model: str
+    S: int
+    A: int
+    time_budget: float | None
+    epoch: np.ndarray
+    true_state: np.ndarray
+    beliefs: np.ndarray
+    action: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    depth: np.ndarray
+    certified: np.ndarray
+    latency: np.ndarray
+
+    @property
+    def has_bounds(self) -> np.ndarray:
+        return self.lower > 0
+
+
+def _fail(where: str, line: int | None, column: str | None, problem: str) -> RunRecordError:
+    at = where + (f":{line}" if line is not None else "") + (f": column {column}" if column else "")
+    return RunRecordError(f"{at}: {problem}")
+
+
+def _int(text: str, lo: int, hi: int | None, where: str, line: int | None, column: str, blank_ok: bool) -> int | None:
+    t = text.strip()
+    if t == "" and blank_ok:
+        return None
+    if not (t.isascii() and t.isdigit() and len(t) <= 18) or int(t) < lo or (hi is not None and int(t) > hi):
+        want = f"an integer in {lo}..{hi}" if hi is not None else f"an integer >= {lo}"
+        raise _fail(where, line, column, f"expected {want}" + (" or empty" if blank_ok else "")
+                    + f", got {short_repr(text)}")
+    return int(t)
+
+
+def _float(text: str, where: str, line: int | None, column: str, blank_ok: bool) -> float | None:
+    t = text.strip()
+    if t == "" and blank_ok:
+        return None
+    try:
+        value = float(t) if t.isascii() else math.nan
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise _fail(where, line, column, "expected a finite number" + (" or empty" if blank_ok else "")
+                    + f", got {short_repr(text)}")
+    return value
+
+
+def _check_row(row: Sequence[str], S: int, A: int, last_epoch: int | None, where: str, line: int | None) -> int:
+    """Check one row (the reader's and the writer's rule); returns its epoch."""
+    names = columns(S)
+    if len(row) != len(names):
+        raise _fail(where, line, None, f"expected {len(names)} columns ({S} belief columns), got {len(row)}")
+    cell = dict(zip(names, row, strict=True))
+    epoch = _int(cell["epoch"], 0, None, where, line, "epoch", False)
+    if last_epoch is not None and epoch <= last_epoch:
+        raise _fail(where, line, "epoch", f"{epoch} does not increase (previous row: {last_epoch})")
+    _int(cell["true_state"], 0, S - 1, where, line, "true_state", True)
+    b = np.array([_float(cell[f"b{i}"], where, line, f"b{i}", False) for i in range(S)])
+    for i, p in enumerate(b):
+        if not -BELIEF_ATOL <= p <= 1 + BELIEF_ATOL:
+            raise _fail(where, line, f"b{i}", f"a probability must be in [0, 1], got {p!r}")
+    if abs(b.sum() - 1.0) > BELIEF_ATOL:
+        raise _fail(where, line, f"b0..b{S - 1}", f"the belief sums to {b.sum()!r}, not 1")
+    _int(cell["action"], 1, A, where, line, "action", False)
+    lo = _int(cell["lower"], 1, A, where, line, "lower", True)
+    up = _int(cell["upper"], 1, A, where, line, "upper", True)
+    if (lo is None) != (up is None):
+        raise _fail(where, line, "upper" if up is None else "lower", "lower and upper are both given or both empty")
+    _int(cell["depth"], 0, None, where, line, "depth", True)
+    _int(cell["certified"], 0, 1, where, line, "certified", False)
+    lat = _float(cell["latency"], where, line, "latency", True)
+    if lat is not None and lat < 0:
+        raise _fail(where, line, "latency", f"must be >= 0 seconds, got {lat!r}")
+    return epoch
+
+
+def _parse_first_line(text: str, where: str) -> tuple[str, int, int, float | None]:
+    head = f"# {FORMAT} {VERSION};"
+    if not text.startswith(head):
+        raise _fail(where, 1, None, f"not a run record: line 1 must start with {head!r}, got {short_repr(text)}")
+    fields: dict[str, str] = {}
+    for part in text[len(head):].split(";"):
+        key, sep, value = part.strip().partition("=")
+        if not sep:
+            raise _fail(where, 1, None, f"expected key=value, got {short_repr(part.strip())}")
+        fields[key] = value.strip()
+    missing = [k for k in ("model", "S", "A", "time_budget") if k not in fields]
+    if missing:
+        raise _fail(where, 1, None, f"missing {', '.join(missing)}")
+    S = _int(fields["S"], 1, 10**6, where, 1, "S", False)
+    A = _int(fields["A"], 1, 10**6, where, 1, "A", False)
+    budget = None if fields["time_budget"] == "none" else _float(fields["time_budget"], where, 1, "time_budget", False)
+    if budget is not None and budget <= 0:
+        raise _fail(where, 1, "time_budget", f"must be > 0 seconds or none, got {budget!r}")
+    return fields["model"], S, A, budget
+
+
+def read_run_record(path: str | os.PathLike) -> RunRecord:
+    """Read and check a run record (module docstring); any problem is one :class:`RunRecordError`
+    line ``FILE:LINE: column NAME: problem``."""
+    where = str(path)
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            first = fh.readline().rstrip("\r\n")
+            model, S, A, budget = _parse_first_line(first, where)
+            reader = csv.reader(fh)
+            try:
+                header = next(reader)
+            except StopIteration:
+                raise _fail(where, 2, None, "no header line") from None
+            if tuple(header) != columns(S):
+                bad = next((i for i, (h, c) in enumerate(zip(header, columns(S), strict=False)) if h != c),
+                           min(len(header), len(columns(S))))
+                want = columns(S)[bad] if bad < len(columns(S)) else "(end of line)"
+                got = header[bad] if bad < len(header) else "(end of line)"
+                raise _fail(where, 2, None, f"header column {bad + 1}: expected {want!r}, got {short_repr(got)}")
+            rows, last = [], None
+            for k, row in enumerate(reader):
+                line = k + 3
+                last = _check_row(row, S, A, last, where, line)
+                rows.append(row)
+    except UnicodeDecodeError as exc:
+        raise RunRecordError(f"{where}: not UTF-8 text ({exc.reason})") from None
+    except csv.Error as exc:
+        raise RunRecordError(f"{where}: not a CSV file ({exc})") from None
+    except OSError as exc:
+        raise RunRecordError(f"{where}: cannot read: {exc.strerror or type(exc).__name__}") from None
+    if not rows:
+        raise _fail(where, 3, None, "no rows: the record has a header but no decision")
+    names = columns(S)
+    cols = {name: [r[i] for r in rows] for i, name in enumerate(names)}
+
+    def ints(name: str, blank: int) -> np.ndarray:
+        return np.array([blank if v.strip() == "" else int(v) for v in cols[name]], dtype=np.int64)
+
+    return RunRecord(
+        model=model, S=S, A=A, time_budget=budget, epoch=ints("epoch", -1), true_state=ints("true_state", -1),
+        beliefs=np.array([[float(cols[f"b{i}"][t]) for i in range(S)] for t in range(len(rows))]),
+        action=ints("action", 0), lower=ints("lower", 0), upper=ints("upper", 0), depth=ints("depth", -1),
+        certified=ints("certified", 0).astype(bool),
+        latency=np.array([math.nan if v.strip() == "" else float(v) for v in cols["latency"]]),
+    )

@@ -1,0 +1,222 @@
+"""A loop's health: its counters, the stall watch of each input, throttled warnings, and the report
+rule every node's diagnostics follow (package docstring, "Stall levels" and "Report").
+
+Times are passed in (``now``, seconds on a monotonic clock); nothing here reads a clock.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Literal
+
+#: Default seconds without progress before an input is WARN / ERROR.
+DEFAULT_STALL_WARN = 2.0
+DEFAULT_STALL_ERROR = 10.0
+#: A recurring warning is logged at most once per this many seconds (per counter).
+LOG_INTERVAL = 10.0
+
+
+class Level(IntEnum):
+    """Diagnostic level of a report (the nodes map it to ``DiagnosticStatus``)."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+
+
+@dataclass(frozen=True)
+class Log:
+    """One line for the node's log."""
+
+    level: Literal["debug", "info", "warning", "error"]
+    text: str
+
+
+@dataclass(frozen=True)
+class Report:
+    """What a node publishes on ``/diagnostics``: a level, one message, the values (by key)."""
+
+    level: Level
+    message: str
+    values: dict[str, object]
+
+
+@dataclass(frozen=True)
+class StallLimits:
+    """Seconds without progress on an input before it is WARN, then ERROR."""
+
+    warn_after: float = DEFAULT_STALL_WARN
+    error_after: float = DEFAULT_STALL_ERROR
+
+    def __post_init__(self):
+        if not 0 < self.warn_after <= self.error_after:
+            raise ValueError(f"stall limits: need 0 < warn_after ({self.warn_after}) <= error_after "
+                             f"({self.error_after})")
+
+
+class InputWatch:
+    """Arrivals and progress of one input of a node (package docstring, "Stall levels").
+
+    ``what``: how a new input is called in messages ("action", "reading", "belief").
+    ``required=False``: an input the node can do without (the filter's ``action``, only a
+    cross-check): it is not reported before it has advanced the node once. ``started``: the
+    time the watch starts (silence is counted from it until the first progress).
+    """
+
+    def __init__(self, name: str, what: str, *, started: float, required: bool = True):
+        self.name = name
+        self.what = what
+        self.required = required
+        self.started = started
+        self.last_progress: float | None = None
+        self.last_epoch: int | None = None
+        self.received = 0
+        self.idle = 0  # inputs received since the last progress that were not progress
+
+    def arrived(self, now: float, progress: bool, epoch: int | None = None) -> None:
+        """One input arrived; ``progress``: it advanced the node (a new epoch)."""
+        self.received += 1
+        if progress:
+            self.last_progress = now
+            self.idle = 0
+            if epoch is not None:
+                self.last_epoch = epoch
+        else:
+            self.idle += 1
+
+    def silent_for(self, now: float) -> float:
+        """Seconds since this input last advanced the node (since start if it never did)."""
+        return now - (self.started if self.last_progress is None else self.last_progress)
+
+    def status(self, limits: StallLimits, now: float) -> tuple[Level, str]:
+        """Level and message of this input (the message is empty while OK)."""
+        if not self.required and self.last_progress is None:
+            return Level.OK, ""
+        silent = self.silent_for(now)
+        if silent >= limits.error_after:
+            level = Level.ERROR
+        elif silent >= limits.warn_after:
+            level = Level.WARN
+        else:
+            return Level.OK, ""
+        if self.last_progress is None:
+            text = f"{self.name}: no {self.what} since start ({silent:.1f} s)"
+        else:
+            text = f"{self.name}: no new {self.what} for {silent:.1f} s (last: epoch {self.last_epoch})"
+        if self.idle:
+            text += f"; {self.idle} received meanwhile, none new (repeats, stale or out of window)"
+        return level, text
+
+    def values(self, now: float) -> dict[str, object]:
+        """Diagnostic values of this input (``input.<name>.*``)."""
+        p = f"input.{self.name}"
+        return {f"{p}.last_new_epoch": "none" if self.last_epoch is None else self.last_epoch,
+                f"{p}.seconds_since_new": round(self.silent_for(now), 3), f"{p}.received": self.received,
+                f"{p}.received_since_new": self.idle}
+
+
+def worst(statuses: Iterable[tuple[Level, str]]) -> tuple[Level, str]:
+    """The highest level among ``statuses`` and the messages at that level, joined with ``; ``."""
+    statuses = list(statuses)
+    level = max((lv for lv, _ in statuses), default=Level.OK)
+    return level, "; ".join(text for lv, text in statuses if lv == level and lv > Level.OK and text)
+
+
+class LogThrottle:
+    """At most one log line per ``interval`` seconds for a recurring event; the suppressed
+    occurrences are counted and reported with the next line."""
+
+    def __init__(self, interval: float = LOG_INTERVAL):
+        self.interval = interval
+        self._last: float | None = None
+        self._suppressed = 0
+
+    def ready(self, now: float) -> tuple[bool, int]:
+        """``(log now?, occurrences suppressed since the previous line)``; counts this one."""
+        if self._last is None or now - self._last >= self.interval:
+            n, self._suppressed, self._last = self._suppressed, 0, now
+            return True, n
+        self._suppressed += 1
+        return False, 0
+
+
+class LoopHealth:
+    """Counters, input watches, warnings and the report of one loop (package docstring, "Report").
+
+    ``counters``: every count the loop keeps, in the order diagnostics show them; ``problems``:
+    those that make the report WARN when they grew since the previous report. A warning is
+    counted, kept as the last warning, and logged at most once per ``log_interval`` seconds per
+    counter (the occurrences in between are counted and their number given with the next line).
+    Log lines wait in :attr:`logs` until the loop hands them to its caller (:meth:`drain_logs`).
+    """
+
+    def __init__(self, counters: Sequence[str], problems: Sequence[str], watches: Sequence[InputWatch],
+                 stall: StallLimits, *, log_interval: float = LOG_INTERVAL):
+        unknown = set(problems) - set(counters)
+        if unknown:
+            raise ValueError(f"problems: not counters: {sorted(unknown)}")
+        self.counts: dict[str, int] = dict.fromkeys(counters, 0)
+        self.problems = tuple(problems)
+        self.watches = list(watches)
+        self.stall = stall
+        self.log_interval = log_interval
+        self.last_warning = ""
+        self.logs: list[Log] = []
+        self._throttles: dict[str, LogThrottle] = {}
+        self._reported = dict.fromkeys(problems, 0)
+
+    def count(self, counter: str, n: int = 1) -> None:
+        self.counts[counter] += n
+
+    def log(self, level: Literal["debug", "info", "warning", "error"], text: str) -> None:
+        self.logs.append(Log(level, text))
+
+    def warn(self, counter: str | None, text: str, now: float, *, n: int = 1, log: bool = True) -> None:
+        """Count ``n`` occurrences of ``counter`` (``None``: count nothing), keep ``text`` as the last
+        warning and log it unless a line of the same counter was logged within ``log_interval``."""
+        if counter is not None:
+            self.count(counter, n)
+        self.last_warning = text
+        if not log:
+            return
+        ready, suppressed = self._throttles.setdefault(counter or "", LogThrottle(self.log_interval)).ready(now)
+        if ready:
+            self.log("warning", text + (f" (and {suppressed} similar since the last such line)" if suppressed else ""))
+
+    def reject(self, watch: InputWatch, counter: str, text: str, now: float) -> None:
+        """An input that could not be decoded: received (not progress), counted, warned."""
+        watch.arrived(now, False)
+        self.warn(counter, text, now)
+
+    def drain_logs(self) -> list[Log]:
+        logs, self.logs = self.logs, []
+        return logs
+
+    def stalled(self, now: float) -> tuple[Level, str]:
+        """The worst stall level of the inputs and their messages at that level."""
+        return worst(w.status(self.stall, now) for w in self.watches)
+
+    def report(self, now: float, values: Mapping[str, object], *, head: Sequence[str] = (), level: Level = Level.OK,
+               stall_note: str = "", idle: str = "") -> Report:
+        """The report rule: the level is the highest of ``level``, the inputs' stall level and WARN
+        if a problem count grew since the previous report (OK again once they stop); the message
+        joins ``head``, the stall messages (followed by ``stall_note``) and the problems since the
+        previous report with the last warning, or is ``idle`` if there is nothing to say. The
+        values are ``values``, the counts and the watches' values. Each call starts a new "since
+        the previous report"."""
+        recent = {k: self.counts[k] - n for k, n in self._reported.items() if self.counts[k] > n}
+        self._reported = {k: self.counts[k] for k in self.problems}
+        stall, stall_text = self.stalled(now)
+        texts = list(head)
+        if stall_text:
+            texts.append(stall_text + stall_note)
+        if recent:
+            items = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in recent.items())
+            texts.append(f"since the last report: {items}; last: {self.last_warning}")
+        level = max(level, stall, Level.WARN if recent else Level.OK)
+        all_values = {**values, **self.counts}
+        for w in self.watches:
+            all_values.update(w.values(now))
+        return Report(level, "; ".join(texts) or idle, all_values)

@@ -1,0 +1,368 @@
+"""The planner's loop: beliefs in, actions out (package docstring; node: ``nodes/planner.py``).
+
+Each new belief of epoch ``t`` (within the window of the last epoch planned for) goes to a
+one-slot *mailbox* that keeps the newest valid, not-yet-planned belief; the planning side takes it
+(:meth:`PlannerLoop.take`), runs the anytime branch-and-bound with the myopic policy bounds
+(paper Sec. V; :meth:`~pomdp_planner.core.search.Planner.plan`) and answers with the action of
+epoch ``t + 1``. Decisions are cached by epoch: an epoch decided once is answered with the same
+action again, never re-planned. The planner comes from the assumption gate
+(:func:`~pomdp_planner.core.gate.build_planner`); a certificate is reported only where the gate
+guarantees the bounds (:meth:`PlannerLoop.report`).
+
+The search runs outside the loop's other calls (the node's planning thread), so :meth:`search`
+touches only the planner; every other method is called with the node's lock held.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..bounds import check_constant, check_variant
+from ..errors import OptionError
+from ..gate import PlannerSetup, build_planner
+from ..model import POMDP
+from ..search import DEFAULT_CHUNK_BYTES, SearchResult
+from .epochs import EpochLine, JoinWait, Liveness, Resender
+from .health import InputWatch, Level, Log, LoopHealth, Report
+from .samples import ActionSample, BeliefSample
+
+#: Parameters that may change while the loop runs (in force from the next decision).
+TUNABLE = ("time_budget", "max_depth", "use_bounds", "bound_variant", "bound_constant", "deadline_slack")
+#: Decisions kept (by epoch) to re-send or answer an epoch again without planning it again.
+DECISION_CACHE = 64
+COUNTERS = ("decisions", "deadline_misses", "budget_exhausted", "certified", "bad_beliefs", "stale_beliefs",
+            "out_of_window", "resyncs", "resent_actions", "cached_decisions")
+#: Counts that make the report WARN when they grew since the previous one.
+PROBLEMS = ("deadline_misses", "bad_beliefs", "out_of_window", "resyncs")
+
+
+@dataclass(frozen=True)
+class PlanInfo:
+    """The record of one decision (the node's ``plan_info`` topic). ``certified`` is true only when
+    the root bounds agree and the gate guarantees them; ``latency`` is belief-in to action-out (s)."""
+
+    epoch: int
+    action_priority: int
+    depth: int
+    nodes_expanded: int
+    pruned_percent: float
+    certified: bool
+    time_used: float
+    latency: float
+    deadline_hit: bool
+    deadline_miss: bool
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class PlanJob:
+    """A belief taken from the mailbox: plan it with ``params``, or answer with ``cached``."""
+
+    epoch: int
+    belief: np.ndarray
+    arrived: float
+    params: Mapping[str, Any]
+    cached: int | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Searched:
+    """What :meth:`PlannerLoop.search` found: the result, whether the bounds pruned, and whether
+    the gate guarantees them (only then may the decision be reported as certified)."""
+
+    result: SearchResult
+    use_bounds: bool
+    guaranteed: bool
+    logs: tuple[Log, ...] = ()
+
+
+@dataclass
+class PlannerOutput:
+    """What one call of the loop asks the node to do: publish ``actions`` and ``plan_info``, log
+    ``logs``, wake the planning side (:meth:`PlannerLoop.take`) now if ``plan_now``, and at
+    ``join_at`` (``None``: no join pending)."""
+
+    actions: list[ActionSample] = field(default_factory=list)
+    plan_info: PlanInfo | None = None
+    logs: list[Log] = field(default_factory=list)
+    plan_now: bool = False
+    join_at: float | None = None
+
+
+def check_params(values: Mapping[str, Any]) -> str:
+    """Why ``values`` (some of :data:`TUNABLE`) cannot be used, or ``""``: the bound variant and
+    constant must be the core's (:func:`~pomdp_planner.core.bounds.check_variant`,
+    :func:`~pomdp_planner.core.bounds.check_constant`; ranges and types are the adapters' descriptors)."""
+    try:
+        if "bound_variant" in values:
+            check_variant(values["bound_variant"], "bound_variant")
+        if "bound_constant" in values:
+            check_constant(values["bound_constant"], "bound_constant")
+    except OptionError as exc:
+        return str(exc)
+    return ""
+
+
+class PlannerLoop:
+    """The planner's loop for ``model`` with the :data:`TUNABLE` parameters ``params``.
+
+    ``refuse``: if the model fails the structural assumptions, plan nothing (the gate's
+    ``on_assumption_failure="refuse"``) instead of searching exhaustively. ``chunk_bytes``: the
+    search's chunk size (the deadline is checked between chunks). ``progress``: where the gate
+    announces a set-up that will take a while, as it starts (a log line; the loop's other lines
+    come with its outputs).
+    """
+
+    def __init__(self, model: POMDP, params: Mapping[str, Any], live: Liveness, *, now: float,
+                 refuse: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                 progress: Callable[[str], None] | None = None):
+        missing = [k for k in TUNABLE if k not in params]
+        if missing:
+            raise ValueError(f"params: missing {missing}")
+        bad = check_params(params)
+        if bad:
+            raise OptionError(bad)
+        self.model = model
+        self.live = live
+        self.params = {k: params[k] for k in TUNABLE}
+        self._on_failure = "refuse" if refuse else "exhaustive"
+        self._chunk_bytes = chunk_bytes
+        self._progress = progress
+        self._planner_key: tuple[str, str] | None = None
+        self.health = LoopHealth(COUNTERS, PROBLEMS, [InputWatch("belief", "belief", started=now)], live.stall)
+        bounds_warning = self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
+        self.assumptions = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
+        self.refusing = self.setup.mode == "refuse"
+        if bounds_warning is not None:
+            self.health.logs.append(bounds_warning)
+        if self.refusing:
+            self.health.log("error", "model fails the structural assumptions; refusing to plan "
+                            f"(refuse_if_assumptions_fail): {self.assumptions.summary()}")
+        elif not self.assumptions.holds:
+            self.health.log("warning", "model fails the structural assumptions; the bounds are not valid, "
+                            f"falling back to exhaustive search: {self.assumptions.summary()}")
+        self.health.log("info", f"{model.describe()}; assumptions {'hold' if self.assumptions.holds else 'FAIL'}; "
+                        f"bounds {self.bounds_message}; time_budget {self.params['time_budget']:g} s, "
+                        f"max_depth {self.params['max_depth']}")
+        self.line = EpochLine(live.epoch_window, now=now)  # position: the last belief epoch planned for
+        self.planning: int | None = None  # the belief epoch being searched for (None when idle)
+        self._mailbox: tuple[BeliefSample, float] | None = None  # newest belief to plan, its arrival time
+        self._join = JoinWait()
+        self._decisions: OrderedDict[int, int] = OrderedDict()  # action epoch -> priority (recent ones)
+        self._last_action: ActionSample | None = None
+        self.resender = Resender(live.resend_period)
+        self.last: SearchResult | None = None
+        self.last_params: dict[str, Any] = {}
+
+    @property
+    def mailbox(self) -> BeliefSample | None:
+        """The belief waiting to be planned, if any."""
+        return None if self._mailbox is None else self._mailbox[0]
+
+    # ----------------------------------------------------------- parameters
+    def set_params(self, changed: Mapping[str, Any]) -> list[Log]:
+        """Parameters changed at run time (checked with :func:`check_params`); in force from the next decision."""
+        changed = {k: v for k, v in changed.items() if k in TUNABLE}
+        if not changed:
+            return []
+        self.params = {**self.params, **changed}
+        return [Log("info", f"parameters changed {changed}; in force from the next decision")]
+
+    def _ensure_planner(self, variant: str, constant: str) -> Log | None:
+        """(Re)build the core planner for ``variant`` and ``constant`` through the assumption gate:
+        the bounds are solved when the pair changes (can take a while), Assumption 1 is checked once
+        per model. Returns the warning to log, if any."""
+        if self._planner_key == (variant, constant):
+            return None
+        setup = build_planner(self.model, variant=variant, constant=constant, on_assumption_failure=self._on_failure,
+                              chunk_bytes=self._chunk_bytes, progress=self._progress)
+        bounds, warning = f"{variant}, constant {constant}", None
+        if setup.pruning:
+            message = f"{bounds}: feasible"
+        elif setup.report is not None and setup.report.holds:  # the LP, not the model, is the problem
+            message = f"{bounds}: {setup.reason}; exhaustive search"
+            warning = Log("warning", f"bounds {message}")
+        else:
+            message = "not used (assumptions fail)"
+        self.setup: PlannerSetup = setup
+        self.bounds_message = message
+        self._planner_key = (variant, constant)
+        return warning
+
+    # ----------------------------------------------------------- beliefs
+    def start(self, now: float) -> PlannerOutput:
+        """The start-up lines (the model, the assumptions, the bounds in force)."""
+        return self._result(now)
+
+    def belief(self, bel: BeliefSample, now: float, *, planner_ahead: bool = False) -> PlannerOutput:
+        """A decoded belief: the newest valid, not-yet-planned one within the window goes to the
+        mailbox; every other one is counted (and kept as evidence for the re-sync rule).
+
+        ``planner_ahead``: the planning side has already looked at the mailbox for this sample (a
+        node whose planning side reads the topic too), so it is woken if the mailbox got a belief
+        since; it is woken anyway after a re-sync."""
+        verdict = self.line.classify(bel.epoch)
+        new = verdict in ("join", "next", "ahead")
+        self.health.watches[0].arrived(now, new, bel.epoch)
+        if new:
+            self.resender.answered()
+            if self._mailbox is None or bel.epoch > self._mailbox[0].epoch:
+                self._mailbox = (bel, now)
+            if verdict == "join":
+                # the newest of what comes within JOIN_DELAY (a restarted filter's history starts with
+                # its prior at epoch 0; a running filter's history ends at its epoch)
+                self._join.note(bel.epoch, now)
+        elif verdict == "out_of_window":
+            self.line.off_line(bel.epoch, (bel, now), now)
+            self.health.warn("out_of_window", f"belief of epoch {bel.epoch} is beyond the epoch window "
+                             f"({self.live.epoch_window}) of epoch {self.line.position}: dropped (a restarted filter "
+                             "or a forged message)", now)
+        else:
+            self.health.count("stale_beliefs")
+            if verdict == "behind":
+                self.line.off_line(bel.epoch, (bel, now), now)
+        resynced = self._resync_if_due(now)
+        return self._result(now, plan_now=self._mailbox is not None and (resynced or planner_ahead))
+
+    def rejected_belief(self, problem: str, now: float) -> PlannerOutput:
+        self.health.reject(self.health.watches[0], "bad_beliefs", f"ignored {problem}; no action published", now)
+        return self._result(now)
+
+    def _resync_if_due(self, now: float) -> bool:
+        """The re-sync rule (:class:`~.epochs.EpochLine`): put the newest off-line belief in the mailbox."""
+        due = self.line.resync_due(self.live.stall.warn_after, now)
+        if due is None:
+            return False
+        self.health.warn("resyncs", self.line.resync_reason(due, "beliefs", "filter", now), now)
+        self.line.resync(due.epoch - 1, now)  # so that the belief of due.epoch is the next one
+        self._mailbox = due.payload
+        return True
+
+    # ----------------------------------------------------------- planning
+    def take(self, now: float) -> PlanJob | None:
+        """The belief to plan now, if any (``None`` while joining, refusing or with nothing new)."""
+        if self.line.position is None and not self._join.settled(now):
+            return None  # joining: the node calls again at join_at
+        taken, self._mailbox = self._mailbox, None
+        if taken is None:
+            return None
+        bel, arrived = taken
+        if self.line.position is None:  # the join: the deliberate JOIN_DELAY is not decision latency
+            arrived = now
+        elif bel.epoch <= self.line.position:
+            return None  # a newer one was planned meanwhile
+        self.line.advance(bel.epoch, now)
+        if self.refusing:
+            return None
+        cached = self._decisions.get(bel.epoch + 1)
+        if cached is None:
+            self.planning = bel.epoch
+        return PlanJob(bel.epoch, bel.belief, arrived, dict(self.params), cached)
+
+    def _use_bounds(self, params: Mapping[str, Any]) -> bool:
+        return bool(params["use_bounds"]) and self.setup.pruning
+
+    def search(self, job: PlanJob) -> Searched:
+        """Plan ``job`` (not under the node's lock: only the planning side calls it)."""
+        p = job.params
+        warning = self._ensure_planner(p["bound_variant"], p["bound_constant"])
+        use_bounds = self._use_bounds(p)
+        result = self.setup.planner.plan(job.belief, max_depth=p["max_depth"], time_budget=p["time_budget"],
+                                         use_bounds=use_bounds)
+        return Searched(result, use_bounds, use_bounds and self.setup.guaranteed, () if warning is None else (warning,))
+
+    def decided(self, job: PlanJob, searched: Searched | None, now: float) -> PlannerOutput:
+        """The answer to ``job``: its cached action (``searched is None``) or the new decision."""
+        if searched is None:
+            self.health.count("cached_decisions")
+            return self._send(ActionSample(job.epoch + 1, job.cached), now)
+        self.planning = None
+        self.health.logs.extend(searched.logs)
+        r, p = searched.result, job.params
+        action = ActionSample(job.epoch + 1, int(r.priority))
+        self._decisions[action.epoch] = action.priority
+        while len(self._decisions) > DECISION_CACHE:
+            self._decisions.popitem(last=False)
+        latency = now - job.arrived
+        certified = bool(r.certified) and searched.guaranteed
+        missed = latency > p["time_budget"] + p["deadline_slack"]
+        self.last = r
+        self.last_params = {**p, "use_bounds_effective": searched.use_bounds, "belief_epoch": job.epoch,
+                            "latency": latency, "certified": certified, "guaranteed": searched.guaranteed}
+        self.health.count("decisions")
+        self.health.count("certified", certified)
+        self.health.count("budget_exhausted", bool(r.deadline_hit))
+        if missed:
+            self.health.warn("deadline_misses", f"epoch {action.epoch}: decision took {latency * 1e3:.1f} ms "
+                             f"(budget {p['time_budget'] * 1e3:.0f} ms)", now, log=False)
+        out = self._send(action, now)
+        out.plan_info = PlanInfo(
+            epoch=action.epoch, action_priority=action.priority, depth=int(r.depth),
+            nodes_expanded=int(sum(r.nodes_expanded)), pruned_percent=float(r.percent_pruned[-1]) if r.percent_pruned
+            else 0.0, certified=certified, time_used=float(r.time_used), latency=latency,
+            deadline_hit=bool(r.deadline_hit), deadline_miss=missed)
+        return out
+
+    def _send(self, action: ActionSample, now: float) -> PlannerOutput:
+        self._last_action = action
+        self.resender.published(now)
+        return self._result(now, actions=[action])
+
+    def watchdog(self, now: float) -> PlannerOutput:
+        """Re-send the last action while the belief it leads to has not come; the time-based re-sync."""
+        actions = []
+        if self.resender.due(now) and self.planning is None and self._last_action is not None:
+            actions.append(self._last_action)
+            self.resender.resending(now)
+            self.health.count("resent_actions")
+        self._resync_if_due(now)
+        return self._result(now, actions=actions, plan_now=self._mailbox is not None)
+
+    def _result(self, now: float, **kw) -> PlannerOutput:
+        join_at = self._join.wake_at(now) if self.line.position is None else None
+        return PlannerOutput(logs=self.health.drain_logs(), join_at=join_at, **kw)
+
+    # ----------------------------------------------------------- diagnostics
+    def report(self, now: float) -> Report:
+        """The diagnostics (package docstring, "Report"). A certificate is claimed only where the
+        gate guarantees the bounds: ``certified`` (the count) only while the planner in force has
+        guaranteed bounds, ``last.certified`` only for a decision pruned with guaranteed bounds;
+        ``guaranteed`` and ``guarantee`` say what the gate decided and why."""
+        setup, r, lp = self.setup, self.last, self.last_params
+        values: dict[str, object] = {
+            "assumptions_hold": self.assumptions.holds, "assumptions": self.assumptions.summary(),
+            "bounds": self.bounds_message, "guaranteed": setup.guaranteed, "guarantee": setup.describe(),
+            **{f"param.{k}": v for k, v in self.params.items()}}
+        if r is None:
+            idle = "waiting for a belief"
+        elif lp["guaranteed"]:
+            idle = f"depth {r.depth}, {'certified' if lp['certified'] else 'not certified'}"
+        else:
+            idle = f"depth {r.depth}, exhaustive search"
+        head = [] if self.assumptions.holds else ["assumptions fail: exhaustive search"]
+        report = self.health.report(now, values, head=head, idle=idle,
+                                    level=Level.OK if self.assumptions.holds else Level.WARN)
+        values = report.values
+        if not setup.guaranteed:
+            values.pop("certified")
+        if r is not None:
+            values.update({
+                "last.belief_epoch": lp["belief_epoch"], "last.action_priority": int(r.priority),
+                "last.depth": int(r.depth), "last.nodes_expanded": int(sum(r.nodes_expanded)),
+                "last.pruned_percent": float(r.percent_pruned[-1]) if r.percent_pruned else 0.0,
+                **({"last.certified": lp["certified"]} if lp["guaranteed"] else {}),
+                "last.time_used": float(r.time_used), "last.latency": float(lp["latency"]),
+                "last.deadline_hit": bool(r.deadline_hit), "last.time_budget": lp["time_budget"],
+                "last.max_depth": lp["max_depth"], "last.use_bounds": lp["use_bounds_effective"],
+                "last.bound_variant": lp["bound_variant"], "last.bound_constant": lp["bound_constant"],
+            })
+        if self.refusing:
+            return Report(Level.ERROR, "refusing to plan: model fails the structural assumptions", values)
+        return report

@@ -1,0 +1,175 @@
+"""Every launch file, read as XML (``ros2 launch`` is not installable from PyPI, so it cannot run here).
+
+For each ``launch/*.launch.xml`` of the source tree:
+
+* it is installed to ``share/pomdp_planner/launch/`` (found through the ament index, as
+  ``ros2 launch pomdp_planner <file>`` finds it);
+* every ``<arg>`` has a default and a description, and is documented in the user docs;
+* every substitution is one the file may use (``$(var X)`` of a declared argument,
+  ``$(find-pkg-share pomdp_planner)``), and every ``if``/``unless`` names a declared argument;
+* every ``<node>`` names an executable of this package that is installed under
+  ``lib/pomdp_planner`` and executable, with a unique name;
+* for every value of ``model_set`` (the shipped parameter sets, :data:`PARAMETER_SETS`; the
+  argument's description lists exactly them) every ``<param from=...>`` is an installed file
+  whose section applies to that node in any namespace, and the model it names is installed.
+"""
+
+from __future__ import annotations
+
+import ast
+import itertools
+import os
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pomdp_planner.nodes.processes import PARAMETER_SETS, node_parameters
+
+REPO = Path(__file__).resolve().parent.parent
+PACKAGE = "pomdp_planner"
+LAUNCH_FILES = sorted((REPO / "launch").glob("*.launch.xml"))
+SUBSTITUTION = re.compile(r"\$\(([\w-]+)(?:\s+([^)]*))?\)")
+#: Tags a launch file of this package may use (launch and launch_ros XML frontends).
+KNOWN_TAGS = {"launch", "arg", "group", "push-ros-namespace", "node", "param", "remap", "let", "include"}
+
+
+def node_executables() -> set[str]:
+    tree = ast.parse((REPO / "setup.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "NODE_EXECUTABLES" for t in node.targets):
+            return set(ast.literal_eval(node.value))
+    raise AssertionError("setup.py: no NODE_EXECUTABLES")
+
+
+def user_docs() -> str:
+    """The docs a launch argument must appear in: docs/ros.md where it exists, else the README."""
+    ros = REPO / "docs" / "ros.md"
+    return (ros if ros.is_file() else REPO / "README.md").read_text(encoding="utf-8")
+
+
+@pytest.fixture(scope="module")
+def prefix() -> Path:
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+    except ImportError:
+        pytest.skip("ament_index_python is not installed (it comes with the ROS wheels)")
+    import sys
+
+    paths = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    old = os.environ.get("AMENT_PREFIX_PATH")
+    os.environ["AMENT_PREFIX_PATH"] = os.pathsep.join([sys.prefix, *paths])
+    try:
+        return Path(get_package_prefix(PACKAGE))
+    except PackageNotFoundError:
+        if os.environ.get("POMDP_PLANNER_REQUIRE_INSTALLED") == "1":
+            pytest.fail(f"{PACKAGE} is not installed (POMDP_PLANNER_REQUIRE_INSTALLED=1)")
+        pytest.skip(f"{PACKAGE} is not installed; run `make test`")
+    finally:
+        if old is None:
+            os.environ.pop("AMENT_PREFIX_PATH", None)
+        else:
+            os.environ["AMENT_PREFIX_PATH"] = old
+
+
+def arguments(root: ET.Element) -> dict[str, ET.Element]:
+    return {a.get("name"): a for a in root.iter("arg")}
+
+
+def substitute(text: str, values: dict[str, str], share: Path) -> str:
+    def one(m: re.Match) -> str:
+        kind, arg = m.group(1), (m.group(2) or "").strip()
+        if kind == "var":
+            return values[arg]
+        assert kind == "find-pkg-share" and arg == PACKAGE, f"unexpected substitution {m.group(0)}"
+        return str(share)
+    return SUBSTITUTION.sub(one, text)
+
+
+def test_there_is_a_closed_loop_launch_file():
+    assert [p.name for p in LAUNCH_FILES] >= ["closed_loop.launch.xml"]
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_is_installed(path, prefix):
+    installed = prefix / "share" / PACKAGE / "launch" / path.name
+    assert installed.is_file(), f"{path.name} is not installed to share/{PACKAGE}/launch"
+    assert installed.read_bytes() == path.read_bytes()
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_every_argument_has_a_default_and_is_documented(path):
+    root = ET.parse(path).getroot()
+    assert root.tag == "launch"
+    args = arguments(root)
+    assert args, f"{path.name}: no arguments"
+    docs = user_docs()
+    for name, arg in args.items():
+        assert arg.get("default") is not None, f"{path.name}: argument {name} has no default"
+        assert (arg.get("description") or "").strip(), f"{path.name}: argument {name} has no description"
+        assert f"`{name}" in docs, f"{path.name}: argument {name} is not documented (docs/ros.md or README.md)"
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_tags_substitutions_and_conditions_are_known(path):
+    root = ET.parse(path).getroot()
+    args = arguments(root)
+    for el in root.iter():
+        assert el.tag in KNOWN_TAGS, f"{path.name}: unexpected tag <{el.tag}>"
+        for attr, value in el.attrib.items():
+            for m in SUBSTITUTION.finditer(value):
+                kind, arg = m.group(1), (m.group(2) or "").strip()
+                assert kind in ("var", "find-pkg-share"), f"{path.name}: substitution {m.group(0)}"
+                if kind == "var":
+                    assert arg in args, f"{path.name}: $(var {arg}) names no declared argument"
+                else:
+                    assert arg == PACKAGE, f"{path.name}: {m.group(0)}"
+            if attr in ("if", "unless"):
+                assert SUBSTITUTION.fullmatch(value) and SUBSTITUTION.fullmatch(value).group(1) == "var", \
+                    f"{path.name}: condition {value!r} is not an argument"
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_nodes_are_installed_executables_of_this_package(path, prefix):
+    root = ET.parse(path).getroot()
+    nodes = list(root.iter("node"))
+    assert nodes, f"{path.name}: no nodes"
+    names = [n.get("name") for n in nodes]
+    assert len(set(names)) == len(names), f"{path.name}: node names repeat: {names}"
+    for node in nodes:
+        assert node.get("pkg") == PACKAGE, f"{path.name}: node of another package {node.get('pkg')!r}"
+        exe = node.get("exec")
+        assert exe in node_executables(), f"{path.name}: {exe!r} is not a node executable of setup.py"
+        installed = prefix / "lib" / PACKAGE / exe
+        assert installed.is_file() and os.access(installed, os.X_OK), f"{path.name}: {installed} not executable"
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_parameter_files_and_models_exist_for_every_model_set(path, prefix):
+    root = ET.parse(path).getroot()
+    args = arguments(root)
+    share = prefix / "share" / PACKAGE
+    choices: dict[str, list[str]] = {name: [a.get("default")] for name, a in args.items()}
+    if "model_set" in args:
+        listed = re.findall(r"\b(?:perimeter_)?s\d+\b", args["model_set"].get("description"))
+        assert tuple(listed) == PARAMETER_SETS, f"{path.name}: model_set lists {listed}, not {PARAMETER_SETS}"
+        assert args["model_set"].get("default") in PARAMETER_SETS
+        choices["model_set"] = list(PARAMETER_SETS)
+    checked = 0
+    for combo in itertools.product(*choices.values()):
+        values = dict(zip(choices, combo, strict=True))
+        for node in root.iter("node"):
+            for param in node.iter("param"):
+                if param.get("from") is None:
+                    continue
+                file = Path(substitute(param.get("from"), values, share))
+                assert file.is_file(), f"{path.name} ({values}): {file} is not installed"
+                section = node_parameters(yaml.safe_load(file.read_text()), node.get("name"))
+                assert f"/**/{node.get('name')}" in yaml.safe_load(file.read_text()), \
+                    f"{file.name}: its section would not apply to {node.get('name')} in a namespace"
+                model = share / section["model_file"]
+                assert model.is_file(), f"{file.name}: model {section['model_file']} is not installed"
+                checked += 1
+    assert checked >= len(PARAMETER_SETS)

@@ -1,0 +1,269 @@
+"""The planner's loop (core/loop/planner_loop.py) without ROS: the mailbox, joining, the window,
+re-sync, the decision cache, re-sending, deadline misses, bad beliefs, refusing, parameters, and
+what the diagnostics may claim: a certificate only where the gate (core/gate.py) guarantees the
+bounds. Time is passed in by hand; decisions come from the core's search, or from stub results
+where the rule, not the search, is the subject."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pomdp_planner.core.errors import OptionError
+from pomdp_planner.core.io.sensors import load_model_file
+from pomdp_planner.core.loop import (
+    JOIN_DELAY,
+    ActionSample,
+    BeliefSample,
+    Level,
+    Liveness,
+    PlannerLoop,
+    StallLimits,
+    check_params,
+)
+from pomdp_planner.core.loop.planner_loop import DECISION_CACHE, Searched
+from pomdp_planner.core.search import Planner, SearchResult
+
+ROOT = Path(__file__).resolve().parents[1]
+S3 = load_model_file(str(ROOT / "config" / "models" / "tracking_s3_info.yaml"))
+FAILING = load_model_file(str(ROOT / "test" / "models" / "fails_assumption1_s3.yaml"))
+LIVE = Liveness(epoch_window=50, resend_period=1.0, stall=StallLimits(2.0, 10.0))
+PARAMS = {"time_budget": 5.0, "max_depth": 2, "use_bounds": True, "bound_variant": "tight", "bound_constant": "mlr",
+          "deadline_slack": 0.02}
+T0 = 100.0
+B = np.array([0.2, 0.3, 0.5])
+
+
+def make(model=S3, **params) -> PlannerLoop:
+    loop = PlannerLoop(model, {**PARAMS, **params}, LIVE, now=T0)
+    assert "assumptions hold; bounds tight, constant mlr: feasible" in loop.start(T0).logs[-1].text
+    return loop
+
+
+def bel(epoch, b=B):
+    return BeliefSample(epoch, np.asarray(b, dtype=float))
+
+
+def stub(priority=2, certified=False, depth=1, deadline_hit=False) -> SearchResult:
+    return SearchResult(action=priority - 1, priority=priority, q_values=np.zeros(3), depth=depth,
+                        nodes_expanded=(3,) * depth, nodes_pruned=(1,) * depth, certified=certified,
+                        root_bounds=None, time_used=0.001, deadline_hit=deadline_hit)
+
+
+def joined(loop, epoch=0, now=T0):
+    """Join at ``epoch`` (the join delay passed) and decide it with the core search."""
+    loop.belief(bel(epoch), now)
+    job = loop.take(now + JOIN_DELAY)
+    return loop.decided(job, loop.search(job), now + JOIN_DELAY)
+
+
+def test_join_plans_the_newest_belief_received_within_the_join_delay():
+    loop = make()
+    out = loop.belief(bel(0), T0)  # a restarted filter's history starts with its prior ...
+    assert out.join_at == pytest.approx(T0 + JOIN_DELAY) and not out.plan_now
+    loop.belief(bel(57), T0 + 0.05)  # ... a running one's ends at its epoch
+    loop.belief(bel(12), T0 + 0.1)
+    assert loop.take(T0 + JOIN_DELAY / 2) is None  # still collecting
+    job = loop.take(T0 + JOIN_DELAY)
+    assert job.epoch == 57 and job.arrived == T0 + JOIN_DELAY  # the deliberate delay is no decision latency
+    out = loop.decided(job, loop.search(job), T0 + JOIN_DELAY + 0.01)
+    assert out.actions == [ActionSample(58, out.plan_info.action_priority)] and out.join_at is None
+    assert out.plan_info.latency == pytest.approx(0.01)
+
+
+def test_a_decision_answers_the_belief_of_epoch_t_with_the_action_of_t_plus_1():
+    loop = make(use_bounds=False)
+    out = joined(loop, 4)
+    expected = Planner(S3).search(B, 2, use_bounds=False).priority  # the core's exhaustive search
+    assert out.actions == [ActionSample(5, expected)]
+    info = out.plan_info
+    assert (info.epoch, info.action_priority, info.depth, info.certified) == (5, expected, 2, False)
+    assert loop.health.counts["decisions"] == 1 and loop.line.position == 4
+
+
+def test_the_mailbox_keeps_the_newest_new_belief_and_a_stale_one_cannot_displace_it():
+    loop = make()
+    joined(loop, 10)
+    for e, t in ((11, 1.0), (13, 1.1), (12, 1.2), (9, 1.3), (10, 1.4)):  # older, stale and repeated ones come later
+        loop.belief(bel(e), T0 + t)
+    assert loop.mailbox.epoch == 13 and loop.health.counts["stale_beliefs"] == 2
+    job = loop.take(T0 + 2.0)
+    assert job.epoch == 13 and job.arrived == T0 + 1.1 and loop.take(T0 + 2.0) is None
+    loop.belief(bel(12), T0 + 2.1)  # planned past it: stale now
+    assert loop.mailbox is None and loop.health.counts["stale_beliefs"] == 3
+
+
+def test_plan_now_wakes_the_planning_side_only_when_it_would_miss_the_mailbox():
+    loop = make()
+    joined(loop, 0)
+    assert not loop.belief(bel(1), T0 + 1).plan_now  # the planning reader takes this sample itself
+    assert loop.belief(bel(2), T0 + 1, planner_ahead=True).plan_now  # it already ran past it
+    assert loop.watchdog(T0 + 1).plan_now  # something waits in the mailbox
+    loop.take(T0 + 1)
+    assert not loop.watchdog(T0 + 1).plan_now
+
+
+def test_a_belief_beyond_the_window_is_dropped_and_one_never_moves_the_planner():
+    loop = make()
+    joined(loop, 20)
+    out = loop.belief(bel(10**15), T0 + 1)
+    assert loop.mailbox is None and loop.health.counts["out_of_window"] == 1
+    assert "belief of epoch 1000000000000000 is beyond the epoch window (50) of epoch 20" in out.logs[0].text
+    for k in range(5):
+        out = loop.watchdog(T0 + 100.0 * (k + 1))
+        assert all(a.epoch == 21 for a in out.actions)  # at most the re-sent action of epoch 21
+    assert loop.line.position == 20 and loop.health.counts["resyncs"] == 0
+
+
+def test_a_stalled_planner_resyncs_to_a_restarted_filters_numbering_and_answers_from_the_cache():
+    loop = make()
+    decided = {}
+    for e in range(0, 8):  # decisions for epochs 1..8
+        loop.belief(bel(e), T0)
+        job = loop.take(T0 + JOIN_DELAY)
+        decided[e + 1] = loop.decided(job, loop.search(job), T0 + JOIN_DELAY).actions[0].priority
+    # a filter restarted on an older numbering: beliefs 2, 3, 4 are stale (behind), for 2 s
+    for e in (2, 3):
+        assert not loop.belief(bel(e), T0 + 1).plan_now
+    assert loop.mailbox is None
+    out = loop.belief(bel(4), T0 + 3.0)
+    assert out.plan_now and loop.mailbox.epoch == 4 and loop.health.counts["resyncs"] == 1
+    assert "re-synced from epoch 7 to epoch 4" in out.logs[0].text
+    job = loop.take(T0 + 3.0)
+    assert job.cached == decided[5]  # decided before: the same action again, no search
+    out = loop.decided(job, None, T0 + 3.0)
+    assert out.actions == [ActionSample(5, decided[5])] and out.plan_info is None
+    assert loop.health.counts["cached_decisions"] == 1 and loop.health.counts["decisions"] == 8
+
+
+def test_the_decision_cache_keeps_the_last_epochs_only():
+    loop = make()
+    loop.belief(bel(0), T0)
+    for e in range(DECISION_CACHE + 1):
+        job = loop.take(T0 + JOIN_DELAY)
+        loop.decided(job, Searched(stub(priority=1 + e % 3), True, True), T0 + 1)
+        loop.belief(bel(e + 1), T0 + 1)
+    assert 1 not in loop._decisions and 2 in loop._decisions and len(loop._decisions) == DECISION_CACHE
+
+
+def test_the_last_action_is_re_sent_every_period_until_its_belief_comes_but_not_during_a_search():
+    loop = make()
+    (action,) = joined(loop, 3).actions  # published at T0 + JOIN_DELAY
+    t = T0 + JOIN_DELAY
+    assert loop.watchdog(t + 0.99).actions == []
+    assert loop.watchdog(t + 1.0).actions == [action] and loop.health.counts["resent_actions"] == 1
+    assert loop.watchdog(t + 1.5).actions == [] and loop.watchdog(t + 2.0).actions == [action]
+    loop.belief(bel(4), t + 2.1)  # the answer
+    job = loop.take(t + 2.1)
+    assert loop.planning == 4 and loop.watchdog(t + 10.0).actions == []  # answered, and searching
+    loop.decided(job, Searched(stub(), True, True), t + 10.0)
+    assert loop.planning is None and loop.watchdog(t + 11.0).actions == [ActionSample(5, 2)]
+
+
+def test_a_deadline_miss_is_latency_over_the_budget_plus_the_slack():
+    loop = make(time_budget=0.05, deadline_slack=0.02)
+    loop.belief(bel(0), T0)
+    job = loop.take(T0 + JOIN_DELAY)
+    out = loop.decided(job, Searched(stub(deadline_hit=True), True, True), T0 + JOIN_DELAY + 0.07)
+    assert not out.plan_info.deadline_miss and out.plan_info.deadline_hit
+    loop.belief(bel(1), T0 + 1)
+    out = loop.decided(loop.take(T0 + 1), Searched(stub(), True, True), T0 + 1.0701)
+    assert out.plan_info.deadline_miss and out.logs == []  # counted and reported, not logged per decision
+    assert loop.health.counts["deadline_misses"] == 1 and loop.health.counts["budget_exhausted"] == 1
+    r = loop.report(T0 + 1.1)
+    assert r.level == Level.WARN and "1 deadline misses; last: epoch 2: decision took 70.1 ms (budget 50 ms)" \
+        in r.message
+
+
+def test_a_bad_belief_is_counted_and_answered_with_nothing():
+    loop = make()
+    out = loop.rejected_belief("belief: expected 3 probabilities, got 2 (layout size 2)", T0)
+    assert out.actions == [] and loop.mailbox is None and loop.health.counts["bad_beliefs"] == 1
+    assert out.logs[0].text == "ignored belief: expected 3 probabilities, got 2 (layout size 2); no action published"
+    r = loop.report(T0 + 0.5)
+    assert r.level == Level.WARN and r.message.startswith("since the last report: 1 bad beliefs")
+    assert loop.report(T0 + 1.0).message == "waiting for a belief"
+
+
+def test_a_silent_belief_stream_is_warn_then_error():
+    loop = make()
+    joined(loop, 0)  # the belief came at T0
+    assert loop.report(T0 + 1.9).level == Level.OK
+    r = loop.report(T0 + 2.0)
+    assert r.level == Level.WARN and r.message.startswith("belief: no new belief for 2.0 s (last: epoch 0)")
+    assert loop.report(T0 + 10.0).level == Level.ERROR
+
+
+def test_parameters_are_checked_and_in_force_from_the_next_job():
+    assert check_params({"bound_variant": "loose"}) == "bound_variant: expected one of tight, feasible, got 'loose'"
+    assert check_params({"bound_constant": "paper"}) == "bound_constant: expected one of mlr, fosd, got 'paper'"
+    assert check_params({"max_depth": 3, "bound_constant": "fosd"}) == ""
+    with pytest.raises(OptionError, match=r"bound_constant: expected one of mlr, fosd, got 'paper'"):
+        make(bound_constant="paper")
+    loop = make()
+    loop.belief(bel(0), T0)
+    (log,) = loop.set_params({"max_depth": 1, "model_file": "ignored"})
+    assert log.text == "parameters changed {'max_depth': 1}; in force from the next decision"
+    job = loop.take(T0 + JOIN_DELAY)
+    assert job.params["max_depth"] == 1 and loop.search(job).result.depth == 1
+
+
+def test_refusing_plans_nothing_and_reports_error():
+    loop = PlannerLoop(FAILING, PARAMS, LIVE, now=T0, refuse=True)
+    assert loop.refusing and loop.setup.planner is None
+    assert any(x.level == "error" and "refusing to plan" in x.text for x in loop.start(T0).logs)
+    loop.belief(BeliefSample(0, np.array([0.3, 0.4, 0.3])), T0)
+    assert loop.take(T0 + JOIN_DELAY) is None
+    r = loop.report(T0 + 1)
+    assert (r.level, r.message) == (Level.ERROR, "refusing to plan: model fails the structural assumptions")
+
+
+# ----------------------------------------------------------------- certificates only where the gate guarantees
+
+def _claims(report) -> list[str]:
+    """Everything in a report that would claim a certificate or a guarantee."""
+    text = [report.message, *(f"{k}={v}" for k, v in report.values.items())]
+    return [t for t in text if "certified" in t or "guarantee covers" in t or t in ("guaranteed=True",)]
+
+
+def test_on_a_model_failing_assumption_1_nothing_claims_a_certificate_or_a_guarantee():
+    loop = PlannerLoop(FAILING, PARAMS, LIVE, now=T0)
+    start = loop.start(T0).logs
+    assert not loop.setup.guaranteed and any("falling back to exhaustive search" in x.text for x in start)
+    loop.belief(BeliefSample(0, np.array([0.3, 0.4, 0.3])), T0)
+    job = loop.take(T0 + JOIN_DELAY)
+    searched = loop.search(job)
+    assert not searched.use_bounds and not searched.guaranteed
+    out = loop.decided(job, searched, T0 + 1)
+    assert out.plan_info.certified is False
+    # even a search result that says "certified" (A = 1, or a planner built elsewhere) is not reported so
+    loop.belief(BeliefSample(1, np.array([0.1, 0.8, 0.1])), T0 + 1)
+    out = loop.decided(loop.take(T0 + 1), Searched(stub(certified=True), False, False), T0 + 1)
+    assert out.plan_info.certified is False and loop.health.counts["certified"] == 0
+    r = loop.report(T0 + 1.5)
+    assert r.level == Level.WARN and r.message.startswith("assumptions fail: exhaustive search")
+    assert _claims(r) == []
+    assert r.values["guaranteed"] is False and "Assumption 1 fails" in r.values["guarantee"]
+    assert "certified" not in r.values and "last.certified" not in r.values
+    assert r.values["bounds"] == "not used (assumptions fail)"
+
+
+def test_with_guaranteed_bounds_the_certificate_is_reported():
+    loop = make()
+    loop.belief(bel(0), T0)
+    out = loop.decided(loop.take(T0 + JOIN_DELAY), Searched(stub(certified=True), True, True), T0 + 1)
+    assert out.plan_info.certified is True
+    r = loop.report(T0 + 1.5)
+    assert r.values["guaranteed"] is True and r.values["guarantee"].startswith("valid bounds: Assumption 1 holds")
+    assert r.values["certified"] == 1 and r.values["last.certified"] is True
+    assert (r.level, r.message) == (Level.OK, "depth 1, certified")
+    loop.set_params({"use_bounds": False})  # bounds switched off: exhaustive, nothing certified for it
+    loop.belief(bel(1), T0 + 1.6)
+    job = loop.take(T0 + 1.6)
+    searched = loop.search(job)
+    assert not searched.guaranteed
+    loop.decided(job, searched, T0 + 1.7)
+    r = loop.report(T0 + 1.8)
+    assert "last.certified" not in r.values and r.message == "depth 2, exhaustive search"

@@ -1,0 +1,168 @@
+"""Set-up cost: the planner's set-up (assumption check, bound LP, planner tables) is estimated before
+it runs, refused with the figures when it cannot fit or would take too long, and announced when
+it is long (core/gate.py, core/structure.py, core/bounds.py, core/search.py; the CLI prints).
+
+* Memory estimates against ``tracemalloc`` peaks of the real computations (upper estimates,
+  not far above).
+* ``plan`` / ``simulate`` on a generator model S = 400, A = 40 (its tables alone need over 2 GiB):
+  refused in one line with the figure when less memory is available, before any check.
+* A model whose assumption check is expected to take tens of minutes (perimeter, S = 100: above
+  the exact test's size, the counterexample search runs per matrix): refused with the expected
+  time unless the limit is lifted; then announced on stderr before the check starts.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_simulate_streaming import traced_peak  # tracemalloc peak of a call (after a warm-up call)
+
+from pomdp_planner.cli import main
+from pomdp_planner.core import gate
+from pomdp_planner.core.bounds import estimate_solve_bounds, solve_bounds
+from pomdp_planner.core.domains.comparison import comparison_model
+from pomdp_planner.core.domains.perimeter import PRESETS, perimeter_model
+from pomdp_planner.core.io.cassandra import export_pomdp
+from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.model import POMDP, ModelError
+from pomdp_planner.core.search import Planner, planner_table_bytes
+from pomdp_planner.core.structure import check_assumptions, check_copositivity, estimate_check, seconds_text
+
+ROOT = Path(__file__).resolve().parents[1]
+S8 = str(ROOT / "config/models/tracking_s8_info.yaml")
+GIB = 2**30
+
+
+def random_model(S: int, A: int, Z: int, seed: int = 0) -> POMDP:
+    rng = np.random.default_rng(seed)
+    return POMDP(P=rng.dirichlet(np.ones(S), size=(A, S)), O=rng.dirichlet(np.ones(Z), size=(A, S)),
+                 r=rng.normal(size=(S, A)), gamma=0.9, uncertainty="renyi2", w=[0.1] * A)
+
+
+def perimeter(S: int) -> POMDP:
+    return perimeter_model(**(PRESETS["perimeter_s8"] | {"S": S}), name=f"perimeter_s{S}")
+
+
+# ------------------------------------------------------------------ estimates vs measured memory
+@pytest.mark.parametrize("S,A,Z", [(3, 3, 3), (8, 3, 8), (40, 12, 30), (64, 16, 64), (20, 2, 50)])
+def test_planner_table_estimate_is_an_upper_estimate_of_the_real_peak(S, A, Z):
+    model = random_model(S, A, Z)
+    peak = traced_peak(lambda: Planner(model))
+    est = planner_table_bytes(S, A, Z)
+    assert peak <= est <= 1.5 * peak + 16 * 2**10
+    assert est >= 8 * A * (A + 1) * Z * S  # the fused leaf table alone (core/search.py module docstring)
+
+
+@pytest.mark.parametrize("model", [perimeter(16), perimeter(32), comparison_model(64, 16), random_model(6, 3, 4),
+                                   load_model(S8)], ids=lambda m: m.name)
+def test_check_estimate_bounds_the_check_memory_and_counts_the_matrices_it_builds(model):
+    est = estimate_check(model)
+    assert traced_peak(lambda: check_assumptions(model)) <= est.bytes
+    rep = check_copositivity(model)
+    built = int(np.count_nonzero(~np.isnan(rep.min_entry)))
+    if est.pairs <= 32:  # every undecided (j, a) sampled: the count is exact
+        assert est.dirty == built
+    assert est.seconds <= est.seconds_max
+
+
+@pytest.mark.parametrize("model", [comparison_model(64, 16), perimeter(32), random_model(24, 4, 5)],
+                         ids=lambda m: m.name)
+def test_lp_estimate_bounds_the_lp_memory(model):
+    _, est = estimate_solve_bounds(model)
+    assert traced_peak(lambda: solve_bounds(model, "tight")) <= est
+
+
+def test_available_memory_is_read():
+    mem = gate.available_memory()
+    assert mem is None or mem > 0
+
+
+# ------------------------------------------------------------------ refusals and notices
+@pytest.fixture(scope="module")
+def big_generator(tmp_path_factory) -> str:
+    path = tmp_path_factory.mktemp("models") / "gen_s400_a40.yaml"
+    path.write_text("name: gen_s400_a40\ndiscount: 0.95\ngenerator: {domain: tracking, S: 400, A: 40, q: 0.8}\n"
+                    "reward_generator: {kind: tracking_comparison}\nuncertainty: {function: renyi2, weights: 0.5}\n")
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def slow_check_model(tmp_path_factory) -> str:
+    path = tmp_path_factory.mktemp("models") / "perimeter_s100.POMDP"  # reads faster than YAML
+    with pytest.warns(UserWarning, match="cannot be expressed in a .POMDP file"):
+        path.write_text(export_pomdp(perimeter(100)))
+    return str(path)
+
+
+def no_check(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The assumption check must not run (a refusal comes before it); if it starts, stop with a marker."""
+    def stop(*args, **kwargs):
+        raise ModelError("CHECK STARTED")
+    monkeypatch.setattr(gate, "check_assumptions", stop)
+
+
+@pytest.mark.parametrize("argv", [["plan", "--time-budget", "1"], ["plan", "--exhaustive", "--depth", "1"],
+                                  ["simulate", "--policy", "bnb", "--steps", "1"]])
+def test_a_setup_beyond_the_available_memory_is_refused_with_the_figure(big_generator, argv, capsys, monkeypatch):
+    monkeypatch.setattr(gate, "available_memory", lambda: GIB)
+    no_check(monkeypatch)
+    code = main([argv[0], big_generator, *argv[1:]])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err and "CHECK STARTED" not in err
+    head = "pomdp-planner: error: model: the planner's set-up for S=400, A=40, Z=400 needs about "
+    assert lines[0].startswith(head) and lines[0].endswith("more than the 1 GiB of memory available")
+    figure, unit = lines[0][len(head):].split()[:2]
+    leaf_table = 8 * 40 * 41 * 400 * 400 / GIB  # A (A + 1) Z S floats; the other tables add about A S Z each
+    assert unit == "GiB" and leaf_table <= float(figure) <= 1.3 * leaf_table
+    assert "planner tables" in lines[0]
+
+
+def test_a_setup_expected_to_take_too_long_is_refused_with_the_expected_time(slow_check_model, capsys,
+                                                                            monkeypatch):
+    no_check(monkeypatch)
+    est = gate.estimate_setup(load_model(slow_check_model))
+    assert est.seconds > gate.MAX_SETUP_SECONDS  # the premise: S = 100 > EXACT_MAX_STATES, search per matrix
+    code = main(["plan", slow_check_model, "--time-budget", "0.1"])
+    _, err = capsys.readouterr()
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "CHECK STARTED" not in err
+    assert f"is expected to take {seconds_text(est.seconds)} (assumption check about" in err
+    assert "more than the limit of 10 min (MAX_SETUP_SECONDS); --no-limit lifts the limit" in err
+    code = main(["simulate", slow_check_model, "--policy", "bnb", "--steps", "1"])
+    _, err = capsys.readouterr()
+    assert code == 2 and "MAX_SETUP_SECONDS); the option no_limit=1 lifts the limit" in err
+
+
+@pytest.mark.parametrize("argv", [["plan", "--time-budget", "0.1", "--no-limit"],
+                                  ["simulate", "--policy", "bnb", "--option", "no_limit=1", "--steps", "1"]])
+def test_a_long_setup_is_announced_before_it_starts(slow_check_model, argv, capsys, monkeypatch):
+    no_check(monkeypatch)
+    est = gate.estimate_setup(load_model(slow_check_model))
+    code = main([argv[0], slow_check_model, *argv[1:]])
+    _, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 2 and lines[1].endswith("CHECK STARTED")  # the notice came first
+    assert lines[0].startswith(f"pomdp-planner {argv[0]}: set-up for S=100, A=3, Z=100 is running, expected about "
+                               f"{seconds_text(est.seconds)} before the first decision (assumption check about ")
+    assert lines[0].endswith("no time budget includes it")
+
+
+def test_check_announces_a_long_check(slow_check_model, capsys, monkeypatch):
+    import pomdp_planner.cli.check as check_cli
+
+    monkeypatch.setattr(check_cli, "check_assumptions", lambda *a, **k: (_ for _ in ()).throw(ModelError("STOP")))
+    code = main(["check", slow_check_model])
+    _, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    est = estimate_check(load_model(slow_check_model))
+    assert code == 2 and lines[1].endswith("STOP")
+    assert lines[0] == f"pomdp-planner check: checking Assumption 1 for S=100, A=3, Z=100: expected {est.describe()}"
+
+
+def test_a_short_setup_says_nothing(capsys):
+    assert main(["plan", S8, "--depth", "2"]) == 0
+    assert main(["check", S8]) == 0
+    assert capsys.readouterr().err == ""
