@@ -1,9 +1,12 @@
-"""``pomdp-planner bench search|structure|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|structure|multitarget|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
 ``bench structure`` times the Assumption 1 check, fast path against the previous one
 (``pomdp_planner/bench/structure.py``).
+``bench multitarget [--quick] [--json FILE] [--plot FILE]`` is the multi-target benchmark (dual
+bound against the exact joint lookahead, closed-loop regret, decision time against K;
+``pomdp_planner/bench/multitarget.py``).
 ``bench all`` writes every experiment into ``--output DIR`` (``RESULTS.md``, ``img/*.png``;
 ``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
@@ -13,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..bench import multitarget as multitarget_bench
 from ..bench import search as search_bench
 from ..bench import structure as structure_bench
 from . import experiments
@@ -32,8 +36,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=structure_bench.__doc__.split("\n\n")[0])
     structure_bench.add_arguments(t)
     t.set_defaults(func=lambda args: structure_bench.run_from_args(args, "pomdp-planner bench structure"))
+    m = sub.add_parser("multitarget", help="several targets, one budget: dual bound, regret, scaling",
+                       description=multitarget_bench.__doc__.split("\n\n")[0])
+    multitarget_bench.add_arguments(m)
+    m.set_defaults(func=_run_multitarget)
     experiments.add_arguments(sub.add_parser("all", help="all experiments: RESULTS.md and img/*.png in --output DIR",
                                              description=experiments.__doc__.split("\n\n")[0]))
+
+
+def _run_multitarget(args: argparse.Namespace) -> int:
+    try:
+        return multitarget_bench.run_from_args(args)
+    except (ValueError, OSError) as exc:  # a bad option; an unwritable --json or --plot
+        print(f"pomdp-planner bench multitarget: error: {exc}", file=sys.stderr)
+        return 2
 
 
 def _run_search(args: argparse.Namespace) -> int:

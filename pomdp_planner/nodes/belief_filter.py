@@ -3,16 +3,18 @@
 Topics (relative names, remappable; layouts: :mod:`.messages`, QoS: :mod:`.qos`):
 
 * subscribes each topic of ``observation_topics`` (``Int64MultiArray [epoch, action_priority,
-  observation]``) and ``action`` (``[epoch, action_priority]``: to predict through a lost epoch
-  and to cross-check), all ``STREAM_QOS``;
+  observation]``), each of ``likelihood_topics`` (soft evidence, ``Float64MultiArray`` with the
+  epoch and priority in its layout, as the measurement adapter publishes it) and ``action``
+  (``[epoch, action_priority]``: to predict through a lost epoch and to cross-check), all
+  ``STREAM_QOS``;
 * publishes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``,
   ``STREAM_QOS``; epoch 0 is the prior), ``belief_entropy`` (``Float64``, Shannon entropy in nats
   of the same belief; ``LATCHED_QOS``) and ``/diagnostics`` (``belief_filter: belief``).
 
 Each observation applies with the action it carries, epochs in order, one prediction and one
-update per sensor reading; the rules (epoch buffer, gaps, recovery, joining, re-sync, re-send,
-stall levels) are the core's :class:`~pomdp_planner.core.loop.FilterLoop`. Parameters, topics
-and diagnostics: docs/ros.md.
+update per sensor reading (``b'(s) ∝ l(s) b^a(s)`` for soft evidence); the rules (epoch buffer,
+gaps, recovery, joining, re-sync, re-send, stall levels) are the core's
+:class:`~pomdp_planner.core.loop.FilterLoop`. Parameters, topics and diagnostics: docs/ros.md.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.loop import FilterLoop, FilterOutput
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, OutOfRangeError, decode_observation, encode_belief, wire_limits
+from .messages import (MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief,
+                       wire_limits)
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -39,6 +42,8 @@ class BeliefFilter(LoopNode):
         d = descriptor
         self.declare_parameter("observation_topics", ["observation"], d(
             "Observation topics, one per sensor, each [epoch, action_priority, observation]", read_only=True))
+        declare_optional_array(self, "likelihood_topics", "string",
+                               "Soft-evidence topics, one per sensor: a likelihood per state (measurement_adapter)")
         declare_optional_array(self, "observation_model_files", "string",
                                "Per-sensor model file whose O is used ('' = the model's own)")
         declare_optional_array(self, "initial_distribution", "double",
@@ -51,9 +56,12 @@ class BeliefFilter(LoopNode):
         # ranges and types: the descriptors (nothing else to validate); side effects after a set
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        self.topics = list(self.get_parameter("observation_topics").value)
-        if not self.topics or len(set(self.topics)) != len(self.topics):
-            raise NodeConfigError(f"observation_topics: need distinct topics, got {self.topics}")
+        self.topics = optional_array(self, "observation_topics") or []  # an empty list ([]) arrives unset
+        soft_topics = optional_array(self, "likelihood_topics") or []
+        every = self.topics + soft_topics
+        if not every or len(set(every)) != len(every):
+            raise NodeConfigError(f"observation_topics, likelihood_topics: need distinct topics, at least one, got "
+                                  f"{self.topics} and {soft_topics}")
         with config_errors():
             self.model = load_model_file(self.model_file)
             sensors = load_observation_models(self.model, optional_array(self, "observation_model_files"),
@@ -61,14 +69,20 @@ class BeliefFilter(LoopNode):
             prior = initial_distribution(self.model, optional_array(self, "initial_distribution"))
             loop = FilterLoop(self.model, sensors, prior, self.topics, self.live, now=self.now(),
                               epoch_timeout=self.get_parameter("epoch_timeout").value,
-                              max_pending=self.get_parameter("max_pending_epochs").value)
+                              max_pending=self.get_parameter("max_pending_epochs").value,
+                              likelihood_topics=soft_topics)
         self.belief_pub = self.create_publisher(Float64MultiArray, "belief", STREAM_QOS)
         self.entropy_pub = self.create_publisher(Float64, "belief_entropy", LATCHED_QOS)
-        limit = wire_limits(self.model.S)["observation"]
+        limits = wire_limits(self.model.S)
         for k, topic in enumerate(self.topics):
             self.subscribe_input(topic, Int64MultiArray, topic, STREAM_QOS,
-                                 lambda msg, k=k: self._on_observation(k, msg), max_bytes=limit,
+                                 lambda msg, k=k: self._on_observation(k, msg), max_bytes=limits["observation"],
                                  layout="[epoch, action_priority, observation]",
+                                 on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
+        for k, topic in enumerate(soft_topics, start=len(self.topics)):
+            self.subscribe_input(topic, Float64MultiArray, topic, STREAM_QOS,
+                                 lambda msg, k=k: self._on_likelihood(k, msg), max_bytes=limits["likelihood"],
+                                 layout=f"a likelihood of {self.model.S} states",
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
         self.subscribe_actions(STREAM_QOS)
         self._release = OneShot(self, self._on_release)  # armed only while an epoch waits for its time-out
@@ -90,6 +104,15 @@ class BeliefFilter(LoopNode):
             self.call(self.loop.rejected_observation, sensor, str(exc), out_of_range=isinstance(exc, OutOfRangeError))
             return
         self.call(self.loop.observation, sensor, obs)
+
+    @callback
+    def _on_likelihood(self, sensor: int, msg: Float64MultiArray) -> None:
+        try:
+            evidence = decode_likelihood(msg, self.model.A, self.model.S)
+        except MessageError as exc:
+            self.call(self.loop.rejected_observation, sensor, str(exc), out_of_range=isinstance(exc, OutOfRangeError))
+            return
+        self.call(self.loop.observation, sensor, evidence)
 
     @callback
     def _on_release(self) -> None:

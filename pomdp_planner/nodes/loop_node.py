@@ -26,7 +26,7 @@ from std_msgs.msg import Int64MultiArray
 from ..core.loop import Log
 from .diagnostics import array, status
 from .messages import MessageError, decode_action, oversized, wire_limits
-from .params import accept_integers_for_doubles, declare_liveness, declare_model_file
+from .params import ParameterNode, accept_integers_for_doubles, declare_liveness, declare_model_file
 from .runtime import callback
 from .take import subscribe
 
@@ -46,6 +46,7 @@ class Input:
     on_bad: Callable[[str], None]
     on_take: Callable[[], None] | None = None  # called for every sample taken (not for one handed in again)
     topic: str = ""
+    sub: object = None                      # the subscription
     held: tuple[bytes, dict] | None = None  # the newest foreign sample: handed in again at a takeover
     asked: dict[str, None] = field(default_factory=dict)  # writers the graph was looked at for
 
@@ -80,7 +81,7 @@ class OneShot:
             self._fire()
 
 
-class LoopNode(Node):
+class LoopNode(ParameterNode):
     """Base of the loop nodes; a subclass builds its loop, then calls :meth:`run`, and publishes
     each of the loop's outputs in :meth:`emit`. ``task`` names the diagnostics status."""
 
@@ -122,7 +123,7 @@ class LoopNode(Node):
         spec = Input(name, msg_type, max_bytes, layout, on_msg, on_bad, on_take)
         sub = subscribe(self, msg_type, topic, lambda raw, info: self._on_sample(spec, raw, info), qos, max_bytes,
                         **kwargs)
-        spec.topic = sub.topic_name
+        spec.topic, spec.sub = sub.topic_name, sub
         self.inputs[name] = spec
         return spec
 

@@ -45,7 +45,8 @@ ACTION_MEMORY = 256
 
 @dataclass
 class EpochReadings:
-    """All readings of one epoch: ``readings[sensor] = observation``.
+    """All readings of one epoch: ``readings[sensor] = observation`` (an index, or for a
+    soft-evidence sensor its likelihood per state as a tuple: compared by value).
 
     ``action``: the action the readings carry (``None`` = a gap, no reading); ``commanded``: the
     action commanded for this epoch, if one was reported with :meth:`EpochBuffer.command`.
@@ -53,7 +54,7 @@ class EpochReadings:
 
     epoch: int
     action: int | None
-    readings: dict[int, int] = field(default_factory=dict)
+    readings: dict[int, int | tuple[float, ...]] = field(default_factory=dict)
     first_seen: float = 0.0
     complete: bool = False
     commanded: int | None = None
@@ -115,11 +116,11 @@ class EpochBuffer:
             self._commanded.popitem(last=False)
         return True
 
-    def add(self, sensor: int, epoch: int, action: int, observation: int, now: float) -> str:
-        """Buffer one reading (arrived at ``now``); returns ``"buffered"``, ``"replaced"`` (it took the
-        place of a conflicting one that had come ahead), ``"duplicate"``, ``"conflict"``, ``"far"``
-        (more than :attr:`reach` epochs ahead) or ``"out_of_window"`` (``window`` or more ahead);
-        the last two are not buffered."""
+    def add(self, sensor: int, epoch: int, action: int, observation: int | tuple[float, ...], now: float) -> str:
+        """Buffer one reading (an observation index, or a likelihood tuple; arrived at ``now``);
+        returns ``"buffered"``, ``"replaced"`` (it took the place of a conflicting one that had come
+        ahead), ``"duplicate"``, ``"conflict"``, ``"far"`` (more than :attr:`reach` epochs ahead) or
+        ``"out_of_window"`` (``window`` or more ahead); the last two are not buffered."""
         if not 0 <= sensor < self.num_sensors:
             raise ValueError(f"sensor: index {sensor} out of range 0..{self.num_sensors - 1}")
         if epoch < self.next_epoch:
