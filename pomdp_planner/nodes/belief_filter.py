@@ -25,8 +25,7 @@ from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.loop import FilterLoop, FilterOutput
 from .loop_node import LoopNode, OneShot
-from .messages import (MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief,
-                       wire_limits)
+from .messages import MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief, wire_limits
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
