@@ -44,7 +44,6 @@ class Input:
     layout: str
     on_msg: Callable[[object], None]
     on_bad: Callable[[str], None]
-    on_take: Callable[[], None] | None = None  # called for every sample taken (not for one handed in again)
     topic: str = ""
     sub: object = None                      # the subscription
     held: tuple[bytes, dict] | None = None  # the newest foreign sample: handed in again at a takeover
@@ -115,12 +114,12 @@ class LoopNode(ParameterNode):
     # ----------------------------------------------------------- inputs
     def subscribe_input(self, name: str, msg_type: type, topic: str, qos, on_msg: Callable[[object], None], *,
                         max_bytes: int, layout: str, on_bad: Callable[[str], None],
-                        on_take: Callable[[], None] | None = None, **kwargs) -> Input:
+                        **kwargs) -> Input:
         """Subscribe to ``topic`` as the loop's input ``name``: a sample larger than ``max_bytes``
         (``layout``: what it should hold) is dropped unread, one of a writer other than the one the
         loop follows is dropped before it is decoded (``loop.health.admit``), the rest is
         deserialized and handed to ``on_msg`` (one that does not deserialize to ``on_bad``)."""
-        spec = Input(name, msg_type, max_bytes, layout, on_msg, on_bad, on_take)
+        spec = Input(name, msg_type, max_bytes, layout, on_msg, on_bad)
         sub = subscribe(self, msg_type, topic, lambda raw, info: self._on_sample(spec, raw, info), qos, max_bytes,
                         **kwargs)
         spec.topic, spec.sub = sub.topic_name, sub
@@ -128,9 +127,7 @@ class LoopNode(ParameterNode):
         return spec
 
     @callback
-    def _on_sample(self, spec: Input, raw: bytes | None, info: dict, *, again: bool = False) -> None:
-        if spec.on_take is not None and not again:
-            spec.on_take()
+    def _on_sample(self, spec: Input, raw: bytes | None, info: dict) -> None:
         now = self.now()
         size = info.get("size", 0 if raw is None else len(raw))
         if raw is None or size > spec.max_bytes:
@@ -180,7 +177,7 @@ class LoopNode(ParameterNode):
                 if held is not None:
                     spec.held = None
             if held is not None:
-                self._on_sample(spec, *held, again=True)
+                self._on_sample(spec, *held)
 
     # ----------------------------------------------------------- time
     def _refuse_sim_time(self, params: list[Parameter]) -> SetParametersResult:

@@ -78,15 +78,16 @@ class PlannerNode(LoopNode):
         self.action_pub = self.create_publisher(Int64MultiArray, "action", STREAM_QOS)
         self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         plan_group = MutuallyExclusiveCallbackGroup()
-        # Two readers of ``belief``, each taking every sample: in the default group ``_on_belief``
-        # decodes, checks and counts each one into the loop's mailbox (during a search too); in
-        # plan_group ``_on_belief_planning`` plans what the mailbox holds, right when a belief comes.
-        # The guard condition wakes plan_group when the loop says so (a re-sync, a belief that came
-        # after the planning reader had taken its sample, the join).
-        self._received = self._planning_received = 0  # samples taken by each reader
+        # Two readers of ``belief``: in the default group ``_on_belief`` decodes, checks and counts
+        # each sample into the loop's mailbox (during a search too); in plan_group
+        # ``_on_belief_planning`` plans what the mailbox holds, right when a belief comes. The two
+        # readers need not see the same samples (one may match a writer later, or lose a large
+        # sample whose writer left during its delivery), so the default group wakes plan_group
+        # (the guard condition) whenever the mailbox holds a belief; a wake-up that finds the
+        # mailbox taken plans nothing. The guard also serves the join.
         limit = wire_limits(self.model.S)["belief"]
         self.subscribe_input("belief", Float64MultiArray, "belief", STREAM_QOS, self._on_belief, max_bytes=limit,
-                             layout=f"a belief of {self.model.S} states", on_take=self._took_belief,
+                             layout=f"a belief of {self.model.S} states",
                              on_bad=lambda problem: self.call(self.loop.rejected_belief, problem))
         subscribe(self, Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS, limit,
                   callback_group=plan_group)
@@ -114,19 +115,13 @@ class PlannerNode(LoopNode):
             if bel is None:
                 out = self.loop.rejected_belief(problem, now)
             else:
-                out = self.loop.belief(bel, now, planner_ahead=self._planning_received >= self._received)
+                out = self.loop.belief(bel, now, planner_ahead=True)
         self.emit(out)
-
-    def _took_belief(self) -> None:
-        with self.lock:
-            self._received += 1
 
     @callback
     def _on_belief_planning(self, raw: bytes | None, info: dict) -> None:
         """The planning reader: wakes the planning side as a belief comes (its content is the other
         reader's business)."""
-        with self.lock:
-            self._planning_received += 1
         self._plan_next()
 
     @callback
