@@ -38,7 +38,7 @@ from ..core.io.paths import resolve_path
 from .executor import NodeExecutor, shutdown_executor
 from .params import NodeConfigError, check_given_parameters
 
-#: The Fast DDS profile of the node processes (docs/ros.md, "Bounded samples"): readers free a
+#: The Fast DDS profile of the node processes (docs/ros.md, "Memory of an oversized sample"): readers free a
 #: sample's memory once it is taken.
 FASTDDS_PROFILE = "config/fastdds_profile.xml"
 _FASTDDS = ("rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
