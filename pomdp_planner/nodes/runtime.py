@@ -34,31 +34,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_i
 from rclpy.node import Node
 
 from ..core.errors import InputError, short_repr
-from ..core.io.paths import resolve_path
 from .executor import NodeExecutor, shutdown_executor
 from .params import NodeConfigError, check_given_parameters
-
-#: The Fast DDS profile of the node processes (docs/ros.md, "Memory of an oversized sample"): readers free a
-#: sample's memory once it is taken.
-FASTDDS_PROFILE = "config/fastdds_profile.xml"
-_FASTDDS = ("rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
-_PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
-                      "RMW_FASTRTPS_USE_QOS_FROM_XML")
-
-
-def use_shipped_dds_profile(environ: dict | None = None) -> str | None:
-    """Point Fast DDS at :data:`FASTDDS_PROFILE` (before ``rclpy.init``), unless the user chose a
-    profile or its use (any of the variables set) or another middleware; returns the path used."""
-    environ = os.environ if environ is None else environ
-    if any(v in environ for v in _PROFILE_VARIABLES) or environ.get("RMW_IMPLEMENTATION", _FASTDDS[0]) not in _FASTDDS:
-        return None
-    try:
-        path = str(resolve_path(FASTDDS_PROFILE, "Fast DDS profile"))
-    except InputError:  # not installed with the package: the middleware's defaults
-        return None
-    environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = path
-    environ["RMW_FASTRTPS_USE_QOS_FROM_XML"] = "1"
-    return path
 
 
 @contextmanager
@@ -222,7 +199,6 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     sigint = _SigintWhileSpinning()
     signal.signal(signal.SIGINT, sigint)  # before rclpy.init, which chains to it (see the class)
     held = _HeldStderr()
-    use_shipped_dds_profile()
     nodes: list[Node] = []
     executor = None
     code = 0
