@@ -98,6 +98,23 @@ class RunRecordWriter:
         self.stream.flush()
 
 
+def open_run_record(path: str | os.PathLike, field: str, model_name: str, S: int, A: int,
+                    time_budget: float | None = None) -> RunRecordWriter:
+    """A :class:`RunRecordWriter` streaming into the file ``path`` (created or overwritten; closing
+    ``writer.stream`` ends it); a file that cannot be written is a :class:`RunRecordError` naming
+    ``field`` (the option or parameter that gave the path)."""
+    try:
+        stream = open(path, "w", encoding="utf-8")
+    except OSError as exc:
+        raise RunRecordError(f"{field}: cannot write {path}: {exc.strerror or type(exc).__name__}") from None
+    try:
+        return RunRecordWriter(stream, model_name, S, A, time_budget)
+    except (OSError, RunRecordError) as exc:
+        stream.close()
+        reason = exc.strerror if isinstance(exc, OSError) else str(exc)
+        raise RunRecordError(f"{field}: cannot write {path}: {reason or type(exc).__name__}") from None
+
+
 @dataclass(frozen=True, eq=False)
 class RunRecord:
     """A run record read back: ``beliefs`` ``(T, S)``; ``true_state`` ``(T,)`` with -1 where unknown;
