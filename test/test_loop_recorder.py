@@ -93,8 +93,8 @@ def test_row_t_holds_belief_and_state_of_t_and_the_action_and_plan_info_of_t_plu
     (row,) = run.rows
     assert (row.epoch, row.true_state, row.priority, row.bounds) == (4, 2, 3, (2, 3))
     np.testing.assert_array_equal(row.belief, belief_of(4))
-    assert row.record_fields() == {"true_state": 2, "bounds": (2, 3), "depth": 4, "certified": False,
-                                   "latency": 0.0125}
+    assert row.record_fields() == {"true_state": 2, "bounds": (2, 3), "guaranteed": True, "depth": 4,
+                                   "certified": False, "latency": 0.0125}
 
 
 def test_certified_and_bounds_come_only_from_the_plan_info():
@@ -102,8 +102,8 @@ def test_certified_and_bounds_come_only_from_the_plan_info():
     run.decision(0, 2, bounds=(2, 2), certified=True)  # agreeing guaranteed bounds
     run.decision(1, 1)  # the planner published no bounds (NaN): none in the record
     a, b = run.rows
-    assert a.record_fields()["certified"] and a.bounds == (2, 2)
-    assert b.bounds is None and not b.record_fields()["certified"]
+    assert a.record_fields()["certified"] and a.bounds == (2, 2) and a.record_fields()["guaranteed"]
+    assert b.bounds is None and not b.record_fields()["certified"] and not b.record_fields()["guaranteed"]
 
 
 @pytest.mark.parametrize(("fields", "problem"), [

@@ -102,6 +102,7 @@ def test_a_recorded_loop_reads_back_pairs_by_epoch_and_plots(harness, tmp_path, 
             assert record.lower[k] == record.upper[k] == 0  # empty: no bound the planner did not publish
         else:
             assert (record.lower[k], record.upper[k]) == (i["bound_lower"], i["bound_upper"])
+        assert record.guaranteed[k] == record.has_bounds[k]  # the planner publishes only guaranteed bounds
         assert record.certified[k] == bool(i["certified"]) and record.depth[k] == i["depth"]
         assert record.latency[k] == i["latency"]
     if use_bounds:  # the S = 3 model passes the gate: the planner publishes guaranteed bounds
@@ -176,4 +177,4 @@ def test_sigint_ends_it_cleanly_with_the_record_readable_so_far(tmp_path):
     assert "Traceback" not in text
     assert (tmp_path / "run.csv").read_text().splitlines() == [
         "# pomdp_planner run record 1; model=tracking_s3_info; S=3; A=3; time_budget=none",
-        "epoch,true_state,b0,b1,b2,action,lower,upper,depth,certified,latency"]
+        "epoch,true_state,b0,b1,b2,action,lower,upper,guaranteed,depth,certified,latency"]

@@ -108,6 +108,7 @@ class RecordRow:
         after ``epoch``, ``belief`` and ``priority``."""
         info = self.info
         return {"true_state": self.true_state, "bounds": self.bounds,
+                "guaranteed": self.bounds is not None,  # the planner publishes only guaranteed bounds
                 "depth": None if info is None else info.depth,
                 "certified": info is not None and info.certified,
                 "latency": None if info is None else info.latency}
