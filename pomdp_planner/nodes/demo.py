@@ -107,6 +107,15 @@ class Monitor:
     def spin_once(self, timeout: float = 0.05) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
+    def state(self) -> str:
+        """One line for a run that stalls: the pairing's report and the topics no writer was matched on."""
+        with self.inputs.lock:
+            report = self.loop.report(time.monotonic())
+        newest = ", ".join(f"{t} {self.loop.newest[t]}" for t in sorted(self.loop.newest)) or "none"
+        unmatched = [t for t in self.subs if not self.matched(t)]
+        return (f"monitor: {report.message}, {len(self.loop.pending)} rows waiting, newest row epoch per topic: "
+                f"{newest}; no writer matched on: {', '.join(unmatched) or 'none'}")
+
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
@@ -242,7 +251,7 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
             if dead or time.monotonic() - last_progress > 60.0:
                 print(f"demo: {'process(es) ' + ', '.join(dead) + ' exited' if dead else 'no progress for 60 s'}; "
-                      "stopping", file=sys.stderr)
+                      f"stopping ({monitor.state()})", file=sys.stderr)
                 code = 1
                 break
     except KeyboardInterrupt:
