@@ -51,7 +51,8 @@ class Input:
 
 
 class OneShot:
-    """A timer of ``node`` that calls ``fire`` once at the time it was last armed for.
+    """A timer of ``node`` (on the steady clock) that calls ``fire`` once at the time it was last
+    armed for.
 
     Disarming does not cancel the timer (cancelling it from another callback races with the
     executor taking it as ready: rclpy then raises "timer is canceled"); a disarmed timer fires
@@ -61,7 +62,8 @@ class OneShot:
         self.context = node.context  # for @callback
         self._fire = fire
         self._at: float | None = None
-        self._timer = node.create_timer(1.0, self._on_timer, autostart=False, clock=node.steady)
+        self._timer = node.create_timer(1.0, self._on_timer, autostart=False,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def arm(self, at: float | None, now: float) -> None:
         """Fire at ``at`` (``time.monotonic`` time; ``None``: not at all)."""
