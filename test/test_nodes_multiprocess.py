@@ -243,7 +243,7 @@ def test_closed_loop_entry_point_one_process(domain, tmp_path):
     assert epochs == sorted(epochs)
 
 
-# ----------------------------------------------------------------- restarts (issue 13)
+# ----------------------------------------------------------------- restarts
 
 RESTART_PARAMS = {  # a small epoch window, so that a restarted filter joins after ~100 epochs already
     "target_simulator": ["-p", "seed:=5", "-p", "epoch_window:=50"],
