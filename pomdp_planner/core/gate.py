@@ -64,7 +64,7 @@ from .checks import check_choice
 from .errors import OptionError
 from .model import POMDP, array_digest, format_bytes, infinite_horizon_refusal
 from .myopic import MyopicBounds
-from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner, planner_table_bytes
+from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner, planner_table_bytes, uses_fused_table
 from .structure import AssumptionReport, CheckEstimate, check_assumptions, estimate_check, seconds_text
 
 #: What :func:`build_planner` does when Assumption 1 fails or is unproven.
@@ -183,7 +183,8 @@ class SetupEstimate:
             out.append(f"assumption check {self.check.describe()}, {format_bytes(self.check.bytes)}")
         if self.lp_bytes:
             out.append(f"bound LP about {seconds_text(self.lp_seconds)}, {format_bytes(self.lp_bytes)}")
-        out.append(f"planner tables {format_bytes(self.table_bytes)} (they grow like A^2 S Z)")
+        growth = "A^2 S Z" if uses_fused_table(self.S, self.A, self.Z) else "A S (S + Z)"
+        out.append(f"planner tables {format_bytes(self.table_bytes)} (they grow like {growth})")
         return "; ".join(out)
 
 
