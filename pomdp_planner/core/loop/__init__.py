@@ -59,6 +59,17 @@ Re-send                A node whose output has not been answered by the input it
 Stall levels           An input that has not advanced its node (a new epoch) for
                        ``stall_warn_after`` / ``stall_error_after`` seconds is WARN / ERROR,
                        named with since when and what arrived meanwhile.
+Inactive               A managed node that is configured but not active (ROS: the lifecycle's
+                       ``inactive`` state) publishes nothing and keeps its state. The filter
+                       still applies every reading (no epoch is lost; its beliefs are
+                       withheld) and publishes its newest belief when activated. The planner
+                       plans nothing: the newest belief waits in the mailbox and its position
+                       follows it (the epochs skipped are never planned for, so a long pause
+                       beside a sensor that keeps stepping is neither out of window nor a
+                       re-sync); when activated it sends its last action again if no belief
+                       answered it (it may have been decided while inactive) and plans the
+                       mailbox. No re-send while inactive; stall levels are not raised, and
+                       after activation silence is counted from the activation.
 Report                 A node's diagnostics are WARN while a problem count grew since the
                        previous report (OK again once they stop), with the last warning; the
                        level is the highest of that, the stall levels and the loop's own.

@@ -116,13 +116,14 @@ class PlannerLoop:
     ``refuse``: if the model fails the structural assumptions, plan nothing (the gate's
     ``on_assumption_failure="refuse"``) instead of searching exhaustively. ``chunk_bytes``: the
     search's chunk size (the deadline is checked between chunks). ``progress``: where the gate
-    announces a set-up that will take a while, as it starts (a log line; the loop's other lines
-    come with its outputs).
+    announces a set-up that will take a while, as it starts, and each stage over a second as it
+    ends (log lines; the loop's other lines come with its outputs). ``active=False``: the loop
+    starts inactive (package docstring, "Inactive"; :meth:`activate`).
     """
 
     def __init__(self, model: POMDP, params: Mapping[str, Any], live: Liveness, *, now: float,
                  refuse: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Callable[[str], None] | None = None, active: bool = True):
         missing = [k for k in TUNABLE if k not in params]
         if missing:
             raise ValueError(f"params: missing {missing}")
@@ -160,6 +161,7 @@ class PlannerLoop:
         self.resender = Resender(live.resend_period)
         self.last: SearchResult | None = None
         self.last_params: dict[str, Any] = {}
+        self.active = active
 
     @property
     def mailbox(self) -> BeliefSample | None:
@@ -196,6 +198,35 @@ class PlannerLoop:
         self._planner_key = (variant, constant)
         return warning
 
+    # ----------------------------------------------------------- lifecycle
+    def activate(self, now: float) -> PlannerOutput:
+        """Start planning and publishing (package docstring, "Inactive"): the input watch counts
+        silence from now, the last action is sent again at once if no belief has answered it (it
+        may have been decided while inactive), and the belief in the mailbox is planned."""
+        if self.active:
+            return self._result(now)
+        self.active = True
+        self.health.resume(now)
+        actions = []
+        if self.resender.waiting and self.planning is None and self._last_action is not None:
+            actions.append(self._last_action)
+            self.resender.resending(now)
+            self.health.count("resent_actions")
+        waiting = self._mailbox
+        self.health.log("info", "activated: planning " + (
+            f"the belief of epoch {waiting[0].epoch}" if waiting is not None else "the next belief"))
+        return self._result(now, actions=actions, plan_now=waiting is not None)
+
+    def deactivate(self, now: float) -> PlannerOutput:
+        """Stop planning and publishing; the bounds, the decision cache and the newest belief stay
+        (package docstring, "Inactive"). A search already running finishes; its action is kept
+        and sent at activation if still unanswered."""
+        if self.active:
+            self.active = False
+            self.health.log("info", "deactivated: not planning or publishing; the newest belief is kept for "
+                            "the activation")
+        return self._result(now)
+
     # ----------------------------------------------------------- beliefs
     def start(self, now: float) -> PlannerOutput:
         """The start-up lines (the model, the assumptions, the bounds in force)."""
@@ -219,6 +250,8 @@ class PlannerLoop:
                 # the newest of what comes within JOIN_DELAY (a restarted filter's history starts with
                 # its prior at epoch 0; a running filter's history ends at its epoch)
                 self._join.note(bel.epoch, now)
+            elif not self.active:  # the epochs skipped while inactive are never planned for ("Inactive")
+                self.line.advance(self._mailbox[0].epoch - 1, now)
         elif verdict == "out_of_window":
             self.line.off_line(bel.epoch, (bel, now), now)
             self.health.warn("out_of_window", f"belief of epoch {bel.epoch} is beyond the epoch window "
@@ -229,7 +262,7 @@ class PlannerLoop:
             if verdict == "behind":
                 self.line.off_line(bel.epoch, (bel, now), now)
         resynced = self._resync_if_due(now)
-        return self._result(now, plan_now=self._mailbox is not None and (resynced or planner_ahead))
+        return self._result(now, plan_now=self.active and self._mailbox is not None and (resynced or planner_ahead))
 
     def rejected_belief(self, problem: str, now: float) -> PlannerOutput:
         self.health.reject(self.health.watches[0], "bad_beliefs", f"ignored {problem}; no action published", now)
@@ -247,7 +280,9 @@ class PlannerLoop:
 
     # ----------------------------------------------------------- planning
     def take(self, now: float) -> PlanJob | None:
-        """The belief to plan now, if any (``None`` while joining, refusing or with nothing new)."""
+        """The belief to plan now, if any (``None`` while inactive, joining, refusing or with nothing new)."""
+        if not self.active:
+            return None
         if self.line.position is None and not self._join.settled(now):
             return None  # joining: the node calls again at join_at
         taken, self._mailbox = self._mailbox, None
@@ -303,6 +338,8 @@ class PlannerLoop:
             self.health.warn("deadline_misses", f"epoch {action.epoch}: decision took {latency * 1e3:.1f} ms "
                              f"(budget {p['time_budget'] * 1e3:.0f} ms)", now, log=False)
         out = self._send(action, now)
+        if not self.active:
+            return out
         out.plan_info = PlanInfo(
             epoch=action.epoch, action_priority=action.priority, depth=int(r.depth),
             nodes_expanded=int(sum(r.nodes_expanded)), pruned_percent=float(r.percent_pruned[-1]) if r.percent_pruned
@@ -311,19 +348,20 @@ class PlannerLoop:
         return out
 
     def _send(self, action: ActionSample, now: float) -> PlannerOutput:
+        """Publish ``action`` (kept, unpublished, while inactive: :meth:`activate` sends it)."""
         self._last_action = action
         self.resender.published(now)
-        return self._result(now, actions=[action])
+        return self._result(now, actions=[action] if self.active else [])
 
     def watchdog(self, now: float) -> PlannerOutput:
         """Re-send the last action while the belief it leads to has not come; the time-based re-sync."""
         actions = []
-        if self.resender.due(now) and self.planning is None and self._last_action is not None:
+        if self.active and self.resender.due(now) and self.planning is None and self._last_action is not None:
             actions.append(self._last_action)
             self.resender.resending(now)
             self.health.count("resent_actions")
         self._resync_if_due(now)
-        return self._result(now, actions=actions, plan_now=self._mailbox is not None)
+        return self._result(now, actions=actions, plan_now=self.active and self._mailbox is not None)
 
     def _result(self, now: float, **kw) -> PlannerOutput:
         join_at = self._join.wake_at(now) if self.line.position is None else None
@@ -347,7 +385,10 @@ class PlannerLoop:
         else:
             idle = f"depth {r.depth}, exhaustive search"
         head = [] if self.assumptions.holds else ["assumptions fail: exhaustive search"]
-        report = self.health.report(now, values, head=head, idle=idle,
+        if not self.active:
+            head.insert(0, "inactive: not planning or publishing" + (
+                f" (newest belief: epoch {self._mailbox[0].epoch})" if self._mailbox is not None else ""))
+        report = self.health.report(now, values, head=head, idle=idle, inactive=not self.active,
                                     level=Level.OK if self.assumptions.holds else Level.WARN)
         values = report.values
         if not setup.guaranteed:
