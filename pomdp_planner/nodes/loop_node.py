@@ -1,23 +1,43 @@
-"""What the three loop nodes share: the ``model_file`` and liveness parameters, one lock around
-every call into the node's loop (``core/loop``), the time those calls get (``time.monotonic``),
-the loop's log lines, one-shot timers armed for the times a loop asks to be called back, the
-watchdog and the diagnostics (about once a second, ``/diagnostics``)."""
+"""What the loop nodes share: the ``model_file`` and liveness parameters, one lock around every
+call into the node's loop (``core/loop``), the time those calls get (``time.monotonic``), the
+loop's log lines, one-shot timers armed for the times a loop asks to be called back, the watchdog
+and the diagnostics (about once a second, ``/diagnostics``).
+
+:class:`LoopNode` is a plain node that builds its loop when it is made (the target simulator);
+:class:`ManagedLoopNode` is a managed (lifecycle) node (the planner and the belief filter; the
+states and transitions: docs/ros.md, "Lifecycle"): ``configure`` reads the parameters, loads the
+model and builds the loop with its publishers, subscriptions and timers, ``activate`` and
+``deactivate`` switch its publishing (the core's "Inactive" rule), ``cleanup`` releases it all,
+and its diagnostics publish in every state, saying the state.
+"""
 
 from __future__ import annotations
 
 import threading
 import time
+import traceback
 from collections.abc import Callable, Iterable
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle.publisher import LifecyclePublisher
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Int64MultiArray
 
-from ..core.loop import Log
+from ..core.gate import SetupStages
+from ..core.io.sensors import load_model_file
+from ..core.loop import LOOP_STATES, Log, Report, state_report
+from ..core.model import POMDP
 from .diagnostics import array, status
 from .messages import MessageError, decode_action
-from .params import accept_integers_for_doubles, declare_liveness, declare_model_file
-from .runtime import callback
+from .params import accept_integers_for_doubles, declare_liveness, declare_model_file, descriptor, liveness
+from .runtime import NodeConfigError, callback, config_errors
+
+#: The note a managed node adds to a parameter it reads at configure (read-only for a plain node).
+CONFIGURE_TIME = "read at configure: settable only while the node is unconfigured"
 
 
 class OneShot:
@@ -52,16 +72,24 @@ class OneShot:
 
 class LoopNode(Node):
     """Base of the loop nodes; a subclass builds its loop, then calls :meth:`run`, and publishes
-    each of the loop's outputs in :meth:`emit`. ``task`` names the diagnostics status."""
+    each of the loop's outputs in :meth:`emit`. ``task`` names the diagnostics status. A plain
+    loop node reads ``model_file`` and the liveness parameters when it is made (``model_file``,
+    ``live``)."""
 
     task = ""
+    #: A managed node (:class:`ManagedLoopNode`) reads its parameters at configure instead.
+    managed = False
 
     def __init__(self, node_name: str, **kwargs):
         super().__init__(node_name, **kwargs)
         accept_integers_for_doubles(self)
-        self.model_file = declare_model_file(self)
-        self.live = declare_liveness(self)
+        declare_model_file(self)
+        declare_liveness(self)
         self.lock = threading.Lock()
+        self.loop = None
+        if not self.managed:
+            self.model_file = self.get_parameter("model_file").value
+            self.live = liveness(self)
 
     @staticmethod
     def now() -> float:
@@ -77,8 +105,12 @@ class LoopNode(Node):
         self.call(loop.start)
 
     def call(self, method: Callable, *args, **kwargs) -> None:
-        """``method(*args, now, **kwargs)`` of the loop with the lock held; its output is emitted."""
+        """``method(*args, now, **kwargs)`` of the loop with the lock held; its output is emitted.
+        A method of a loop that is no longer the node's (released by a cleanup while a search ran)
+        is not called."""
         with self.lock:
+            if getattr(method, "__self__", self.loop) is not self.loop:
+                return
             out = method(*args, self.now(), **kwargs)
         self.emit(out)
 
@@ -111,9 +143,204 @@ class LoopNode(Node):
     def _watchdog(self) -> None:
         self.call(self.loop.watchdog)
 
+    def report(self) -> tuple[str, Report]:
+        """``(hardware_id, report)`` for the diagnostics: the loop's report."""
+        with self.lock:
+            return self.loop.model.name, self.loop.report(self.now())
+
     @callback
     def _publish_diagnostics(self) -> None:
-        with self.lock:
-            r = self.loop.report(self.now())
-        self.diag_pub.publish(array(self, status(f"{self.get_name()}: {self.task}", self.loop.model.name,
+        hardware_id, r = self.report()
+        self.diag_pub.publish(array(self, status(f"{self.get_name()}: {self.task}", hardware_id,
                                                  r.level, r.message, r.values)))
+
+
+class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
+    """Base of the managed loop nodes (module docstring). A subclass declares its parameters, then
+    calls :meth:`bring_up`; :meth:`configure_loop` (at configure) reads them and returns its loop,
+    made inactive, creating the publishers (lifecycle publishers: they publish only while active),
+    subscriptions and timers it needs; the base creates the watchdog and releases all of them at
+    cleanup. Every parameter declared read-only is read at configure: it may be set while the node
+    is unconfigured (in force at the next configure) and is refused in every other state.
+
+    ``autostart`` (default true) walks configure and activate in :meth:`bring_up`, so the node
+    starts as a plain one does, and a configure that fails raises :class:`NodeConfigError` (the
+    process's one ``[FATAL]`` line). Without it the node waits, unconfigured, for the
+    ``change_state`` service; a configure that fails leaves it unconfigured, its reason in the log
+    (one line) and in the diagnostics (ERROR) until a configure succeeds.
+    """
+
+    managed = True
+
+    def __init__(self, node_name: str, **kwargs):
+        self._configure_time: set[str] = set()
+        LoopNode.__init__(self, node_name, **kwargs)
+        Node.declare_parameter(self, "autostart", True, descriptor(
+            "Configure and activate at start-up (false: wait, unconfigured, for the lifecycle services)",
+            read_only=True))
+        LifecycleNodeMixin.__init__(self)  # the lifecycle services, in the default callback group
+        self.model: POMDP | None = None
+        self.configure_error = ""
+        self.configure_seconds: float | None = None
+        self._configuring_since: float | None = None
+        self._autostarting = False
+        self._failure: Exception | None = None  # an unexpected error in a transition (a bug)
+        self._configured: list = []  # what configure created (released at cleanup)
+        self.add_on_set_parameters_callback(self._refuse_configure_time_parameters)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # its own group: diagnostics go on during a long configure (the default group's transition)
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
+
+    def declare_parameter(self, name, value=None, descriptor=None, ignore_override=False):
+        """``Node.declare_parameter``; a read-only parameter becomes a configure-time one (class docstring)."""
+        if descriptor is not None and descriptor.read_only:
+            descriptor.read_only = False
+            descriptor.additional_constraints = "; ".join(filter(None, (descriptor.additional_constraints,
+                                                                        CONFIGURE_TIME)))
+            self._configure_time.add(name)
+        return super().declare_parameter(name, value, descriptor, ignore_override)
+
+    @property
+    def lifecycle_state(self) -> str:
+        """The label of the current lifecycle state (``unconfigured``, ``inactive``, ``active``, ...)."""
+        return self._state_machine.current_state[1]
+
+    def _refuse_configure_time_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        late = [p.name for p in params if p.name in self._configure_time]
+        state = self.lifecycle_state
+        if late and state != "unconfigured":
+            return SetParametersResult(successful=False, reason=(
+                f"{', '.join(late)}: read-only while the node is {state} ({CONFIGURE_TIME}; "
+                f"'ros2 lifecycle set {self.get_fully_qualified_name()} cleanup' first)"))
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------- bring-up
+    def bring_up(self) -> None:
+        """With ``autostart``: configure, then activate (class docstring); else wait unconfigured."""
+        if not self.get_parameter("autostart").value:
+            self.get_logger().info(f"unconfigured (autostart false): waiting for configure "
+                                   f"('ros2 lifecycle set {self.get_fully_qualified_name()} configure')")
+            return
+        self._autostarting = True
+        try:
+            ok = self.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        finally:
+            self._autostarting = False
+        if not ok:
+            if self._failure is not None:
+                raise self._failure
+            raise NodeConfigError(self.configure_error)
+        self.trigger_activate()
+        if self._failure is not None:
+            raise self._failure
+
+    def configure_loop(self):
+        """Read the parameters, build and return the loop (inactive) and its entities (class docstring)."""
+        raise NotImplementedError
+
+    def load_model(self, stages: SetupStages) -> POMDP:
+        """Load ``model_file`` (a stage of the configure: reported when it takes over a second)."""
+        with stages.stage("model file"):
+            self.model = load_model_file(self.model_file)
+        return self.model
+
+    # ------------------------------------------------------------- transitions
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Parameters, model, loop (the planner's: the assumption gate and the bound LP), entities."""
+        t0 = self._configuring_since = self.now()
+        self._failure = None
+        before = self._entities()
+        try:
+            with config_errors():
+                self.model_file = self.get_parameter("model_file").value
+                self.live = liveness(self)
+                loop = self.configure_loop()
+            self.create_timer(self.live.watchdog_period, self._watchdog)
+        except NodeConfigError as exc:
+            return self._configure_failed(before, str(exc))
+        except Exception as exc:  # a bug, not bad input: the traceback is logged (and raised by autostart)
+            self._failure = exc
+            self.get_logger().error(f"configure failed: {traceback.format_exc()}")
+            return self._configure_failed(before, f"internal error: {exc!r}", logged=True)
+        finally:
+            self._configuring_since = None
+        self._configured = [e for e in self._entities() if id(e) not in {id(b) for b in before}]
+        self.configure_error = ""
+        self.configure_seconds = self.now() - t0
+        with self.lock:
+            self.loop = loop
+        self.call(loop.start)
+        self.get_logger().info(f"configured in {self.configure_seconds:.2f} s")
+        return super().on_configure(state)
+
+    def _configure_failed(self, before: list, reason: str, logged: bool = False) -> TransitionCallbackReturn:
+        self._configured = [e for e in self._entities() if id(e) not in {id(b) for b in before}]
+        self._release_loop()
+        self.configure_error = reason
+        if not (self._autostarting or logged):  # autostart: the [FATAL] line says it
+            self.get_logger().error(f"configure failed, still unconfigured: {reason}")
+        return TransitionCallbackReturn.FAILURE
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Start publishing (the lifecycle publishers first), then the loop's activation."""
+        ret = super().on_activate(state)
+        self.call(self.loop.activate)
+        return ret
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """The loop's deactivation (it keeps its state), then the lifecycle publishers."""
+        self.call(self.loop.deactivate)
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Release the loop, the model and everything configure created."""
+        self._release_loop()
+        self.get_logger().info("cleaned up: model and loop released")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release_loop()
+        return super().on_shutdown(state)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """After an unexpected error in a transition: release everything (back to unconfigured)."""
+        self._release_loop()
+        return super().on_error(state)
+
+    def _entities(self) -> list:
+        return [*self.publishers, *self.subscriptions, *self.timers, *self.guards]
+
+    def _release_loop(self) -> None:
+        with self.lock:
+            self.loop = None
+            self.model = None
+        for e in self._configured:
+            if isinstance(e, LifecyclePublisher):
+                self.destroy_lifecycle_publisher(e)
+            elif e in self._publishers:
+                self.destroy_publisher(e)
+            elif e in self._subscriptions:
+                self.destroy_subscription(e)
+            elif e in self._timers:
+                self.destroy_timer(e)
+            elif e in self._guards:
+                self.destroy_guard_condition(e)
+        self._configured = []
+
+    # ------------------------------------------------------------- diagnostics
+    def report(self) -> tuple[str, Report]:
+        """The loop's report in the states with a loop, else the state's (``core.loop.state_report``);
+        ``lifecycle_state`` and ``configure_seconds`` among the values."""
+        state = self.lifecycle_state
+        with self.lock:
+            loop = self.loop
+            r = loop.report(self.now()) if loop is not None and state in LOOP_STATES else None
+        since = self._configuring_since
+        if r is None:
+            r = state_report(state, configure_error=self.configure_error,
+                             busy_for=None if since is None else self.now() - since)
+        values = {"lifecycle_state": state, **r.values}
+        if self.configure_seconds is not None:
+            values["configure_seconds"] = round(self.configure_seconds, 3)
+        hardware_id = loop.model.name if loop is not None else str(self.get_parameter("model_file").value)
+        return hardware_id, Report(r.level, r.message, values)

@@ -60,12 +60,11 @@ def optional_array(node: Node, name: str) -> list | None:
     return None if value is None else list(value)
 
 
-def declare_model_file(node: Node) -> str:
-    """Declare the read-only ``model_file`` parameter (every node has it) and return its value."""
+def declare_model_file(node: Node) -> None:
+    """Declare the read-only ``model_file`` parameter (every node has it)."""
     node.declare_parameter("model_file", DEFAULT_MODEL, descriptor(
         "Model file: absolute, relative to the current directory, the package share dir or the source tree, "
         "or a shipped model's name", read_only=True))
-    return node.get_parameter("model_file").value
 
 
 # rclpy types a parameter by its default: a double parameter refuses the integer ``5`` (from a
@@ -111,9 +110,9 @@ def accept_integers_for_doubles(node: Node) -> None:
     node.add_pre_set_parameters_callback(pre_set)
 
 
-def declare_liveness(node: Node) -> Liveness:
+def declare_liveness(node: Node) -> None:
     """Declare ``epoch_window``, ``resend_period``, ``stall_warn_after`` and ``stall_error_after``
-    (read-only) and return them; a warn limit above the error limit stops the node."""
+    (read-only; :func:`liveness` reads them)."""
     d = descriptor
     node.declare_parameter("epoch_window", DEFAULT_EPOCH_WINDOW, d(
         "Farthest epoch jump acted on; beyond it an input is dropped and counted (a restarted peer or a forged "
@@ -126,6 +125,11 @@ def declare_liveness(node: Node) -> Liveness:
         float_range=(0.01, 86400.0)))
     declare_double(node, "stall_error_after", DEFAULT_STALL_ERROR, d(
         "Seconds without a new input before diagnostics say ERROR", read_only=True, float_range=(0.01, 86400.0)))
+
+
+def liveness(node: Node) -> Liveness:
+    """The liveness parameters of ``node`` (:func:`declare_liveness`); a warn limit above the error
+    limit is a :class:`NodeConfigError`."""
     value = node.get_parameter
     try:
         stall = StallLimits(value("stall_warn_after").value, value("stall_error_after").value)

@@ -8,7 +8,8 @@ dataclasses). No loop imports rclpy, starts a thread or reads a clock: the nodes
 decode, call the loop, encode and run the timers, and tests drive the loops by hand
 (``test/test_loop_*.py``). Modules: :mod:`.epochs` (window, verdicts, re-sync and join evidence,
 re-send), :mod:`.health` (counters, stall watch, throttled warnings, the report rule),
-:mod:`.epoch_buffer` (readings in epoch order), one module per loop.
+:mod:`.epoch_buffer` (readings in epoch order), :mod:`.managed` (what a managed node reports
+without a loop), one module per loop.
 
 =====================  ====================================================================
 rule                   what it says
@@ -80,13 +81,15 @@ from .epoch_buffer import EpochBuffer, EpochReadings
 from .epochs import DEFAULT_JOIN_TIMEOUT, JOIN_DELAY, EpochLine, JoinWait, Liveness, Resender, classify
 from .filter_loop import BeliefOut, FilterLoop, FilterOutput
 from .health import Level, Log, LoopHealth, Report, StallLimits
+from .managed import LOOP_STATES, state_report
 from .planner_loop import TUNABLE, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
 from .samples import ActionSample, BeliefSample, ObservationSample
 from .target_loop import Readings, TargetLoop, TargetOutput
 
 __all__ = [
-    "DEFAULT_JOIN_TIMEOUT", "JOIN_DELAY", "TUNABLE", "ActionSample", "BeliefOut", "BeliefSample",
+    "DEFAULT_JOIN_TIMEOUT", "JOIN_DELAY", "LOOP_STATES", "TUNABLE", "ActionSample", "BeliefOut", "BeliefSample",
     "EpochBuffer", "EpochLine", "EpochReadings", "FilterLoop", "FilterOutput", "JoinWait", "Level", "Liveness", "Log",
     "LoopHealth", "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings", "Report",
     "Resender", "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify",
+    "state_report",
 ]
