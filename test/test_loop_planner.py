@@ -338,3 +338,28 @@ def test_a_planner_made_inactive_joins_at_its_activation():
         assert not loop.belief(bel(e), T0 + e / 100).plan_now
     assert loop.take(T0 + 1) is None
     assert loop.activate(T0 + 5).plan_now and loop.take(T0 + 5).epoch == 9
+
+
+def test_max_depth_beyond_the_memory_budget_is_capped_with_one_warning():
+    """As every anytime search: the deepest depth within the planner's memory budget, said once."""
+    from pomdp_planner.core.search import search_memory_estimate
+
+    loop = make(max_depth=4, time_budget=5.0)
+    planner = loop.setup.planner
+    planner.memory_budget = search_memory_estimate(3, 3, 3, 2, planner.chunk_bytes)  # depth 2 fits, 3 does not
+    loop.belief(bel(0), T0)
+    job = loop.take(T0 + JOIN_DELAY)
+    searched = loop.search(job)
+    assert searched.result.depth <= 2 and [log.level for log in searched.logs] == ["warning"]
+    assert searched.logs[0].text.startswith("max_depth capped at 2 (asked 4): a deeper search needs more than")
+    loop.decided(job, searched, T0 + 1)
+    loop.belief(bel(1), T0 + 1)
+    assert loop.search(loop.take(T0 + 1)).logs == ()  # once
+
+
+def test_a_model_too_large_for_even_depth_1_is_refused_at_construction(monkeypatch):
+    import pomdp_planner.core.search as search
+
+    monkeypatch.setattr(search, "search_memory_estimate", lambda *args: 2**40)  # 1 TiB per search
+    with pytest.raises(OptionError, match=r"^max_depth: a search of depth 1 needs about"):
+        PlannerLoop(S3, PARAMS, LIVE, now=T0)

@@ -187,3 +187,22 @@ def test_separable_bound_is_below_the_exact_ratio(seed, S, zero_share):
                   for m in range(S) for n in range(S) if up[m] * vp[n] + vp[m] * up[n] > 0]
         exact = min(ratios) if ratios else np.inf
         assert bound[j] <= exact * (1 + 1e-12) or bound[j] == exact == np.inf
+
+
+@pytest.mark.parametrize("shared", [True, False], ids=["one O for all actions", "one O per action"])
+def test_dominance_margins_equal_the_cumulative_sums_written_out(shared):
+    """(A3)'s margins, whichever way the products are formed: ``sum_{z' <= z} sum_j P[a][i, j] O[a][j, z']``
+    for priority a minus the same for a + 1, by explicit loops."""
+    rng = np.random.default_rng(7)
+    A, S, Z = 4, 5, 3
+    O = rng.dirichlet(np.ones(Z), size=S)
+    O = np.stack([O] * A) if shared else rng.dirichlet(np.ones(Z), size=(A, S))
+    model = POMDP(P=rng.dirichlet(np.ones(S), size=(A, S)), O=O, r=np.zeros((S, A)), gamma=0.9)
+    want = np.zeros((A - 1, S, Z - 1))
+    for a in range(A - 1):
+        for i in range(S):
+            for z in range(Z - 1):
+                cdf = [sum(model.P[b, i, j] * model.O[b, j, y] for j in range(S) for y in range(z + 1))
+                       for b in (a, a + 1)]
+                want[a, i, z] = cdf[0] - cdf[1]
+    np.testing.assert_allclose(structure.observation_cdf_margins(model), want, rtol=1e-12, atol=1e-14)

@@ -1,9 +1,11 @@
-"""``pomdp-planner bench search|structure|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|structure|configure|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
 ``bench structure`` times the Assumption 1 check, fast path against the previous one
 (``pomdp_planner/bench/structure.py``).
+``bench configure`` times what the planner node's configure runs, stage by stage
+(``pomdp_planner/bench/configure.py``).
 ``bench all`` writes every experiment into ``--output DIR`` (``RESULTS.md``, ``img/*.png``;
 ``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..bench import configure as configure_bench
 from ..bench import search as search_bench
 from ..bench import structure as structure_bench
 from . import experiments
@@ -32,6 +35,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=structure_bench.__doc__.split("\n\n")[0])
     structure_bench.add_arguments(t)
     t.set_defaults(func=lambda args: structure_bench.run_from_args(args, "pomdp-planner bench structure"))
+    c = sub.add_parser("configure", help="the planner node's configure, stage by stage, cold",
+                       description=configure_bench.__doc__.split("\n\n")[0])
+    configure_bench.add_arguments(c)
+    c.set_defaults(func=lambda args: configure_bench.run_from_args(args, "pomdp-planner bench configure"))
     experiments.add_arguments(sub.add_parser("all", help="all experiments: RESULTS.md and img/*.png in --output DIR",
                                              description=experiments.__doc__.split("\n\n")[0]))
 

@@ -25,7 +25,7 @@ import numpy as np
 from ..bounds import check_constant, check_variant
 from ..errors import OptionError
 from ..gate import PlannerSetup, build_planner
-from ..model import POMDP
+from ..model import POMDP, format_bytes
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
 from .epochs import EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Level, Log, LoopHealth, Report
@@ -141,6 +141,9 @@ class PlannerLoop:
         bounds_warning = self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
         self.assumptions = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
         self.refusing = self.setup.mode == "refuse"
+        if self.setup.planner is not None:
+            self.setup.planner.check_memory(1, "max_depth")  # refused (one line) if not even depth 1 fits
+        self._depth_caps: dict[int, int] = {}  # max_depth asked -> the deepest within the memory budget
         if bounds_warning is not None:
             self.health.logs.append(bounds_warning)
         if self.refusing:
@@ -305,13 +308,22 @@ class PlannerLoop:
         return bool(params["use_bounds"]) and self.setup.pruning
 
     def search(self, job: PlanJob) -> Searched:
-        """Plan ``job`` (not under the node's lock: only the planning side calls it)."""
+        """Plan ``job`` (not under the node's lock: only the planning side calls it). ``max_depth``
+        is capped at the deepest depth within the planner's memory budget (a warning the first
+        time a value is capped), as for every anytime search (``core/policies.py``)."""
         p = job.params
-        warning = self._ensure_planner(p["bound_variant"], p["bound_constant"])
+        logs = [w for w in (self._ensure_planner(p["bound_variant"], p["bound_constant"]),) if w is not None]
         use_bounds = self._use_bounds(p)
-        result = self.setup.planner.plan(job.belief, max_depth=p["max_depth"], time_budget=p["time_budget"],
-                                         use_bounds=use_bounds)
-        return Searched(result, use_bounds, use_bounds and self.setup.guaranteed, () if warning is None else (warning,))
+        planner = self.setup.planner
+        depth = p["max_depth"]
+        fits = self._depth_caps.get(depth)
+        if fits is None:
+            fits = self._depth_caps[depth] = planner.deepest_depth_within_budget(depth)
+            if fits < depth:
+                logs.append(Log("warning", f"max_depth capped at {fits} (asked {depth}): a deeper search needs more "
+                                f"than the planner's memory budget of {format_bytes(planner.memory_budget)}"))
+        result = planner.plan(job.belief, max_depth=fits, time_budget=p["time_budget"], use_bounds=use_bounds)
+        return Searched(result, use_bounds, use_bounds and self.setup.guaranteed, tuple(logs))
 
     def decided(self, job: PlanJob, searched: Searched | None, now: float) -> PlannerOutput:
         """The answer to ``job``: its cached action (``searched is None``) or the new decision."""
