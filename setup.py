@@ -3,7 +3,9 @@
 Works for both install paths (README.md, "Install"):
 
 * colcon (``colcon build``): the standard ament_python layout; ``setup.cfg`` sends the console
-  scripts to ``lib/pomdp_planner`` where ``ros2 run`` looks for them.
+  scripts to ``lib/pomdp_planner`` where ``ros2 run`` looks for them; the command line
+  ``pomdp-planner`` also gets a forwarder ``bin/pomdp-planner``, on ``PATH`` once the workspace
+  is sourced.
 * pip (``pip install .``, used by ``make demo``/``make test``): pip ignores ``setup.cfg``'s
   script directories, so console scripts land in ``<prefix>/bin``. For wheel builds only we
   add tiny forwarders ``lib/pomdp_planner/<exe>`` that exec ``<prefix>/bin/<exe>``; with
@@ -19,8 +21,9 @@ from setuptools import find_packages, setup
 
 PACKAGE = "pomdp_planner"
 
-#: The command line (``pomdp-planner``). Plain literal: test/test_package_layout.py reads it with ast.
-CLI_EXECUTABLES = {"pomdp-planner": "pomdp_planner.cli:main"}
+#: The command line (``pomdp-planner``; ``__main__`` guards Ctrl-C while it imports). Plain literal:
+#: test/test_package_layout.py reads it with ast.
+CLI_EXECUTABLES = {"pomdp-planner": "pomdp_planner.__main__:main"}
 
 #: The ROS 2 node executables (``ros2 run pomdp_planner <name>``). Plain literal, as above.
 NODE_EXECUTABLES = {
@@ -35,6 +38,10 @@ FORWARDER_DIR = Path("build") / "ros_forwarders"  # generated, never committed
 FORWARDER = """#!/bin/sh
 # Forwarder for `ros2 run` after a pip install: runs <prefix>/bin/<this file's name>.
 exec "$(dirname "$0")/../../bin/$(basename "$0")" "$@"
+"""
+BIN_FORWARDER = """#!/bin/sh
+# `pomdp-planner` on PATH after a colcon build: runs <prefix>/lib/pomdp_planner/<this file's name>.
+exec "$(dirname "$0")/../lib/pomdp_planner/$(basename "$0")" "$@"
 """
 
 
@@ -53,32 +60,50 @@ def _config_files() -> list[tuple[str, list[str]]]:
     return sorted(groups.items())
 
 
+WHEEL_BUILD = bool({"bdist_wheel", "editable_wheel"} & set(sys.argv))
+
+
 def _launch_files() -> list[tuple[str, list[str]]]:
     """Every ``launch/*.launch.xml`` into ``share/<pkg>/launch`` (``ros2 launch <pkg> <file>``)."""
     files = sorted(str(p.relative_to(HERE)) for p in (HERE / "launch").glob("*.launch.xml"))
     return [(str(Path("share", PACKAGE, "launch")), files)] if files else []
 
 
-def _wheel_forwarders(executables) -> list[tuple[str, list[str]]]:
-    """``lib/<pkg>/<exe>`` forwarders, for wheel builds only (see the module docstring).
-
-    They are written at build time into ``build/ros_forwarders`` rather than committed, so the
-    list above is the only place an executable is named. Only for ``bdist_wheel`` and
-    ``editable_wheel``: colcon runs ``setup.py develop``/``install``, which already put the real
-    scripts into ``lib/<pkg>`` (setup.cfg), and a forwarder installed as data would overwrite
-    them. (``pip install -e .`` installs no data files at all: use ``pip install .``.)
-    """
-    if not {"bdist_wheel", "editable_wheel"} & set(sys.argv):
-        return []
-    out = HERE / FORWARDER_DIR
+def _forwarders(text: str, folder: Path, install_dir: str, executables) -> list[tuple[str, list[str]]]:
+    """Executable scripts ``text``, one per executable, written into ``build/ros_forwarders/<folder>``
+    at build time (never committed, so the lists above are the only place an executable is named)
+    and installed as data into ``install_dir``."""
+    out = HERE / FORWARDER_DIR / folder
     out.mkdir(parents=True, exist_ok=True)
     files = []
     for exe in sorted(executables):
         path = out / exe
-        path.write_text(FORWARDER)
+        path.write_text(text)
         path.chmod(0o755)  # the executable bit survives the wheel
-        files.append(str(FORWARDER_DIR / exe))
-    return [(f"lib/{PACKAGE}", files)]
+        files.append(str(FORWARDER_DIR / folder / exe))
+    return [(install_dir, files)]
+
+
+def _wheel_forwarders(executables) -> list[tuple[str, list[str]]]:
+    """``lib/<pkg>/<exe>`` forwarders, for wheel builds only (see the module docstring).
+
+    Only for ``bdist_wheel`` and ``editable_wheel``: colcon runs ``setup.py develop``/``install``,
+    which already put the real scripts into ``lib/<pkg>`` (setup.cfg), and a forwarder installed
+    as data would overwrite them. (``pip install -e .`` installs no data files at all: use
+    ``pip install .``.)
+    """
+    return _forwarders(FORWARDER, Path(), f"lib/{PACKAGE}", executables) if WHEEL_BUILD else []
+
+
+def _colcon_bin_forwarders(executables) -> list[tuple[str, list[str]]]:
+    """``bin/<exe>`` forwarders to ``lib/<pkg>/<exe>``, for every build but a wheel's.
+
+    colcon (``setup.py develop``/``install``) puts the console scripts into ``lib/<pkg>``
+    (setup.cfg), where ``ros2 run`` finds them but a shell does not; sourcing the workspace puts
+    ``<prefix>/bin`` on ``PATH`` when it exists, so the command line is then ``pomdp-planner`` as
+    after a pip install (where the real scripts are already in ``bin``: no forwarder).
+    """
+    return [] if WHEEL_BUILD else _forwarders(BIN_FORWARDER, Path("bin"), "bin", executables)
 
 
 EXECUTABLES = {**CLI_EXECUTABLES, **NODE_EXECUTABLES}
@@ -95,6 +120,7 @@ setup(
         *_config_files(),
         *_launch_files(),
         *_wheel_forwarders(EXECUTABLES),
+        *_colcon_bin_forwarders(CLI_EXECUTABLES),
     ],
     python_requires=">=3.11",
     install_requires=["numpy", "scipy", "clarabel", "PyYAML"],

@@ -211,6 +211,40 @@ CASES: list[tuple[list[str], str]] = [
     (["bench", "all", "--output", "/dev/null"], "--output"),
     (["bench", "all", "--output", "{under_file}"], "--output"),
     (["bench", "all", "--report-only", "--output", "{empty_dir}"], "--report-only"),
+    # ------------------------------------------------------------------ counts: ASCII digits only
+    # (int() and float() take digit-group underscores and any Unicode digit: "1_0" is 10, so is "\u0661\u0660")
+    (["plan", S2, "--depth", "1_0"], "--depth"),
+    (["plan", S2, "--depth", "\u0662"], "--depth"),  # ARABIC-INDIC DIGIT TWO
+    (["plan", S2, "--depth", "\uff12"], "--depth"),  # FULLWIDTH DIGIT TWO
+    (["plan", S2, "--time-budget", "1", "--max-depth", "1_0"], "--max-depth"),
+    (["plan", S2, "--time-budget", "0_1"], "--time-budget"),
+    (["plan", S2, "--time-budget", "\u0661"], "--time-budget"),
+    (["plan", S2, "--memory-budget", "1_024"], "--memory-budget"),
+    (["simulate", S2, "--steps", "1_0"], "--steps"),
+    (["simulate", S2, "--steps", "\u0663"], "--steps"),
+    (["simulate", S2, "--seed", "1_0"], "--seed"),
+    (["simulate", S2, "--policy", "bnb", "--option", "depth=1_0"], "option depth"),
+    (["simulate", S2, "--policy", "bnb", "--option", "depth=\u0662"], "option depth"),
+    (["simulate", S2, "--policy", "bnb", "--option", "time_budget=0_1"], "option time_budget"),
+    (["simulate", S2, "--initial-state", "\u0661"], "--initial-state"),
+    (["simulate", S2, "--belief", "0_5,0.5"], "--belief"),
+    (["bounds", S2, "--samples", "1_0"], "--samples"),
+    (["check", S2, "--sdp-max-states", "\u0663"], "--sdp-max-states"),
+    (["check", S2, "--tol", "1e-1_0"], "--tol"),
+    (["bench", "search", "--beliefs", "1_0"], "--beliefs"),
+    (["bench", "search", "--timed", "\u0661"], "--timed"),
+    (["bench", "search", "--seed", "1_0"], "--seed"),
+    (["bench", "all", "--jobs", "\u0661"], "--jobs"),
+    # ------------------------------------------------------------------ outputs: regular files, checked first
+    (["export", S2, "-o", "/proc/version"], "-o/--output"),
+    (["export", S2, "-o", "/dev/null"], "-o/--output"),
+    (["bench", "search", "--model", S2, "--json", "/proc/version"], "--json"),  # refused before the run
+    (["bench", "search", "--model", S2, "--json", "/dev/null"], "--json"),
+    (["bench", "structure", "--models", S2, "--json", "/proc/version"], "--json"),
+    (["bench", "structure", "--repeat", "1_0"], "--repeat"),
+    (["simulate", S2, "--record", "-"], "--record"),  # the steps go to stdout
+    (["simulate", S2, "--record", "/proc/version"], "--record"),
+    (["plot", "{regular}", "-o", "-"], "--output"),
 ]
 
 

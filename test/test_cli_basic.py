@@ -77,11 +77,12 @@ def test_simulate_initial_belief_and_state(capsys):
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["simulate", "missing.yaml"], "cannot read model file"),
+    (["simulate", "missing.yaml"], "MODEL: 'missing.yaml' not found (looked in "),
     (["simulate", S3, "--policy", "nope"], "--policy: unknown policy 'nope'"),
     (["simulate", S3, "--belief", "0.5,0.5"], "--belief: expected 3 probabilities"),
     (["simulate", S3, "--initial-state", "9"], "--initial-state: index 9 out of range"),
-    (["simulate", S3, "--steps", "-1"], "argument --steps: must be an integer >= 0"),
+    (["simulate", S3, "--steps", "-1"], "argument --steps: must be an integer in 0..1000000000000"),
+    (["simulate", S3, "--steps", "1" + "0" * 12 + "1"], "argument --steps: must be an integer in 0..1000000000000"),
 ])
 def test_errors_exit_2_with_message(capsys, argv, message):
     code, _, err = run(capsys, *argv)

@@ -76,4 +76,4 @@ def test_check_malformed_model(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "transition[0][0]" in err and "sums to 1.1" in err
     assert main(["check", str(tmp_path / "missing.yaml")]) == 2
-    assert "cannot read model file" in capsys.readouterr().err
+    assert "MODEL: file " + str(tmp_path / "missing.yaml") + " does not exist" in capsys.readouterr().err

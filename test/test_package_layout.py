@@ -68,7 +68,7 @@ def prefix(monkeypatch) -> Path:
 
 def test_setup_declares_cli_and_nodes():
     exes = declared_executables()
-    assert exes["pomdp-planner"] == "pomdp_planner.cli:main"
+    assert exes["pomdp-planner"] == "pomdp_planner.__main__:main"
     assert set(setup_literal("NODE_EXECUTABLES")) >= {"target_simulator", "belief_filter", "planner", "closed_loop"}
     for name, target in exes.items():
         module, _, func = target.partition(":")

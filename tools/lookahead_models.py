@@ -53,6 +53,7 @@ import yaml
 from pomdp_planner.bench.references import GridReferencePolicy, SearchReferencePolicy
 from pomdp_planner.bench.stats import mean_ci
 from pomdp_planner.core.bounds import solve_bounds
+from pomdp_planner.core.checks import integer
 from pomdp_planner.core.domains.perimeter import PRESETS, perimeter_model, preset_model
 from pomdp_planner.core.io.model_yaml import load_model, model_to_dict
 from pomdp_planner.core.io.paths import MODELS_DIR, SOURCE_ROOT, shipped_model_path
@@ -795,11 +796,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m tools.lookahead_models",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--models", nargs="+", default=list(PRESETS), help="shipped models to evaluate")
-    ap.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200 at S<=3, 100 else)")
-    ap.add_argument("--depth", type=int, default=4, help="exhaustive reference depth for S > 3 (default 4)")
-    ap.add_argument("--grid-n", type=int, default=40, help="grid resolution of the S = 3 reference (checked at 2n)")
-    ap.add_argument("--depth-check", type=int, default=150, help="visited beliefs for the depth d vs d+1 check")
-    ap.add_argument("--jobs", type=int, default=1, help="processes for the episodes (2 at most on a shared machine)")
+    ap.add_argument("--episodes", type=integer, default=None,
+                    help="episodes per policy (default 200 at S<=3, 100 else)")
+    ap.add_argument("--depth", type=integer, default=4, help="exhaustive reference depth for S > 3 (default 4)")
+    ap.add_argument("--grid-n", type=integer, default=40, help="grid resolution of the S = 3 reference (checked at 2n)")
+    ap.add_argument("--depth-check", type=integer, default=150, help="visited beliefs for the depth d vs d+1 check")
+    ap.add_argument("--jobs", type=integer, default=1,
+                    help="processes for the episodes (2 at most on a shared machine)")
     ap.add_argument("--search", action="store_true", help="print the family search instead")
     ap.add_argument("--write-models", nargs="?", const=CHECKOUT_MODELS_DIR, type=Path, default=None, metavar="DIR",
                     help=f"regenerate perimeter_*.yaml into DIR (default {CHECKOUT_MODELS_DIR}) and exit")

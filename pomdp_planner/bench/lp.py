@@ -7,7 +7,10 @@ with ``solver="structured"`` (the default: least element where it is certified, 
 simplex otherwise) and with ``solver="clarabel"`` (the previous path: Clarabel interior point
 for every LP, row generation over whole actions, hinge-LP tightening), and prints the wall
 times, their ratio and both solutions' worst constraint margins (``>= 0`` means every exact
-constraint holds; both are post-checked by ``solve_bounds`` itself). The default models are
+constraint holds; both are post-checked by ``solve_bounds`` itself), the agreement of the lower
+and upper bound on the LP's fitting samples and whether the bounds are guaranteed for the model
+(the assumption gate's :func:`~pomdp_planner.core.gate.bounds_verdict`, untimed; where they are
+not, the agreement is a diagnostic that certifies nothing, and the JSON row gives the reason). The default models are
 the paper's Sec. VI-B comparison case S = 256, A = 64 (``core.domains.comparison``; f = none,
 so both constants coincide there) and the shipped Renyi models under both constants.
 
@@ -26,9 +29,12 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
+from ..core.checks import integer
 from ..core.domains.comparison import comparison_model
 from ..core.domains.perimeter import PRESETS, perimeter_model
+from ..core.gate import bounds_verdict
 from ..core.io.model_yaml import load_model
+from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
 
@@ -76,11 +82,13 @@ def run_lp_bench(models: Sequence[str] = DEFAULT_MODELS, repeat: int = 1, old: b
         for variant in BOUND_VARIANTS:
             for constant in constants:
                 t_new, s_new = _best_of(model, variant, constant, NEW, repeat)
+                verdict = bounds_verdict(model, s_new)
                 row: dict[str, Any] = {
                     "model": model.name, "S": model.S, "A": model.A, "uncertainty": model.uncertainty.name,
                     "variant": variant, "constant": constant, "new_time": t_new, "new_feasible": s_new.feasible,
                     "new_worst_margin": _worst_margin(s_new), "new_agreement": s_new.sample_agreement,
                     "old_time": None, "old_feasible": None, "old_worst_margin": None, "old_agreement": None,
+                    "guaranteed": verdict.guaranteed, "reason": verdict.reason,
                 }
                 if old:
                     t_old, s_old = _best_of(model, variant, constant, OLD, repeat)
@@ -104,17 +112,21 @@ def old_over_new(row: dict[str, Any]) -> float | None:
 
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
     head = (f"{'model':<22} {'S':>4} {'A':>3} {'variant':<8} {'const':<5} {'new s':>8} {'old s':>8} "
-            f"{'old/new':>8} {'new margin':>11} {'old margin':>11} {'agree new':>9} {'agree old':>9}")
+            f"{'old/new':>8} {'new margin':>11} {'old margin':>11} {'agree new':>9} {'agree old':>9} guaranteed")
     lines = [head, "-" * len(head)]
     for r in rows:
         ratio = old_over_new(r)
         lines.append(f"{r['model']:<22} {r['S']:>4} {r['A']:>3} {r['variant']:<8} {r['constant']:<5} "
                      f"{r['new_time']:>8.3f} {cell(r['old_time'], '>8.3f')} {cell(ratio, '>7.1f') + 'x':>8} "
                      f"{cell(r['new_worst_margin'], '>11.2e')} {cell(r['old_worst_margin'], '>11.2e')} "
-                     f"{cell(r['new_agreement'], '>9.3f')} {cell(r['old_agreement'], '>9.3f')}")
+                     f"{cell(r['new_agreement'], '>9.3f')} {cell(r['old_agreement'], '>9.3f')} "
+                     f"{'yes' if r['guaranteed'] else 'NO'}")
     lines.append("new: solver='structured' (least element / HiGHS); old: solver='clarabel' (the previous path). "
                  "Times: best of the repeats, wall clock. Margins: worst exact constraint margin of g and h "
-                 "(>= 0: feasible). Agreement: lower == upper on the 400 fitting samples.")
+                 "(>= 0: feasible). Agreement: lower == upper on the 400 fitting samples. Guaranteed: the assumption "
+                 "gate's verdict for the model; NO: the bounds are not valid and their agreement certifies nothing.")
+    lines += [f"{m}: NOT GUARANTEED: {why}" for m, why in
+              dict.fromkeys((r["model"], r["reason"]) for r in rows if not r["guaranteed"])]
     return "\n".join(lines)
 
 
@@ -122,23 +134,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.lp", description=__doc__.split("\n\n")[0])
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS), metavar="MODEL",
                         help="'comparison:S,A' or model files (default: %(default)s)")
-    parser.add_argument("--repeat", type=int, default=1, metavar="N", help="best of N runs per cell (1)")
+    parser.add_argument("--repeat", type=integer, default=1, metavar="N", help="best of N runs per cell (1)")
     parser.add_argument("--no-old", action="store_true", help="time the new path only")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
+                        "the run; '-': the JSON on stdout, the table on stderr)")
     args = parser.parse_args(argv)
     if args.repeat < 1:
         parser.error(f"--repeat: must be >= 1, got {args.repeat}")
     try:
+        if args.json is not None:
+            check_output_file(args.json, "--json")
         rows = run_lp_bench(args.models, args.repeat, not args.no_old,
                             log=lambda s: print(s, file=sys.stderr, flush=True))
+        print(format_table(rows), file=sys.stderr if args.json is not None and is_stdout(args.json) else sys.stdout)
+        if args.json is not None:
+            write_text_file(args.json, json.dumps(rows, indent=2) + "\n", "--json")
     except (ValueError, OSError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2
-    print(format_table(rows))
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=2)
-            fh.write("\n")
     return 0
 
 

@@ -37,8 +37,9 @@ from typing import Any
 import numpy as np
 
 from ..core.belief_mcts import BeliefMCTS, BeliefMCTSPolicy, rho_range
+from ..core.checks import integer, number
 from ..core.io.model_yaml import load_model
-from ..core.io.paths import shipped_model_path
+from ..core.io.paths import resolve_path
 from ..core.model import POMDP
 from ..core.policies import MyopicPolicy
 from ..core.simulate import simulate
@@ -70,7 +71,8 @@ TUNE_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
 
 
 def _model(name: str) -> POMDP:
-    return load_model(shipped_model_path(name))
+    """A shipped model's name or a model file (``core.io.paths.resolve_path``)."""
+    return load_model(resolve_path(name, "--model"))
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
@@ -216,14 +218,15 @@ def closed_loop_table(rows: Sequence[dict[str, Any]]) -> str:
 # ------------------------------------------------------------------ command line
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.mcts", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", action="append", default=None, help="shipped model name (repeatable)")
-    parser.add_argument("--simulations", type=int, default=5000, help="simulations per timed search (5000)")
-    parser.add_argument("--beliefs", type=int, default=5, help="random beliefs per throughput row (5)")
+    parser.add_argument("--model", action="append", default=None,
+                        help="shipped model name or model file (repeatable)")
+    parser.add_argument("--simulations", type=integer, default=5000, help="simulations per timed search (5000)")
+    parser.add_argument("--beliefs", type=integer, default=5, help="random beliefs per throughput row (5)")
     parser.add_argument("--tune", action="store_true", help="decision quality against the S = 3 grid optimum")
     parser.add_argument("--closed-loop", action="store_true", help="closed-loop returns against greedy")
-    parser.add_argument("--budgets", type=float, nargs="+", default=None, help="seconds per decision")
-    parser.add_argument("--episodes", type=int, default=20, help="closed-loop episodes (20)")
-    parser.add_argument("--steps", type=int, default=50, help="closed-loop steps per episode (50)")
+    parser.add_argument("--budgets", type=number, nargs="+", default=None, help="seconds per decision")
+    parser.add_argument("--episodes", type=integer, default=20, help="closed-loop episodes (20)")
+    parser.add_argument("--steps", type=integer, default=50, help="closed-loop steps per episode (50)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     args = parser.parse_args(argv)
     for name, value in (("simulations", args.simulations), ("beliefs", args.beliefs), ("episodes", args.episodes),
@@ -234,6 +237,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--budgets: must be positive numbers of seconds, got {args.budgets}")
     log = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     models = args.model or list(DEFAULT_MODELS)
+    try:  # every name found before the first run
+        for name in models:
+            resolve_path(name, "--model")
+    except ValueError as exc:
+        parser.error(str(exc))
     t0 = time.perf_counter()
     if args.tune:
         budgets = args.budgets or (0.01, 0.05, 0.2)

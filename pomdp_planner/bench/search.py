@@ -45,9 +45,10 @@ from typing import Any
 import numpy as np
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
+from ..core.checks import integer
 from ..core.gate import build_planner
 from ..core.io.model_yaml import load_model
-from ..core.io.outputs import check_output_file, write_text_file
+from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
 from ..core.policies import check_seed
@@ -252,13 +253,15 @@ def _ms(t: float) -> str:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The benchmark's options (``pomdp-planner bench search`` and ``python -m pomdp_planner.bench.search``)."""
-    p.add_argument("--json", metavar="FILE", default=None, help="also write the results as JSON to FILE")
+    p.add_argument("--json", metavar="FILE", default=None,
+                   help="also write the results as JSON to FILE (a regular file, checked before the run); '-': the "
+                        "JSON on stdout, the text report on stderr")
     p.add_argument("--quick", action="store_true",
                    help="a smoke run in seconds (20 beliefs, 3 timed, deepest depth on 3 beliefs, timing to depth 4)")
     p.add_argument("--full", action="store_true", help="count the deepest depth on every belief (slower)")
-    p.add_argument("--beliefs", type=int, default=None, help="random initial beliefs for the pruning table (100)")
-    p.add_argument("--timed", type=int, default=None, help="beliefs timed per depth (10)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random beliefs (0)")
+    p.add_argument("--beliefs", type=integer, default=None, help="random initial beliefs for the pruning table (100)")
+    p.add_argument("--timed", type=integer, default=None, help="beliefs timed per depth (10)")
+    p.add_argument("--seed", type=integer, default=0, help="seed of the random beliefs (0)")
     p.add_argument("--variant", default=BOUND_VARIANTS[0], choices=BOUND_VARIANTS,
                    help=f"bound variant ({BOUND_VARIANTS[0]})")
     p.add_argument("--constant", default=DEFAULT_CONSTANT, choices=BOUND_CONSTANTS,
@@ -297,7 +300,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         check_output_file(args.json, "--json")
     result = run_search_bench(args.model or DEFAULT_MODELS, config,
                               log=lambda s: print(s, file=sys.stderr, flush=True))
-    print(format_report(result))
+    print(format_report(result), file=sys.stderr if args.json is not None and is_stdout(args.json) else sys.stdout)
     if args.json is not None:
         write_text_file(args.json, json.dumps(result, indent=2) + "\n", "--json")
     return 0

@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.io.outputs import check_output_file, write_text_file
+from ..core.checks import integer
+from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.model import POMDP
 from ..core.structure import REFUTED, AssumptionReport, check_assumptions, estimate_check, is_proven
 from .lp import cell, load_bench_model, old_over_new
@@ -102,9 +103,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The benchmark's options (``pomdp-planner bench structure`` and ``python -m pomdp_planner.bench.structure``)."""
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS), metavar="MODEL",
                         help="'comparison:S,A', 'perimeter:S' or model files (default: %(default)s)")
-    parser.add_argument("--repeat", type=int, default=1, metavar="N", help="best of N runs per cell (1)")
+    parser.add_argument("--repeat", type=integer, default=1, metavar="N", help="best of N runs per cell (1)")
     parser.add_argument("--no-old", action="store_true", help="time the fast path only")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
+                        "the run; '-': the JSON on stdout, the table on stderr)")
 
 
 def run_from_args(args: argparse.Namespace, prog: str) -> int:
@@ -116,7 +118,7 @@ def run_from_args(args: argparse.Namespace, prog: str) -> int:
             check_output_file(args.json, "--json")
         rows = run_structure_bench(args.models, args.repeat, not args.no_old,
                                    log=lambda s: print(s, file=sys.stderr, flush=True))
-        print(format_table(rows))
+        print(format_table(rows), file=sys.stderr if args.json is not None and is_stdout(args.json) else sys.stdout)
         if args.json is not None:
             write_text_file(args.json, json.dumps(rows, indent=2) + "\n", "--json")
     except (ValueError, OSError) as exc:  # InputError included: a bad model spec or file, an unwritable --json

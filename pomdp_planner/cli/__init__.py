@@ -4,13 +4,14 @@ Each subcommand is a module ``pomdp_planner.cli.<name>`` (listed in :data:`SUBCO
 exposing ``register(subparsers)``, which adds its parser and sets ``func`` (called with the
 parsed arguments, returning an exit code). Pure core only: nothing here imports rclpy.
 
-Exit codes: 0 success, 1 a negative answer (``check``: Assumption 1 fails; ``bounds``: the LP
-is infeasible), 2 bad input: a bad argument, file or option value, or a request the guards
+Exit codes: 0 success, 1 a negative answer (``check``: Assumption 1 fails; ``bounds``: the bounds
+are not guaranteed or the LP is infeasible), 2 bad input: a bad argument, file or option value, or a request the guards
 refuse (too deep, too large). Every error is one line on stderr naming the option or field;
 :func:`main` returns the code instead of raising ``SystemExit``, so it can be called in-process.
-An interrupt (Ctrl-C) ends with code 130 and one line; a closed output pipe (``| head``) ends
-quietly with code 0. A warning (e.g. a model file accepted with a change, which the loader
-says) is one line on stderr: ``pomdp-planner: warning: ...``.
+An interrupt (Ctrl-C), also while the command is still starting (``pomdp_planner.__main__``), ends
+with code 130 and one line; a closed output pipe (``| head``) ends quietly with code 0. A warning
+(e.g. a model file accepted with a change, which the loader says) is one line on stderr:
+``pomdp-planner: warning: ...``.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 
+from ..__main__ import EXIT_INTERRUPTED, INTERRUPTED
 from ..core.errors import InputError, InputWarning
 from . import bench, bounds, check, export, plan, plot, simulate
 from ._common import Parser, one_line
@@ -44,11 +46,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
-    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or a bad argument (2, one line already printed)
         return exc.code if isinstance(exc.code, int) else 2
+    except KeyboardInterrupt:
+        return _interrupted()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", InputWarning)
@@ -64,8 +67,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"pomdp-planner: error: cannot print the output: {exc.reason} ({exc.encoding})", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("pomdp-planner: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
+
+
+def _interrupted() -> int:
+    print(INTERRUPTED, file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:

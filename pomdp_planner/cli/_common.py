@@ -3,7 +3,8 @@
 Every subcommand module uses the same conventions, so that the commands look alike:
 
 * ``add_model_argument(parser)`` adds the positional ``MODEL`` (a YAML model file or a
-  Cassandra ``.POMDP`` file); ``load_model_arg(args)`` loads it (errors are
+  Cassandra ``.POMDP`` file, or a shipped model's name); ``load_model_arg(args)`` finds it as the
+  nodes do (``core.io.paths.resolve_path``) and loads it (errors are
   :class:`~pomdp_planner.core.errors.ModelError`, which ``cli.main`` turns into exit code 2).
 * ``add_json_argument(parser)`` adds ``--json``; ``emit_json(data)`` prints ``data`` as JSON,
   converting numpy scalars/arrays on the way (``to_jsonable``).
@@ -30,8 +31,9 @@ from typing import Any, NoReturn, TextIO
 import numpy as np
 
 from ..core.belief import check_belief, uniform_belief
+from ..core.checks import option_value
 from ..core.errors import OptionError
-from ..core.io.model_yaml import load_model
+from ..core.io.sensors import load_model_file
 from ..core.model import POMDP, short_repr
 from ..core.options import SEED_RANGE, check_seed
 
@@ -51,15 +53,14 @@ class Parser(argparse.ArgumentParser):
 
 
 def int_in(lo: int | None, hi: int | None) -> Callable[[str], int]:
-    """An argparse ``type``: an integer (ASCII digits, optional sign) in ``lo..hi`` (``None``: open)."""
+    """An argparse ``type``: an integer (ASCII digits, optional sign: ``core.checks.option_value``) in
+    ``lo..hi`` (``None``: open)."""
     want = (f"an integer in {lo}..{hi}" if lo is not None and hi is not None else
             f"an integer >= {lo}" if lo is not None else f"an integer <= {hi}")
 
     def parse(text: str) -> int:
-        t = text.strip()
-        digits = t[1:] if t[:1] in "+-" else t
-        value = int(t) if digits.isascii() and digits.isdigit() and len(digits) <= 30 else None
-        if value is None or (lo is not None and value < lo) or (hi is not None and value > hi):
+        value = option_value(text)
+        if not isinstance(value, int) or (lo is not None and value < lo) or (hi is not None and value > hi):
             raise argparse.ArgumentTypeError(f"must be {want}, got {short_repr(text)}")
         return value
 
@@ -68,17 +69,15 @@ def int_in(lo: int | None, hi: int | None) -> Callable[[str], int]:
 
 
 def float_in(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
-    """An argparse ``type``: a finite number in ``lo..hi`` (NaN and infinity refused)."""
+    """An argparse ``type``: a finite number (plain ASCII: ``core.checks.option_value``) in ``lo..hi``
+    (NaN and infinity refused)."""
     span = "..".join(f"{x:.0f}" if float(x).is_integer() else f"{x:g}" for x in (lo, hi))
 
     def parse(text: str) -> float:
-        try:
-            value = float(text) if text.isascii() else math.nan
-        except ValueError:
-            value = math.nan
-        if not (math.isfinite(value) and lo <= value <= hi):
+        value = option_value(text)
+        if isinstance(value, str) or not (math.isfinite(value) and lo <= value <= hi):
             raise argparse.ArgumentTypeError(f"must be a number{unit} in {span}, got {short_repr(text)}")
-        return value
+        return float(value)
 
     parse.__name__ = "number"
     return parse
@@ -100,7 +99,10 @@ def add_seed_argument(parser: argparse.ArgumentParser, help_text: str) -> None:
 
 def add_model_argument(parser: argparse.ArgumentParser) -> None:
     """Add the positional ``MODEL`` argument (YAML model file or Cassandra ``.POMDP``)."""
-    parser.add_argument("model", metavar="MODEL", help="model file: YAML (see README) or Cassandra .POMDP")
+    parser.add_argument("model", metavar="MODEL",
+                        help="model file: YAML (see README) or Cassandra .POMDP, absolute, relative to the current "
+                             "directory or to the installed share/pomdp_planner, or a shipped model's name "
+                             "(e.g. tracking_s3_info)")
 
 
 def add_json_argument(parser: argparse.ArgumentParser) -> None:
@@ -109,8 +111,12 @@ def add_json_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def load_model_arg(args: argparse.Namespace) -> POMDP:
-    """Load the model named by ``args.model`` (raises ``ModelError`` with the file name)."""
-    return load_model(args.model)
+    """Load the model named by ``args.model`` with the nodes' own function
+    (:func:`~pomdp_planner.core.io.sensors.load_model_file`, through
+    :func:`~pomdp_planner.core.io.paths.resolve_path`: absolute, relative to the current directory,
+    under the installed share directory, or a bare shipped name such as ``tracking_s3_info``);
+    raises ``ModelError`` naming ``MODEL`` and where it looked, or the file and its field."""
+    return load_model_file(args.model, "MODEL")
 
 
 def add_belief_argument(parser: argparse.ArgumentParser, default: str = "uniform",
@@ -131,11 +137,9 @@ def parse_belief(text: str, model: POMDP, field: str = "--belief") -> np.ndarray
     text = text.strip()
     if text.lower() == "uniform":
         return uniform_belief(model)
-    items = text.replace(" ", "").split(",")
-    try:  # an empty item ("0.5,,0.5", a trailing comma) is an error, as any other non-number
-        values = [float(x) if x.isascii() else math.nan for x in items]
-    except ValueError:
-        raise OptionError(f"{field}: expected 'uniform' or comma-separated numbers, got {short_repr(text)}") from None
+    values = [option_value(x) for x in text.replace(" ", "").split(",")]
+    if any(isinstance(v, str) for v in values):  # an empty item ("0.5,,0.5", a trailing comma), "0_5", ...
+        raise OptionError(f"{field}: expected 'uniform' or comma-separated numbers, got {short_repr(text)}")
     return check_belief(model, np.asarray(values, dtype=float), field=field)
 
 

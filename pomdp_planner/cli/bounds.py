@@ -6,9 +6,18 @@ Prints g, h, feasibility, the belief-independent constant (which one, its value 
 time and, for each
 belief (from ``--beliefs FILE.csv`` or ``--samples N`` reachable beliefs drawn with
 ``--seed K``), the lower and upper bound actions as tracking priorities 1..A and whether they
-agree (then the optimal action is known), plus the agreement rate. Exit code 0 when g and h
-are feasible, 1 when the LP is infeasible (the most violated constraint is reported), 2 on bad
-input.
+agree, plus the agreement rate.
+
+The first line is the assumption gate's verdict (``core.gate.bounds_verdict``, the rule every
+planner obeys): ``guaranteed: ...`` when Assumption 1 holds, the LP is feasible and (Shannon)
+the guarantee covers a domain; then agreeing bounds certify the optimal action. Otherwise
+``NOT GUARANTEED: <reason>``: the LP solution is still shown, as a diagnostic, and the
+agreement column is labelled as certifying nothing (JSON: ``guaranteed``, ``reason``,
+``covers`` starting with ``none``, ``certified`` false for every belief).
+
+Exit code 0 when the bounds are guaranteed, 1 when they are not (the LP is infeasible, with the
+most violated constraint reported; Assumption 1 fails or is unproven; or the Shannon guarantee
+covers no domain), 2 on bad input.
 """
 
 from __future__ import annotations
@@ -28,6 +37,7 @@ from ..core.bounds import (
     sample_beliefs,
     solve_bounds,
 )
+from ..core.gate import BoundsVerdict, bounds_verdict
 from ..core.io.file_text import read_model_text
 from ..core.model import POMDP, ModelError, priority_of, short_repr
 from ._common import (
@@ -126,15 +136,17 @@ def _csv_rows(text: str, path: Path) -> Iterator[tuple[int, list[str]]]:
         yield reader.line_num, row
 
 
-def evaluate(sol: BoundsSolution, B: np.ndarray) -> dict:
-    """Per-belief lower/upper priorities and the agreement rate (None if infeasible)."""
+def evaluate(sol: BoundsSolution, B: np.ndarray, guaranteed: bool) -> dict:
+    """Per-belief lower/upper priorities, whether they agree and whether that certifies the action
+    (agreeing *guaranteed* bounds, Proposition 1), and the agreement rate (None if infeasible)."""
     mb = sol.myopic
     if mb is None:
-        return {"beliefs": [{"belief": b.tolist(), "lower": None, "upper": None, "agree": None} for b in B],
-                "agreement_rate": None}
+        return {"beliefs": [{"belief": b.tolist(), "lower": None, "upper": None, "agree": None, "certified": False}
+                            for b in B], "agreement_rate": None}
     lo, up = mb.actions(B)
     items = [{"belief": b.tolist(), "lower": int(priority_of(lo_)), "upper": int(priority_of(up_)),
-              "agree": bool(lo_ == up_)} for b, lo_, up_ in zip(B, lo, up, strict=True)]
+              "agree": bool(lo_ == up_), "certified": bool(guaranteed and lo_ == up_)}
+             for b, lo_, up_ in zip(B, lo, up, strict=True)]
     return {"beliefs": items, "agreement_rate": float(np.mean(lo == up))}
 
 
@@ -148,21 +160,24 @@ def run(args: argparse.Namespace) -> int:
         B = sample_beliefs(model, args.samples, seed=args.seed + 1)
         source = f"{args.samples} sampled reachable beliefs (seed {args.seed})"
     sol = solve_bounds(model, args.variant, constant=args.constant, samples=FIT_SAMPLES, seed=args.seed)
-    ev = evaluate(sol, B)
+    verdict = bounds_verdict(model, sol)
+    ev = evaluate(sol, B, verdict.guaranteed)
     if args.json:
-        out = sol.to_dict()
-        out.update({"belief_source": source, **ev})
+        out = {"guaranteed": verdict.guaranteed, "reason": verdict.reason, **sol.to_dict(),
+               "assumptions": dict(verdict.report.status), "belief_source": source, **ev}
+        if not verdict.guaranteed:
+            out["covers"] = f"none: not guaranteed ({verdict.reason})"
         emit_json(out)
     else:
-        print(_text(model, sol, ev, source))
-    return 0 if sol.feasible else 1
+        print(_text(model, sol, verdict, ev, source))
+    return 0 if verdict.guaranteed else 1
 
 
 def _vec(v: np.ndarray | None) -> str:
     return "-" if v is None else "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
 
 
-def _text(model: POMDP, sol: BoundsSolution, ev: dict, source: str) -> str:
+def _text(model: POMDP, sol: BoundsSolution, verdict: BoundsVerdict, ev: dict, source: str) -> str:
     c = sol.constants
     const = f"{c['constant']}, K_f = {c['K_f']:.6g}"
     if "C_used" in c:
@@ -171,18 +186,23 @@ def _text(model: POMDP, sol: BoundsSolution, ev: dict, source: str) -> str:
     if "epsilon" in c:
         const += f" (Shannon on B_epsilon, epsilon = {c['epsilon']:g}; the paper uses -log eps = " \
                  f"{c['log_ratio_bound_paper']:.6g})"
-    lines = [
+    lines = [verdict.describe()]
+    if not verdict.guaranteed and sol.feasible:
+        lines.append("  the LP solution below is a diagnostic only: these bounds may exclude the optimal action, "
+                     "and their agreement certifies nothing")
+    lines += [
         model.describe(),
         f"variant: {sol.variant}   feasible: {'yes' if sol.feasible else 'NO'} "
         f"(g: {'yes' if sol.g_feasible else 'no'}, h: {'yes' if sol.h_feasible else 'no'})   "
         f"solve time: {sol.solve_time:.3f} s",
         f"constant: {const}",
         f"  why: {c['why']}",
-        f"guarantee covers: {sol.covers}",
+        f"guarantee covers: {sol.covers if verdict.guaranteed else 'nothing (NOT GUARANTEED: see the first line)'}",
         f"g = {_vec(sol.g)}",
         f"h = {_vec(sol.h)}",
-        sol.message,
     ]
+    if sol.message not in verdict.reason:  # an infeasible LP's message is the verdict's reason
+        lines.append(sol.message)
     if not sol.feasible:
         for which, mv in (sol.most_violated or {}).items():
             if "violation" in mv:
@@ -195,8 +215,10 @@ def _text(model: POMDP, sol: BoundsSolution, ev: dict, source: str) -> str:
         return "\n".join(lines)
     rows = [[k + 1, ", ".join(f"{x:.4f}" for x in it["belief"]), it["lower"], it["upper"],
              "yes" if it["agree"] else "no"] for k, it in enumerate(ev["beliefs"])]
+    agree, rate = ("agree (certified)", "agreement rate") if verdict.guaranteed else \
+        ("agree (NOT GUARANTEED)", "agreement rate (NOT GUARANTEED: certifies nothing)")
     lines += ["", f"beliefs: {source}",
-              format_table(["#", "belief", "lower", "upper", "agree"], rows),
-              f"agreement rate: {ev['agreement_rate']:.3f} "
+              format_table(["#", "belief", "lower", "upper", agree], rows),
+              f"{rate}: {ev['agreement_rate']:.3f} "
               f"({sum(it['agree'] for it in ev['beliefs'])}/{len(ev['beliefs'])})"]
     return "\n".join(lines)

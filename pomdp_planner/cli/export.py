@@ -14,7 +14,7 @@ import yaml
 
 from ..core.io.cassandra import export_pomdp
 from ..core.io.model_yaml import model_to_dict
-from ..core.io.outputs import check_output_file, write_text_file
+from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ._common import add_json_argument, add_model_argument, emit_json, load_model_arg
 
 
@@ -24,14 +24,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_model_argument(p)
     p.add_argument("--format", choices=("pomdp", "yaml"), default="pomdp",
                    help="pomdp: Cassandra .POMDP (linear reward only); yaml: explicit model file")
-    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    p.add_argument("-o", "--output", metavar="FILE",
+                   help="write to FILE (a regular file, checked before any work) instead of stdout; '-' is stdout")
     add_json_argument(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.output is not None:  # before any work: a directory, a missing folder
+    if args.output is not None:  # before any work: a directory, a FIFO, a missing folder, a file not writable
         check_output_file(args.output, "-o/--output")
+        if is_stdout(args.output):
+            args.output = None
     model = load_model_arg(args)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

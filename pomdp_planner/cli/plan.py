@@ -36,6 +36,7 @@ import argparse
 import sys
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
+from ..core.checks import integer
 from ..core.gate import MAX_SETUP_SECONDS, build_planner
 from ..core.search import (
     DEFAULT_MEMORY_BUDGET,
@@ -71,13 +72,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_belief_argument(p)
     g = p.add_mutually_exclusive_group()
     depths, budgets = "..".join(map(str, MAX_DEPTH_RANGE)), "..".join(f"{x:g}" for x in TIME_BUDGET_RANGE)
-    g.add_argument("--depth", type=int, default=None, metavar="D",
+    g.add_argument("--depth", type=integer, default=None, metavar="D",
                    help=f"search exactly this depth, {depths} (default {DEFAULT_DEPTH} unless --time-budget is given)")
-    g.add_argument("--time-budget", type=float, default=None, metavar="S",
+    g.add_argument("--time-budget", type=float_in(*TIME_BUDGET_RANGE, " of seconds"), default=None, metavar="S",
                    help=f"anytime search: iterative deepening for at most S seconds, {budgets}; bounds the search "
                         "of the decision only, not the set-up before it (model, assumption check, LP, tables), "
                         "which is announced when expected to take long")
-    p.add_argument("--max-depth", type=int, default=DEFAULT_MAX_DEPTH, metavar="D",
+    p.add_argument("--max-depth", type=integer, default=DEFAULT_MAX_DEPTH, metavar="D",
                    help=f"deepest depth of the anytime search, {depths} (default {DEFAULT_MAX_DEPTH})")
     p.add_argument("--exhaustive", action="store_true", help="search all actions (no myopic bounds)")
     lo, hi = MEMORY_BUDGET_RANGE_MIB

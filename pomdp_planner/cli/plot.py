@@ -48,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = check_output_file(args.output, "--output")
+    out = check_output_file(args.output, "--output", stdout=False)
     if out.suffix.lower() not in FORMATS:
         raise OptionError(f"--output: the suffix must be one of {', '.join(FORMATS)}, got {out.name!r}")
     rec = read_run_record(args.record)

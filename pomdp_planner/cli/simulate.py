@@ -31,6 +31,7 @@ from ..core.errors import OptionError
 from ..core.io.outputs import check_output_file
 from ..core.io.run_record import RunRecordWriter
 from ..core.model import POMDP, short_repr
+from ..core.options import STEPS_RANGE
 from ..core.policies import POLICIES, last_decision, make_policy, policy_names, setup_notice_for
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
 from ._common import (
@@ -62,8 +63,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                   f"  {name:<11} {POLICIES[name].help}" for name in policy_names()),
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     add_model_argument(p)
-    p.add_argument("--steps", type=int_in(0, None), default=20, metavar="N",
-                   help="number of steps, >= 0 (default 20); streamed: any number runs in constant memory")
+    p.add_argument("--steps", type=int_in(*STEPS_RANGE), default=20, metavar="N",
+                   help=f"number of steps, {STEPS_RANGE[0]}..{STEPS_RANGE[1]:.0e} (default 20); streamed in "
+                   "constant memory")
     add_seed_argument(p, "random seed (default 0); same seed, same run")
     p.add_argument("--policy", default="myopic",
                    help=f"policy name: {', '.join(policy_names())} (default myopic; see below)")
@@ -97,7 +99,7 @@ def _initial_state(text: str | None, model: POMDP) -> int | None:
 
 def run(args: argparse.Namespace) -> int:
     if args.record is not None:  # before any work: not after a long run
-        check_output_file(args.record, "--record")
+        check_output_file(args.record, "--record", stdout=False)  # the steps go to stdout
     model = load_model_arg(args)
     if args.policy not in POLICIES:
         raise OptionError(f"--policy: unknown policy {short_repr(args.policy)} (known: {', '.join(policy_names())})")

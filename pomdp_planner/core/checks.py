@@ -7,7 +7,9 @@ otherwise) with one line: ``"<field>: must be <what>, got <value>"``.
 
 Text from a command line (``--option KEY=VALUE``) is turned into a value by :func:`option_value`:
 only plain ASCII decimal digits make an integer (``1_0``, ``٣`` or ``0x10`` stay text, which the
-integer check then refuses).
+integer check then refuses). :func:`integer` and :func:`number` read a count or a number typed as
+an option's value the same way (an argparse ``type``: ``ValueError`` for other text), so
+``--depth 1_0`` is refused although Python's ``int`` reads it as 10.
 """
 
 from __future__ import annotations
@@ -106,3 +108,21 @@ def option_value(text: str) -> int | float | str:
     if len(t) <= 64 and _DECIMAL_FLOAT.fullmatch(t):
         return float(t)
     return text
+
+
+def integer(text: str) -> int:
+    """An integer typed on a command line, read by :func:`option_value` (plain ASCII decimal digits,
+    an optional sign); ``ValueError`` for any other text (an argparse ``type``)."""
+    value = option_value(text)
+    if not isinstance(value, int):
+        raise ValueError(f"not an integer: {short_repr(text)}")
+    return value
+
+
+def number(text: str) -> float:
+    """A number typed on a command line, read by :func:`option_value` (a plain ASCII decimal number);
+    ``ValueError`` for any other text, NaN and infinity included (an argparse ``type``)."""
+    value = option_value(text)
+    if isinstance(value, str) or not math.isfinite(value):
+        raise ValueError(f"not a number: {short_repr(text)}")
+    return float(value)

@@ -20,6 +20,10 @@ policies, the benchmarks and experiments, the planner node) builds its planner w
 6. Otherwise prune, ``guaranteed=True``: pruning keeps the optimal action and agreeing root
    bounds certify it (Proposition 1).
 
+:func:`bounds_verdict` applies the same rule (steps 2-5) to an LP solution already in hand, for
+the commands that show the bounds themselves (``pomdp-planner bounds``): its
+:class:`BoundsVerdict` says whether they are guaranteed and, if not, why.
+
 ``prune_without_guarantee=True`` is the explicit override: where 2 or 5 would stop pruning, the
 planner prunes anyway with ``guaranteed=False``, and every output says that no guarantee holds
 (a discount of 1 or an infeasible LP gives no bounds to prune with, so 3 and 4 still fall back). A planner built
@@ -282,6 +286,69 @@ class SetupStages:
             self._progress(f"set-up: {name} took {seconds_text(took)}")
 
 
+def _assumption_loss(report: AssumptionReport) -> str:
+    """Why the guarantee is lost when Assumption 1 fails or is unproven (step 2)."""
+    return f"{assumption_failure(report)}: the myopic bounds are not valid for this model"
+
+
+_THEOREM_2 = "the bound LP (Theorem 2)"
+
+
+def _lp_name(variant: str, constant: str) -> str:
+    return f"the bound LP ({variant}, constant {constant})"
+
+
+def _valid_reason(lp: str, covers: str) -> str:
+    """The reason of a guaranteed decision (step 5)."""
+    domain = "the simplex" if covers == "simplex" else covers
+    return f"Assumption 1 holds and {lp} is feasible; the guarantee covers {domain}"
+
+
+@dataclass(frozen=True)
+class BoundsVerdict:
+    """Whether an LP solution gives guaranteed bounds for its model (:func:`bounds_verdict`).
+
+    ``guaranteed``: Assumption 1 holds, the LP is feasible and (Shannon) the guarantee covers a
+    domain, so the lower and upper bound policies bracket an optimal action (Theorem 2) and
+    agreeing bounds certify it (Proposition 1). ``reason`` is one line for people: the gate's
+    reason, the same words :func:`build_planner` would give. ``report``: the Assumption 1 report.
+    """
+
+    guaranteed: bool
+    reason: str
+    report: AssumptionReport
+
+    def describe(self) -> str:
+        """One line, the verdict first: ``"guaranteed: ..."`` or ``"NOT GUARANTEED: ..."``."""
+        return f"{'guaranteed' if self.guaranteed else 'NOT GUARANTEED'}: {self.reason}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``guaranteed``, ``reason`` and the (A1)-(A3) status."""
+        return {"guaranteed": bool(self.guaranteed), "reason": self.reason,
+                "assumptions_hold": bool(self.report.holds), "assumptions": dict(self.report.status)}
+
+
+def bounds_verdict(model: POMDP, sol: BoundsSolution, report: AssumptionReport | None = None) -> BoundsVerdict:
+    """The gate's rule (module docstring, steps 2-4) for the LP solution ``sol`` of ``model``.
+
+    ``report``: an Assumption 1 report already computed for ``model`` (else :func:`assumption_report`,
+    cached). Checked in the gate's order: Assumption 1, the discount, the LP's feasibility, the Shannon
+    domain.
+    """
+    rep = assumption_report(model) if report is None else report
+    lp = _lp_name(sol.variant, sol.constant)
+    if not rep.holds:
+        return BoundsVerdict(False, _assumption_loss(rep), rep)
+    horizon = infinite_horizon_refusal(model, _THEOREM_2)
+    if horizon:
+        return BoundsVerdict(False, horizon, rep)
+    if not sol.feasible or sol.myopic is None:
+        return BoundsVerdict(False, f"{lp} is infeasible: {sol.message}", rep)
+    if sol.covers.startswith("none"):
+        return BoundsVerdict(False, sol.covers.removeprefix("none: "), rep)
+    return BoundsVerdict(True, _valid_reason(lp, sol.covers), rep)
+
+
 @dataclass(frozen=True, eq=False)
 class PlannerSetup:
     """What :func:`build_planner` decided (module docstring).
@@ -327,15 +394,19 @@ class PlannerSetup:
         return f"{head}: {self.reason}"
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (the report and LP solution as short dictionaries)."""
+        """JSON-ready summary (the report and LP solution as short dictionaries). Without the guarantee,
+        ``bounds.covers`` starts with ``none`` (the LP's own domain is no guarantee then)."""
         sol = self.bounds
+        covers = None if sol is None else sol.covers
+        if covers is not None and not self.guaranteed and not covers.startswith("none"):
+            covers = f"none: not guaranteed ({self.reason})"
         return {
             "mode": self.mode, "guaranteed": bool(self.guaranteed), "forced": bool(self.forced),
             "reason": self.reason, "variant": self.variant, "constant": self.constant,
             "assumptions_hold": None if self.report is None else bool(self.report.holds),
             "assumptions": None if self.report is None else dict(self.report.status),
             "bounds": None if sol is None else {"variant": sol.variant, "constant": sol.constant,
-                                                "feasible": bool(sol.feasible), "covers": sol.covers,
+                                                "feasible": bool(sol.feasible), "covers": covers,
                                                 "message": sol.message, "why": sol.constants.get("why")},
         }
 
@@ -405,17 +476,17 @@ def _decide(model: POMDP, use_bounds: bool, variant: str, constant: str, on_assu
         rep = assumption_report(model) if report is None else report
     unguaranteed = ""  # why the guarantee is lost, if it is
     if not rep.holds:
-        unguaranteed = f"{assumption_failure(rep)}: the myopic bounds are not valid for this model"
+        unguaranteed = _assumption_loss(rep)
         if not prune_without_guarantee and on_assumption_failure == "refuse":
             return PlannerSetup(None, "refuse", False, unguaranteed, rep, None, None)
-    horizon = infinite_horizon_refusal(model, "the bound LP (Theorem 2)")
+    horizon = infinite_horizon_refusal(model, _THEOREM_2)
     if horizon:  # no bounds to prune with, forced or not
         return exhaustive(horizon + (f"; also, {unguaranteed}" if unguaranteed else ""), rep)
     if unguaranteed and not prune_without_guarantee:
         return exhaustive(unguaranteed, rep)
     with stages.stage("bound LP"):
         sol = solve_bounds(model, variant, constant=constant)
-    lp = f"the bound LP ({variant}, constant {constant})"
+    lp = _lp_name(variant, constant)
     if not sol.feasible or sol.myopic is None:
         return exhaustive(f"{lp} is infeasible: {sol.message}", rep, sol)
     if sol.covers.startswith("none") and not unguaranteed:
@@ -427,6 +498,5 @@ def _decide(model: POMDP, use_bounds: bool, variant: str, constant: str, on_assu
                   "the bounds may exclude the optimal action, and they certify nothing")
         return PlannerSetup(planner(sol.myopic, False), "prune", False, reason, rep, sol, variant, forced=True,
                             constant=constant)
-    covers = "the simplex" if sol.covers == "simplex" else sol.covers
-    reason = f"Assumption 1 holds and {lp} is feasible; the guarantee covers {covers}"
-    return PlannerSetup(planner(sol.myopic, True), "prune", True, reason, rep, sol, variant, constant=constant)
+    return PlannerSetup(planner(sol.myopic, True), "prune", True, _valid_reason(lp, sol.covers), rep, sol, variant,
+                        constant=constant)

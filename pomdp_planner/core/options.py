@@ -24,6 +24,10 @@ TIME_BUDGET_RANGE = (0.001, 60.0)
 #: Seeds a user may give (``--seed``, the ``seed`` option): integers in this range, inclusive
 #: (numpy takes any non-negative integer; the cap keeps a seed an int64 for JSON readers).
 SEED_RANGE = (0, 2**63 - 1)
+#: Steps of one closed-loop simulation (``simulate --steps``): streamed in constant memory, so the
+#: cap only keeps a mistyped count from running for years (10^12 steps of a 10 microsecond policy
+#: are about four months).
+STEPS_RANGE = (0, 10**12)
 #: Simulations per decision of the MCTS policy (``--option simulations=N``): at most about 25-50 s
 #: of search at the 20-50 thousand simulations/s measured on the tracking models.
 SIMULATIONS_RANGE = (1, 10**6)

@@ -35,7 +35,7 @@ from .belief import check_belief, start_belief, uniform_belief
 from .checks import check_int, is_integer
 from .filter import EpochFilter
 from .model import POMDP, short_repr
-from .options import check_seed
+from .options import STEPS_RANGE, check_seed
 from .policies import Policy, as_callable, make_policy
 from .uncertainty import SHANNON
 
@@ -212,8 +212,9 @@ def _sample(rng: np.random.Generator, p: np.ndarray) -> int:
 
 
 def check_steps(steps: object, field: str = "steps") -> int:
-    """``steps`` as an int after checking it is a non-negative integer (``OptionError`` naming ``field``)."""
-    return check_int(steps, field, 0)
+    """``steps`` as an int after checking it is an integer in :data:`~.options.STEPS_RANGE`
+    (``OptionError`` naming ``field``)."""
+    return check_int(steps, field, *STEPS_RANGE)
 
 
 class Simulation:

@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from ..model import ModelError
+from .file_text import _file_kind
 
 PACKAGE = "pomdp_planner"
 #: The repository root when running from a checkout (``pomdp_planner/core/io/`` is 3 levels down).
@@ -33,10 +34,12 @@ MODELS_DIR = Path("config") / "models"
 
 
 def package_roots() -> list[Path]:
-    """Installed share directories (interpreter prefix, then ``AMENT_PREFIX_PATH``), then the source tree."""
+    """Installed share directories (interpreter prefix, then ``AMENT_PREFIX_PATH``), then the source tree
+    when running from a checkout."""
     prefixes = [sys.prefix, *os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)]
     roots = [Path(p) / "share" / PACKAGE for p in prefixes if p]
-    roots.append(SOURCE_ROOT)
+    if (SOURCE_ROOT / "package.xml").is_file():  # a checkout (an installed copy sits in site-packages)
+        roots.append(SOURCE_ROOT)
     return list(dict.fromkeys(roots))
 
 
@@ -61,11 +64,13 @@ def resolve_path(path: str, field: str = "model_file") -> Path:
     for c in cands:
         if c.is_file():
             return c
+    for c in cands:  # no regular file, but something of that name (a directory, a FIFO, a device)
+        try:
+            mode = c.stat().st_mode
+        except OSError:
+            continue
+        raise ModelError(f"{field}: {c} is {_file_kind(mode)}, not a regular file")
     if len(cands) == 1:
-        if cands[0].is_dir():
-            raise ModelError(f"{field}: {cands[0]} is a directory, not a file")
-        if cands[0].exists():
-            raise ModelError(f"{field}: {cands[0]} is not a regular file")
         raise ModelError(f"{field}: file {cands[0]} does not exist")
     places = list(dict.fromkeys(str(c.parent) for c in cands))
     raise ModelError(f"{field}: {str(path)!r} not found (looked in {', '.join(places)})")
