@@ -47,3 +47,11 @@ def test_bench_configure_refuses_bad_input_in_one_line(argv, message, capsys):
     assert main(["bench", "configure", "--no-old", *argv]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and err.startswith(f"pomdp-planner bench configure: error: {message}")
+
+
+def test_bench_configure_json_on_stdout_puts_the_table_on_stderr(capsys):
+    assert main(["bench", "configure", "--models", "tracking_s3_info.yaml", "--no-old", "--beliefs", "1",
+                 "--json", "-"]) == 0
+    out, err = capsys.readouterr()
+    assert [r["model"] for r in json.loads(out)] == ["tracking_s3_info"]
+    assert err.splitlines()[0].split()[:4] == ["model", "S", "A", "Z"]

@@ -28,7 +28,6 @@ Timings on a shared machine are noisy: only ratios measured in one run are meani
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import statistics
 import sys
@@ -43,13 +42,13 @@ import numpy as np
 import yaml
 
 from ..core.bounds import BOUND_VARIANTS, DEFAULT_CONSTANT
+from ..core.checks import integer, number
 from ..core.domains.comparison import comparison_y
 from ..core.gate import STAGES
-from ..core.io.outputs import check_output_file, write_text_file
 from ..core.io.sensors import load_model_file
 from ..core.loop import Liveness, PlanJob, PlannerLoop
 from ..core.search import Planner
-from .lp import cell
+from .lp import cell, run_compared
 
 DEFAULT_MODELS = ("comparison:256,64", "perimeter_s8.yaml", "tracking_s8_info.yaml")
 #: The planner node's defaults (nodes/planner.py), as its configure reads them.
@@ -167,12 +166,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS), metavar="MODEL",
                         help="'comparison:S,A' or model files (default: %(default)s)")
     parser.add_argument("--no-old", action="store_true", help="do not time the planner with the fused leaf table")
-    parser.add_argument("--beliefs", type=int, default=3, metavar="N", help="decisions per model (3)")
-    parser.add_argument("--time-budget", type=float, default=NODE_PARAMS["time_budget"], metavar="S",
+    parser.add_argument("--beliefs", type=integer, default=3, metavar="N", help="decisions per model (3)")
+    parser.add_argument("--time-budget", type=number, default=NODE_PARAMS["time_budget"], metavar="S",
                         help="seconds per decision (the node's default, %(default)s)")
-    parser.add_argument("--max-depth", type=int, default=NODE_PARAMS["max_depth"], metavar="D",
+    parser.add_argument("--max-depth", type=integer, default=NODE_PARAMS["max_depth"], metavar="D",
                         help="deepest search of a decision (the node's default, %(default)s)")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
+                        "the run; '-': the JSON on stdout, the table on stderr)")
 
 
 def run_from_args(args: argparse.Namespace, prog: str) -> int:
@@ -183,18 +183,8 @@ def run_from_args(args: argparse.Namespace, prog: str) -> int:
     if not args.time_budget > 0:
         print(f"{prog}: error: --time-budget: must be > 0, got {args.time_budget}", file=sys.stderr)
         return 2
-    try:
-        if args.json is not None:  # before the run, not after it
-            check_output_file(args.json, "--json")
-        rows = run_configure_bench(args.models, not args.no_old, args.beliefs, args.time_budget, args.max_depth,
-                                   log=lambda s: print(s, file=sys.stderr, flush=True))
-        print(format_table(rows))
-        if args.json is not None:
-            write_text_file(args.json, json.dumps(rows, indent=2) + "\n", "--json")
-    except (ValueError, OSError) as exc:  # InputError included: a bad model spec or file, an unwritable --json
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    return 0 if all(r["same"] is not False for r in rows) else 1
+    return run_compared(prog, args.json, lambda log: run_configure_bench(
+        args.models, not args.no_old, args.beliefs, args.time_budget, args.max_depth, log=log), format_table)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
