@@ -230,9 +230,8 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
             if self._failure is not None:
                 raise self._failure
             raise NodeConfigError(self.configure_error)
-        self.trigger_activate()
-        if self._failure is not None:
-            raise self._failure
+        if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:  # a bug: rclpy has swallowed it
+            raise RuntimeError(f"{self.get_name()}: activate failed (see the log)")
 
     def configure_loop(self):
         """Read the parameters, build and return the loop (inactive) and its entities (class docstring)."""
@@ -284,7 +283,11 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Start publishing (the lifecycle publishers first), then the loop's activation."""
         ret = super().on_activate(state)
-        self.call(self.loop.activate)
+        try:
+            self.call(self.loop.activate)
+        except Exception:  # a bug: rclpy would swallow it without a word
+            self.get_logger().error(f"activate failed: {traceback.format_exc()}")
+            raise
         return ret
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
