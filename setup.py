@@ -31,6 +31,7 @@ NODE_EXECUTABLES = {
     "belief_filter": "pomdp_planner.nodes.belief_filter:main",
     "planner": "pomdp_planner.nodes.planner:main",
     "closed_loop": "pomdp_planner.nodes.closed_loop:main",
+    "measurement_adapter": "pomdp_planner.nodes.measurement_adapter:main",
 }
 
 HERE = Path(__file__).resolve().parent

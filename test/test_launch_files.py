@@ -6,12 +6,14 @@ For each ``launch/*.launch.xml`` of the source tree:
   ``ros2 launch pomdp_planner <file>`` finds it);
 * every ``<arg>`` has a default and a description, and is documented in the user docs;
 * every substitution is one the file may use (``$(var X)`` of a declared argument,
-  ``$(find-pkg-share pomdp_planner)``), and every ``if``/``unless`` names a declared argument;
+  ``$(find-pkg-share pomdp_planner)``; an argument's default may use the arguments declared before
+  it), and every ``if``/``unless`` names a declared argument;
 * every ``<node>`` names an executable of this package that is installed under
   ``lib/pomdp_planner`` and executable, with a unique name;
 * for every value of ``model_set`` (the shipped parameter sets, :data:`PARAMETER_SETS`; the
   argument's description lists exactly them) every ``<param from=...>`` is an installed file
-  whose section applies to that node in any namespace, and the model it names is installed.
+  whose section applies to that node in any namespace, and the model it names is installed; all
+  the nodes of one launch run the same model.
 """
 
 from __future__ import annotations
@@ -79,17 +81,26 @@ def arguments(root: ET.Element) -> dict[str, ET.Element]:
 
 
 def substitute(text: str, values: dict[str, str], share: Path) -> str:
+    """``text`` with its substitutions done; an argument's value may hold substitutions itself."""
     def one(m: re.Match) -> str:
         kind, arg = m.group(1), (m.group(2) or "").strip()
         if kind == "var":
-            return values[arg]
+            return substitute(values[arg], values, share)
         assert kind == "find-pkg-share" and arg == PACKAGE, f"unexpected substitution {m.group(0)}"
         return str(share)
     return SUBSTITUTION.sub(one, text)
 
 
-def test_there_is_a_closed_loop_launch_file():
-    assert [p.name for p in LAUNCH_FILES] >= ["closed_loop.launch.xml"]
+def test_there_are_the_closed_loop_and_tracker_launch_files():
+    assert {p.name for p in LAUNCH_FILES} >= {"closed_loop.launch.xml", "tracker.launch.xml"}
+
+
+def test_the_tracker_runs_the_adapter_with_the_filter_and_the_planner():
+    root = ET.parse(REPO / "launch" / "tracker.launch.xml").getroot()
+    nodes = {n.get("exec"): n for n in root.iter("node")}
+    assert set(nodes) == {"measurement_adapter", "belief_filter", "planner"}
+    (remap,) = nodes["measurement_adapter"].iter("remap")
+    assert remap.get("from") == "measurement" and remap.get("to") == "$(var sensor_topic)"
 
 
 @pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
@@ -116,6 +127,12 @@ def test_every_argument_has_a_default_and_is_documented(path):
 def test_tags_substitutions_and_conditions_are_known(path):
     root = ET.parse(path).getroot()
     args = arguments(root)
+    declared: list[str] = []
+    for arg in root.iter("arg"):  # a default may use only the arguments declared before it
+        for m in SUBSTITUTION.finditer(arg.get("default") or ""):
+            if m.group(1) == "var":
+                assert m.group(2).strip() in declared, f"{path.name}: {arg.get('name')}'s default uses {m.group(0)}"
+        declared.append(arg.get("name"))
     for el in root.iter():
         assert el.tag in KNOWN_TAGS, f"{path.name}: unexpected tag <{el.tag}>"
         for attr, value in el.attrib.items():
@@ -160,6 +177,7 @@ def test_parameter_files_and_models_exist_for_every_model_set(path, prefix):
     checked = 0
     for combo in itertools.product(*choices.values()):
         values = dict(zip(choices, combo, strict=True))
+        models = set()
         for node in root.iter("node"):
             for param in node.iter("param"):
                 if param.get("from") is None:
@@ -171,5 +189,7 @@ def test_parameter_files_and_models_exist_for_every_model_set(path, prefix):
                     f"{file.name}: its section would not apply to {node.get('name')} in a namespace"
                 model = share / section["model_file"]
                 assert model.is_file(), f"{file.name}: model {section['model_file']} is not installed"
+                models.add(section["model_file"])
                 checked += 1
+        assert len(models) == 1, f"{path.name} ({values}): the nodes run different models {sorted(models)}"
     assert checked >= len(PARAMETER_SETS)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import array
 import sys
 import threading
 import time
@@ -22,6 +23,7 @@ from test_nodes_closed_loop import start_loop
 from pomdp_planner.core.bounds import BOUND_CONSTANTS, DEFAULT_CONSTANT, sample_beliefs, solve_bounds
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
+from pomdp_planner.nodes.measurement_adapter import MeasurementAdapter
 from pomdp_planner.nodes.messages import encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.processes import PARAMETER_SETS, node_parameters, parameter_set_model
@@ -30,7 +32,8 @@ from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.target_simulator import TargetSimulator
 
 harness = pytest.fixture(make_harness)
-NODE_CLASSES = {"target_simulator": TargetSimulator, "belief_filter": BeliefFilter, "planner": PlannerNode}
+NODE_CLASSES = {"target_simulator": TargetSimulator, "belief_filter": BeliefFilter, "planner": PlannerNode,
+                "measurement_adapter": MeasurementAdapter}
 PARAM_FILES = sorted((REPO / "config").glob("*.yaml"))
 
 
@@ -160,8 +163,8 @@ def test_shipped_yaml_loads_and_matches_declared_parameters(harness, path):
             assert node.has_parameter(name), f"{path.name}: {node_name} declares no parameter {name!r}"
             expected = Parameter.from_parameter_msg(msg).value
             got = node.get_parameter(name).value
-            if isinstance(expected, list):
-                got = list(got)
+            if isinstance(expected, list | array.array):  # a double array comes as array('d')
+                expected, got = list(expected), list(got)
             assert got == expected, f"{path.name}: {node_name}.{name} = {got!r}, file says {expected!r}"
 
 

@@ -1,4 +1,4 @@
-"""``pomdp-planner bench search|structure|configure|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|structure|configure|multitarget|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
@@ -6,6 +6,9 @@ throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.be
 (``pomdp_planner/bench/structure.py``).
 ``bench configure`` times what the planner node's configure runs, stage by stage
 (``pomdp_planner/bench/configure.py``).
+``bench multitarget [--quick] [--json FILE] [--plot FILE]`` is the multi-target benchmark (dual
+bound against the exact joint lookahead, closed-loop regret, decision time against K;
+``pomdp_planner/bench/multitarget.py``).
 ``bench all`` writes every experiment into ``--output DIR`` (``RESULTS.md``, ``img/*.png``;
 ``pomdp_planner/bench/experiments/``, through ``pomdp_planner/cli/experiments.py``).
 """
@@ -16,6 +19,7 @@ import argparse
 import sys
 
 from ..bench import configure as configure_bench
+from ..bench import multitarget as multitarget_bench
 from ..bench import search as search_bench
 from ..bench import structure as structure_bench
 from . import experiments
@@ -39,8 +43,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=configure_bench.__doc__.split("\n\n")[0])
     configure_bench.add_arguments(c)
     c.set_defaults(func=lambda args: configure_bench.run_from_args(args, "pomdp-planner bench configure"))
+    m = sub.add_parser("multitarget", help="several targets, one budget: dual bound, regret, scaling",
+                       description=multitarget_bench.__doc__.split("\n\n")[0])
+    multitarget_bench.add_arguments(m)
+    m.set_defaults(func=_run_multitarget)
     experiments.add_arguments(sub.add_parser("all", help="all experiments: RESULTS.md and img/*.png in --output DIR",
                                              description=experiments.__doc__.split("\n\n")[0]))
+
+
+def _run_multitarget(args: argparse.Namespace) -> int:
+    try:
+        return multitarget_bench.run_from_args(args)
+    except (ValueError, OSError) as exc:  # a bad option; an unwritable --json or --plot
+        print(f"pomdp-planner bench multitarget: error: {exc}", file=sys.stderr)
+        return 2
 
 
 def _run_search(args: argparse.Namespace) -> int:

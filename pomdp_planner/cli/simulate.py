@@ -13,6 +13,9 @@ decision with the belief it was made from, the true state, the priority, the roo
 depth, whether it was certified and the search time), streamed like the output; ``pomdp-planner
 plot FILE`` draws it.
 
+With ``--targets M1,M2,... --budget B`` (no ``MODEL``) it simulates K targets under one effort
+budget per epoch and a joint policy (``cli/simulate_targets.py``, docs/multitarget.md).
+
 The steps are streamed: each line (each JSON step) is printed as soon as the step is simulated
 and then forgotten, and the summary comes from running sums (``core.simulate.Simulation``,
 ``RunningSummary``), so any ``--steps`` runs in constant memory and ``| head`` stops it at once.
@@ -31,13 +34,14 @@ from ..core.errors import OptionError
 from ..core.io.outputs import check_output_file
 from ..core.io.run_record import RunRecordWriter
 from ..core.model import POMDP, short_repr
+from ..core.multitarget.policies import JOINT_POLICIES, joint_policy_names
 from ..core.options import STEPS_RANGE
 from ..core.policies import POLICIES, last_decision, make_policy, policy_names, setup_notice_for
 from ..core.simulate import RunningSummary, Simulation, SimulationStep
+from . import simulate_targets
 from ._common import (
     add_belief_argument,
     add_json_argument,
-    add_model_argument,
     add_seed_argument,
     emit_json_stream,
     format_number,
@@ -60,15 +64,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("simulate", help="closed-loop simulation of a policy",
                               description=__doc__.split("\n\n")[0].replace("``", ""),
                               epilog="policies (--policy NAME):\n" + "\n".join(
-                                  f"  {name:<11} {POLICIES[name].help}" for name in policy_names()),
+                                  f"  {name:<11} {POLICIES[name].help}" for name in policy_names())
+                              + "\n\njoint policies (--targets ... --policy NAME):\n" + "\n".join(
+                                  f"  {name:<11} {JOINT_POLICIES[name].help}" for name in joint_policy_names()),
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_model_argument(p)
+    p.add_argument("model", metavar="MODEL", nargs="?", default=None,
+                   help="model file: YAML (see README) or Cassandra .POMDP, absolute, relative to the current "
+                        "directory or to the installed share/pomdp_planner, or a shipped model's name "
+                        "(e.g. tracking_s3_info); not with --targets")
     p.add_argument("--steps", type=int_in(*STEPS_RANGE), default=20, metavar="N",
                    help=f"number of steps, {STEPS_RANGE[0]}..{STEPS_RANGE[1]:.0e} (default 20); streamed in "
                    "constant memory")
     add_seed_argument(p, "random seed (default 0); same seed, same run")
-    p.add_argument("--policy", default="myopic",
-                   help=f"policy name: {', '.join(policy_names())} (default myopic; see below)")
+    p.add_argument("--policy", default=None,
+                   help=f"policy name: {', '.join(policy_names())} (default myopic; see below); with --targets "
+                   f"one of {', '.join(joint_policy_names())} (default lagrangian)")
     p.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                    help="option passed to the policy factory (repeatable), e.g. --option depth=3")
     add_belief_argument(p, default="", help_text="initial belief: 'uniform' or p1,...,pS "
@@ -78,6 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--record", default=None, metavar="FILE",
                    help="also write the run as a run-record CSV (one row per decision: belief, action, root "
                         "bounds, depth, certified, latency; docs/cli.md), e.g. for 'pomdp-planner plot'")
+    simulate_targets.add_arguments(p)
     add_json_argument(p)
     p.set_defaults(func=run)
 
@@ -98,6 +109,10 @@ def _initial_state(text: str | None, model: POMDP) -> int | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.targets is not None:
+        return simulate_targets.run(args)
+    simulate_targets.check_single_target(args)
+    args.policy = "myopic" if args.policy is None else args.policy
     if args.record is not None:  # before any work: not after a long run
         check_output_file(args.record, "--record", stdout=False)  # the steps go to stdout
     model = load_model_arg(args)

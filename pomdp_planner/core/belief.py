@@ -44,6 +44,19 @@ class ImpossibleObservation(ArithmeticError):
         )
 
 
+def _state_vector(model: POMDP | int, values, field: str, what: str) -> np.ndarray:
+    """``values`` as a float array of one finite entry per state of ``model`` (or ``S``), else a
+    :class:`BeliefError` naming ``field``."""
+    S = int(model) if isinstance(model, (int, np.integer)) else model.S
+    v = np.asarray(values, dtype=float)
+    if v.shape != (S,):
+        got = f"{v.size}" if v.ndim == 1 else f"shape {v.shape}"
+        raise BeliefError(f"{field}: expected {S} {what} (one per state), got {got}")
+    if not np.all(np.isfinite(v)):
+        raise BeliefError(f"{field}: contains non-finite values")
+    return v
+
+
 def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: str = "belief") -> np.ndarray:
     """Return ``b`` as a float array after checking it lies on the simplex of ``model``.
 
@@ -52,13 +65,7 @@ def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: s
     naming ``field``; the edges (CLI, nodes) translate them. ``model`` may be just the number of
     states ``S`` (for a message decoder, which knows nothing else of the model).
     """
-    S = int(model) if isinstance(model, (int, np.integer)) else model.S
-    b = np.asarray(b, dtype=float)
-    if b.shape != (S,):
-        got = f"{b.size}" if b.ndim == 1 else f"shape {b.shape}"
-        raise BeliefError(f"{field}: expected {S} probabilities (one per state), got {got}")
-    if not np.all(np.isfinite(b)):
-        raise BeliefError(f"{field}: contains non-finite values")
+    b = _state_vector(model, b, field, "probabilities")
     if np.any(b < -atol):
         raise BeliefError(f"{field}: entry {int(np.argmin(b))} is negative ({b.min():.3g})")
     total = b.sum()
@@ -66,6 +73,19 @@ def check_belief(model: POMDP | int, b: np.ndarray, atol: float = 1e-6, field: s
         raise BeliefError(f"{field}: sums to {total:.9g}, not 1 (tolerance {atol:g})")
     b = np.clip(b, 0.0, None)
     return b / b.sum()
+
+
+def check_likelihood(model: POMDP | int, values, field: str = "likelihood") -> np.ndarray:
+    """Return ``values`` as a float array after checking it is a likelihood over the states of
+    ``model``: ``S`` finite, non-negative entries, at least one positive (``l(s) = P(reading | s)``
+    up to a constant factor: soft evidence, :mod:`~pomdp_planner.core.filter`). Errors are
+    :class:`BeliefError` naming ``field``; ``model`` may be just ``S``, as for :func:`check_belief`."""
+    lik = _state_vector(model, values, field, "values")
+    if np.any(lik < 0):
+        raise BeliefError(f"{field}: entry {int(np.argmin(lik))} is negative ({lik.min():.3g})")
+    if not lik.max() > 0:
+        raise BeliefError(f"{field}: every entry is 0 (a reading no state can produce is no evidence)")
+    return lik
 
 
 def check_action(model: POMDP, a: int) -> int:

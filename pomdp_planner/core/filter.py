@@ -3,12 +3,19 @@
 An *epoch* is one transition of the target under one action ``a`` followed by one reading
 ``z_k`` from each of the sensors that reported (sensor ``k`` with its own observation array
 ``O_k``, ``A x S x Z_k``; sensor 0 of :func:`simulate` and of a one-sensor node is the model's
-``O``). :meth:`EpochFilter.step` applies an epoch to a belief ``b``:
+``O``). A *soft-evidence* sensor reports, instead of an observation index, its likelihood of the
+reading in every state, ``l_k(s) = P(reading | next state s)`` up to a positive factor (a sensor
+that computes a likelihood per state; ``likelihoods`` of :class:`EpochFilter`); for such a sensor
+the column ``O_k[a][:, z_k]`` below is replaced by ``l_k``: a hard observation ``z`` is the soft
+evidence ``l = O[a][:, z]``. :meth:`EpochFilter.step` applies an epoch to a belief ``b``:
 
 1. **Prediction**, once, with the action the readings carry (paper Eq. 1):
    ``b^a = b @ P[a]``.
 2. **Update** with each reading, in sensor order (Eq. 2, with that sensor's matrix):
-   ``b <- b * O_k[a][:, z_k] / eta_k``. The readings are conditionally independent given the
+   ``b <- b * O_k[a][:, z_k] / eta_k``; for soft evidence ``b <- b * l_k / eta_k``, i.e.
+   ``b'(s) ∝ l_k(s) b^a(s)`` (Eq. 2 with the likelihood in place of ``O(z, s', a)``; ``l_k`` is
+   first divided by its largest entry, which leaves the posterior unchanged and keeps the sums
+   finite whatever its scale). The readings are conditionally independent given the
    state, so the result is ``b^a * prod_k O_k[a][:, z_k]`` normalised, whatever their order.
 3. **Recovery** when a reading is impossible under the belief (``eta = 0``, i.e.
    ``<= belief.ETA_MIN``). The Bayes update is then undefined, and the reading proves that the
@@ -54,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .belief import ETA_MIN, BeliefError, check_action, check_belief
+from .belief import ETA_MIN, BeliefError, check_action, check_belief, check_likelihood
 from .checks import check_int
 from .model import POMDP, ModelError
 
@@ -76,18 +83,22 @@ class EpochUpdate:
 
 
 class EpochFilter:
-    """The per-epoch Bayes filter of ``model`` with one observation array per sensor.
+    """The per-epoch Bayes filter of ``model`` with one observation array per sensor, then
+    ``likelihoods`` soft-evidence sensors.
 
     ``sensors``: ``A x S x Z_k`` arrays ``O_k[a, j, z] = P(z | next j, a)``; default the model's
-    own ``O`` as the one sensor. Loaders check them against the model with the field name of
-    their source (``core.io.sensors.load_observation_models``); the shapes are checked here too,
-    as the last guard.
+    own ``O`` as the one sensor (none when the filter has soft-evidence sensors only: pass
+    ``[]``). Loaders check them against the model with the field name of their source
+    (``core.io.sensors.load_observation_models``); the shapes are checked here too, as the last
+    guard. Sensor indices ``0 .. len(sensors) - 1`` take observation indices, the next
+    ``likelihoods`` take a likelihood per state (module docstring).
     """
 
-    def __init__(self, model: POMDP, sensors: Sequence[np.ndarray] | None = None):
+    def __init__(self, model: POMDP, sensors: Sequence[np.ndarray] | None = None, likelihoods: int = 0):
         self.model = model
         sensors = [model.O] if sensors is None else [np.asarray(O, dtype=float) for O in sensors]
-        if not sensors:
+        self.num_likelihoods = check_int(likelihoods, "likelihoods", 0, error=ModelError)
+        if not sensors and not self.num_likelihoods:
             raise ModelError("sensors: at least one observation model is needed")
         for k, O in enumerate(sensors):
             if O.ndim != 3 or O.shape[:2] != (model.A, model.S):
@@ -98,20 +109,33 @@ class EpochFilter:
 
     @property
     def num_sensors(self) -> int:
-        return len(self.sensors)
+        """Every sensor: observation arrays and soft-evidence sensors."""
+        return len(self.sensors) + self.num_likelihoods
+
+    def soft(self, sensor: int) -> bool:
+        """Whether sensor ``sensor`` reports soft evidence (a likelihood per state)."""
+        return sensor >= len(self.sensors)
 
     def num_observations(self, sensor: int) -> int:
-        """``Z_k`` of sensor ``sensor``."""
+        """``Z_k`` of sensor ``sensor`` (a sensor with an observation array)."""
         return self.sensors[sensor].shape[2]
 
-    def _check_reading(self, sensor: int, z: int) -> tuple[int, int]:
+    def _likelihood(self, sensor: int, a: int, reading) -> np.ndarray:
+        """The checked likelihood column of one reading: ``O_k[a][:, z]``, or soft evidence ``l``
+        divided by its largest entry."""
         sensor = check_int(sensor, "sensor", 0, self.num_sensors - 1, error=BeliefError)
-        z = check_int(z, f"observation (sensor {sensor})", 0, self.num_observations(sensor) - 1, error=BeliefError)
-        return sensor, z
+        if self.soft(sensor):
+            lik = check_likelihood(self.model, reading, field=f"likelihood (sensor {sensor})")
+            return lik / lik.max()
+        z = check_int(reading, f"observation (sensor {sensor})", 0, self.num_observations(sensor) - 1,
+                      error=BeliefError)
+        return self.sensors[sensor][a, :, z]
 
-    def step(self, belief: np.ndarray, action: int | None, readings: Mapping[int, int]) -> EpochUpdate:
+    def step(self, belief: np.ndarray, action: int | None, readings: Mapping[int, int | Sequence[float]]
+             ) -> EpochUpdate:
         """Apply one epoch: ``action`` (0-based; ``None`` = unknown, only for a gap) and
-        ``readings[sensor] = observation`` (may be empty: a gap). See the module docstring."""
+        ``readings[sensor]``: an observation index, or for a soft-evidence sensor its likelihood
+        per state (may be empty: a gap). See the module docstring."""
         b = np.asarray(belief, dtype=float)
         if action is None:
             if readings:
@@ -119,14 +143,13 @@ class EpochFilter:
             check_belief(self.model, b)
             return EpochUpdate(b.copy(), predicted=False)
         a = check_action(self.model, action)
-        ordered = sorted(self._check_reading(k, z) for k, z in readings.items())
+        ordered = [(k, self._likelihood(k, a, readings[k])) for k in sorted(readings)]
         post = b @ self.model.P[a]                       # Eq. 1
         applied = np.ones(self.model.S)                  # product of this epoch's applied likelihoods
         restarted: list[int] = []
         dropped: list[int] = []
-        for k, z in ordered:
-            lik = self.sensors[k][a, :, z]
-            unnorm = post * lik                          # Eq. 2
+        for k, lik in ordered:
+            unnorm = post * lik                          # Eq. 2 (soft evidence: l(s) b^a(s))
             eta = float(unnorm.sum())
             if not eta > ETA_MIN:                        # impossible under the belief: restart
                 unnorm = (self._uniform @ self.model.P[a]) * applied * lik

@@ -30,6 +30,11 @@ planner prunes anyway with ``guaranteed=False``, and every output says that no g
 without the guarantee never reports a decision as certified and, in the anytime search, does
 not stop early when the root bounds agree (:class:`~.search.Planner`).
 
+The decision covers every action-only price of the model: ``setup.planner.priced(c)`` (rewards
+``r[s, a] - c[a]``, the multi-target planner's ``lambda e(a)``) keeps the same bounds and the same
+``guaranteed`` flag, because such a price changes neither Assumption 1 nor the LP
+(docs/THEORY.md, "Several targets", Theorem P).
+
 ``check_assumptions`` can take seconds on large models (about 1 s at S = 256, A = 64; minutes
 where (A2) needs the expensive tests on many matrices), so its report is cached by the content
 of ``P`` and ``O`` (the only inputs of Assumption 1): a second gate call for the same model, or

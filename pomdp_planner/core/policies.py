@@ -40,7 +40,7 @@ from .model import POMDP
 from .myopic import MyopicBounds
 from .options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_seed, check_time_budget
 from .options import SEED_RANGE as SEED_RANGE  # re-exported: the ranges live in options.py
-from .search import SearchResult, check_tree_size
+from .search import Planner, SearchResult, check_tree_size
 
 
 class PolicyObject(Protocol):
@@ -73,6 +73,43 @@ class MyopicPolicy:
         return int(np.argmax(self.model.rho(belief)))
 
 
+def search_guards(planner: Planner, depth: int, time_budget: float | None, max_depth: int, no_limit: bool,
+                  prefix: str = "option ", hint: str = "use the option time_budget=S (anytime search), or no_limit=1"
+                  ) -> tuple[int, str]:
+    """The resource guards of a search request, applied once before the first decision: a fixed
+    ``depth`` (no ``time_budget``) whose complete tree exceeds :data:`~.search.MAX_TREE_NODES` is
+    refused unless ``no_limit`` (:func:`~.search.check_tree_size`, ``hint`` in the message), as is
+    one over the planner's memory budget; under a time budget ``max_depth`` is capped at the
+    deepest depth within the memory budget (refused if not even depth 1 fits). Returns the
+    ``max_depth`` to use and a note (``""``, or what was capped). Fields are ``prefix + "depth"``."""
+    m = planner.model
+    if time_budget is None:
+        if not no_limit:
+            check_tree_size(m.A, m.Z, depth, f"{prefix}depth", hint=hint)
+        planner.check_memory(depth, f"{prefix}depth")
+        return max_depth, ""
+    planner.check_memory(1, f"{prefix}max_depth")  # refused if not even depth 1 fits
+    fits = planner.deepest_depth_within_budget(max_depth)
+    if fits < max_depth:
+        return fits, (f"max_depth capped at {fits}: deeper searches need more than the memory budget "
+                      f"({max_depth} asked for)")
+    return max_depth, ""
+
+
+def table_entry(table: Mapping[str, Any], name: str, options: Mapping[str, Any], what: str = "policy") -> Any:
+    """``table[name]`` (an entry with ``options``) after checking that the name is known and that
+    every key of ``options`` is one of the entry's options; else an :class:`OptionError` naming the
+    policy (``what``: how the table's entries are called, e.g. ``"joint policy"``)."""
+    entry = table.get(name)
+    if entry is None:
+        raise OptionError(f"policy: unknown {what} {short_repr(name)} (known: {', '.join(sorted(table))})")
+    unknown = sorted(set(options) - set(entry.options))
+    if unknown:
+        raise OptionError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
+                          f"(known: {', '.join(entry.options) or 'none'})")
+    return entry
+
+
 class SearchPolicy:
     """A closed-loop policy that plans every step (``--policy bnb`` / ``exhaustive``).
 
@@ -97,20 +134,7 @@ class SearchPolicy:
         self.max_depth = check_depth(max_depth, "option max_depth", MAX_DEPTH_RANGE)
         self.time_budget = None if time_budget is None else check_time_budget(time_budget, "option time_budget",
                                                                               TIME_BUDGET_RANGE)
-        self.note = ""
-        m = planner.model
-        if self.time_budget is None:
-            if not no_limit:
-                check_tree_size(m.A, m.Z, self.depth, "option depth",
-                                hint="use the option time_budget=S (anytime search), or no_limit=1")
-            planner.check_memory(self.depth, "option depth")
-        else:
-            planner.check_memory(1, "option max_depth")  # refused if not even depth 1 fits
-            fits = planner.deepest_depth_within_budget(self.max_depth)
-            if fits < self.max_depth:
-                self.note = (f"max_depth capped at {fits}: deeper searches need more than the memory budget "
-                             f"({self.max_depth} asked for)")
-                self.max_depth = fits
+        self.max_depth, self.note = search_guards(planner, self.depth, self.time_budget, self.max_depth, no_limit)
         self.use_bounds = setup.pruning
         self.last: SearchResult | None = None
         self.decisions = self.certified = 0
@@ -266,13 +290,7 @@ def policy_names() -> list[str]:
 
 def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
     """Build policy ``name`` for ``model`` (``options`` go to its factory; unknown ones are errors)."""
-    entry = POLICIES.get(name)
-    if entry is None:
-        raise OptionError(f"policy: unknown policy {short_repr(name)} (known: {', '.join(policy_names())})")
-    unknown = sorted(set(options) - set(entry.options))
-    if unknown:
-        raise OptionError(f"policy {name}: unknown option {', '.join(short_repr(k) for k in unknown[:5])} "
-                         f"(known: {', '.join(entry.options)})")
+    entry = table_entry(POLICIES, name, options)
     if options.get("seed") is not None:
         options = {**options, "seed": check_seed(options["seed"], "option seed")}
     return entry.factory(model, options)

@@ -70,6 +70,7 @@ they agree whenever no node of the exhaustive-optimal subtree has its argmax pru
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -80,7 +81,7 @@ import numpy as np
 
 from .belief import ETA_MIN, check_belief
 from .checks import check_int
-from .errors import OptionError
+from .errors import BeliefError, OptionError, short_repr
 from .model import POMDP, format_bytes, priority_of
 from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
 from .options import MAX_DEPTH_RANGE as MAX_DEPTH_RANGE  # re-exported: the ranges live in options.py
@@ -278,8 +279,9 @@ def check_search_memory(S: int, A: int, Z: int, depth: int, memory_budget: int, 
         f"{format_bytes(memory_budget)}; {deepest}")
 
 
-class _DeadlineExceeded(Exception):
-    """Raised inside a depth when the wall-clock deadline passes (never escapes the planner)."""
+class DeadlineExceeded(Exception):
+    """Raised inside a depth when the wall-clock deadline passes: :meth:`Planner.plan` catches it
+    (never lets it escape); :meth:`Planner.search` with a ``deadline`` raises it to its caller."""
 
 
 @dataclass(frozen=True)
@@ -440,11 +442,17 @@ class Planner:
         rb = self._root(b, self.bounds)[3]
         return (0, self.model.A - 1) if rb is None else rb
 
-    def search(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> SearchResult:
+    def search(self, belief: np.ndarray, depth: int, use_bounds: bool = True, *, all_root_actions: bool = False,
+               deadline: float | None = None) -> SearchResult:
         """Algorithm 1 to ``depth`` action-observation levels (``Search(b, depth + 1)``).
 
         Always searches the full requested depth (also when the root bounds agree; then
         only one root action is expanded). ``use_bounds=False`` is the exhaustive search.
+        ``all_root_actions``: every root action is expanded (the bounds prune below the root
+        only), so every Q value is finite; a caller that must compare the root actions under a
+        constraint the bounds do not know (the multi-target budget) needs them all.
+        ``deadline`` (a reading of :attr:`clock`): checked before every chunk;
+        :class:`DeadlineExceeded` is raised when it has passed.
         """
         depth = check_depth(depth)
         self.check_memory(depth, "depth")
@@ -452,7 +460,9 @@ class Planner:
         t0 = self.clock()
         bounds = self.bounds if use_bounds else self.trivial
         root = self._root(b, bounds)
-        q, sizes = self._run(root, depth, bounds, None)
+        if all_root_actions:
+            root = (*root[:2], np.ones_like(root[2]), root[3])
+        q, sizes = self._run(root, depth, bounds, deadline)
         t = self.clock() - t0
         return self._result(q, sizes, depth, root[3], t, False, (t,))
 
@@ -491,7 +501,7 @@ class Planner:
             ts = self.clock()
             try:
                 q, sizes = self._run(root, d, bounds, None if d == 1 else deadline)
-            except _DeadlineExceeded:
+            except DeadlineExceeded:
                 hit = True
                 break
             best = (q, sizes, d)
@@ -508,6 +518,56 @@ class Planner:
         assert best is not None  # depth 1 runs without a deadline
         q, sizes, d = best
         return self._result(q, sizes, d, root[3], self.clock() - t0, hit, tuple(times), predicted)
+
+    def priced(self, action_cost: np.ndarray | Sequence[float]) -> Planner:
+        """This planner for the rewards ``r[s, a] - action_cost[a]``: an action-only price, e.g.
+        ``lambda e(a)`` of the multi-target relaxation (``core/multitarget``).
+
+        A shallow copy; only the reward arrays differ (``rho(b, a) - action_cost[a]`` everywhere,
+        leaves included), so a copy costs microseconds. The bounds and ``guaranteed`` carry over
+        unchanged: an action-only term changes neither Assumption 1 (``P``, ``O`` only) nor the
+        Theorem 2 LP (its rows hold differences of ``r_a`` over states, where a constant per action
+        cancels), so the same ``g, h`` bound the optimal policy of the priced problem for every
+        price (docs/THEORY.md, "Several targets: an action-only price"). The myopic bound actions
+        move with the price; the guarantee does not. ``self.model`` stays the unpriced model.
+        """
+        A = self.model.A
+        try:
+            c = np.asarray(action_cost, dtype=float)
+        except (TypeError, ValueError):
+            c = np.full(0, np.nan)
+        if c.shape != (A,) or not np.all(np.isfinite(c)):
+            raise OptionError(f"action_cost: expected {A} finite numbers (one per action), "
+                              f"got {short_repr(action_cost)}")
+        new = copy.copy(self)
+        new._rT = np.ascontiguousarray(self._rT - c[:, None])
+        # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
+        WT = self._WT.reshape(A, 1 + A, self.model.Z, self.model.S).copy()
+        WT[:, 1:] -= c[None, :, None, None] * WT[:, :1]
+        new._WT = np.ascontiguousarray(WT.reshape(self._WT.shape))
+        new._bound_cache = None
+        return new
+
+    def q_values_batch(self, beliefs: np.ndarray, depth: int, use_bounds: bool = True, *,
+                       deadline: float | None = None) -> np.ndarray:
+        """``Q(b, a)`` for every row ``b`` of ``beliefs`` (``n x S``) and every action, ``n x A``: the
+        root Q values of :meth:`search` with ``all_root_actions=True``, for ``n`` roots in one
+        vectorised pass (the roots are columns of the first level, as every level's beliefs are).
+        ``depth = 0`` gives ``rho(b, a)``. ``deadline`` as in :meth:`search`."""
+        depth = check_depth(depth, "depth", (0, None))
+        B = np.asarray(beliefs, dtype=float)
+        if B.ndim != 2 or B.shape[1] != self.model.S:
+            raise BeliefError(f"beliefs: expected shape n x {self.model.S}, got {B.shape}")
+        BT = np.ascontiguousarray(np.stack([check_belief(self.model, b, field=f"beliefs[{i}]")
+                                            for i, b in enumerate(B)], axis=1) if len(B) else B.T)
+        rhoT = self._rho(BT)
+        if depth == 0 or not len(B):
+            return np.ascontiguousarray(rhoT.T)
+        self.check_memory(depth, "depth")
+        bounds = self.bounds if use_bounds else self.trivial
+        sizes = [B.shape[0]] + [0] * depth
+        QT = self._values(BT, rhoT, np.ones((self.model.A, B.shape[0]), dtype=bool), depth, 0, sizes, bounds, deadline)
+        return np.ascontiguousarray(QT.T)
 
     def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
         """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
@@ -648,7 +708,7 @@ class Planner:
 
     def _check_deadline(self, deadline: float | None) -> None:
         if deadline is not None and self.clock() > deadline:
-            raise _DeadlineExceeded
+            raise DeadlineExceeded
 
     def _values(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray, remaining: int, level: int,
                 sizes: list[int], bounds: Bounds, deadline: float | None) -> np.ndarray:
@@ -816,7 +876,7 @@ class Planner:
         if pi.size:
             unnorm = BaT[:, pi].T * self._OT[a][zi]
             tau = unnorm / unnorm.sum(axis=1, keepdims=True)
-            out[zi, pi] = eta[zi, pi] * self.model.rho(tau).max(axis=1)
+            out[zi, pi] = eta[zi, pi] * self._rho(np.ascontiguousarray(tau.T)).max(axis=0)
         return out
 
     def _count(self, BT: np.ndarray, allowed: np.ndarray, remaining: int, level: int, sizes: list[int],

@@ -3,16 +3,18 @@
 Topics (relative names, remappable; layouts: :mod:`.messages`, QoS: :mod:`.qos`):
 
 * subscribes each topic of ``observation_topics`` (``Int64MultiArray [epoch, action_priority,
-  observation]``) and ``action`` (``[epoch, action_priority]``: to predict through a lost epoch
-  and to cross-check), all ``STREAM_QOS``;
+  observation]``), each of ``likelihood_topics`` (soft evidence, ``Float64MultiArray`` with the
+  epoch and priority in its layout, as the measurement adapter publishes it) and ``action``
+  (``[epoch, action_priority]``: to predict through a lost epoch and to cross-check), all
+  ``STREAM_QOS``;
 * publishes ``belief`` (``Float64MultiArray``, layout ``[("state", S), ("epoch=<t>", 1)]``,
   ``STREAM_QOS``; epoch 0 is the prior), ``belief_entropy`` (``Float64``, Shannon entropy in nats
   of the same belief; ``LATCHED_QOS``) and ``/diagnostics`` (``belief_filter: belief``).
 
 Each observation applies with the action it carries, epochs in order, one prediction and one
-update per sensor reading; the rules (epoch buffer, gaps, recovery, joining, re-sync, re-send,
-stall levels) are the core's :class:`~pomdp_planner.core.loop.FilterLoop`. Parameters, topics
-and diagnostics: docs/ros.md.
+update per sensor reading (``b'(s) ∝ l(s) b^a(s)`` for soft evidence); the rules (epoch buffer,
+gaps, recovery, joining, re-sync, re-send, stall levels) are the core's
+:class:`~pomdp_planner.core.loop.FilterLoop`. Parameters, topics and diagnostics: docs/ros.md.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from ..core.gate import SetupStages
 from ..core.io.sensors import initial_distribution, load_observation_models
 from ..core.loop import FilterLoop, FilterOutput
 from .loop_node import ManagedLoopNode, OneShot
-from .messages import MessageError, OutOfRangeError, decode_observation, encode_belief
+from .messages import MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, main_for
@@ -40,6 +42,8 @@ class BeliefFilter(ManagedLoopNode):
         d = descriptor
         self.declare_parameter("observation_topics", ["observation"], d(
             "Observation topics, one per sensor, each [epoch, action_priority, observation]", read_only=True))
+        declare_optional_array(self, "likelihood_topics", "string",
+                               "Soft-evidence topics, one per sensor: a likelihood per state (measurement_adapter)")
         declare_optional_array(self, "observation_model_files", "string",
                                "Per-sensor model file whose O is used ('' = the model's own)")
         declare_optional_array(self, "initial_distribution", "double",
@@ -55,19 +59,26 @@ class BeliefFilter(ManagedLoopNode):
 
     def configure_loop(self) -> FilterLoop:
         """The model, the sensors' observation models and the prior; the topics."""
-        self.topics = list(self.get_parameter("observation_topics").value)
-        if not self.topics or len(set(self.topics)) != len(self.topics):
-            raise NodeConfigError(f"observation_topics: need distinct topics, got {self.topics}")
+        self.topics = optional_array(self, "observation_topics") or []  # an empty list ([]) arrives unset
+        soft_topics = optional_array(self, "likelihood_topics") or []
+        every = self.topics + soft_topics
+        if not every or len(set(every)) != len(every):
+            raise NodeConfigError(f"observation_topics, likelihood_topics: need distinct topics, at least one, got "
+                                  f"{self.topics} and {soft_topics}")
         model = self.load_model(SetupStages(self.get_logger().info))
         sensors = load_observation_models(model, optional_array(self, "observation_model_files"), len(self.topics))
         prior = initial_distribution(model, optional_array(self, "initial_distribution"))
         loop = FilterLoop(model, sensors, prior, self.topics, self.live, now=self.now(),
                           epoch_timeout=self.get_parameter("epoch_timeout").value,
-                          max_pending=self.get_parameter("max_pending_epochs").value, active=False)
+                          max_pending=self.get_parameter("max_pending_epochs").value, likelihood_topics=soft_topics,
+                          active=False)
         self.belief_pub = self.create_lifecycle_publisher(Float64MultiArray, "belief", STREAM_QOS)
         self.entropy_pub = self.create_lifecycle_publisher(Float64, "belief_entropy", LATCHED_QOS)
         for k, topic in enumerate(self.topics):
             self.create_subscription(Int64MultiArray, topic, lambda msg, k=k: self._on_observation(k, msg),
+                                     STREAM_QOS)
+        for k, topic in enumerate(soft_topics, start=len(self.topics)):
+            self.create_subscription(Float64MultiArray, topic, lambda msg, k=k: self._on_likelihood(k, msg),
                                      STREAM_QOS)
         self.create_subscription(Int64MultiArray, "action", self._on_action, STREAM_QOS)
         self._release = OneShot(self, self._on_release)  # armed only while an epoch waits for its time-out
@@ -91,6 +102,15 @@ class BeliefFilter(ManagedLoopNode):
             self.call(self.loop.rejected_observation, sensor, str(exc), out_of_range=isinstance(exc, OutOfRangeError))
             return
         self.call(self.loop.observation, sensor, obs)
+
+    @callback
+    def _on_likelihood(self, sensor: int, msg: Float64MultiArray) -> None:
+        try:
+            evidence = decode_likelihood(msg, self.model.A, self.model.S)
+        except MessageError as exc:
+            self.call(self.loop.rejected_observation, sensor, str(exc), out_of_range=isinstance(exc, OutOfRangeError))
+            return
+        self.call(self.loop.observation, sensor, evidence)
 
     @callback
     def _on_release(self) -> None:

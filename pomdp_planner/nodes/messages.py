@@ -11,6 +11,13 @@ decision epoch it belongs to, and every observation carries the action it was ta
   observation]``, one dimension labelled ``"epoch,action_priority,observation"`` (size 3). The
   observation is 0-based (``0..Z-1``) and was generated after the transition of epoch ``t``
   under ``action_priority`` (the action the simulator actually applied).
+* **likelihood** (``std_msgs/Float64MultiArray``), soft evidence: the likelihood of one reading in
+  every state, ``l(0..S-1)`` (finite, non-negative, not all 0; any positive scale), three
+  dimensions: ``("state", S, S)``, ``("epoch=<t>", 1, 1)`` and ``("action_priority=<p>", 1, 1)``:
+  the reading of epoch ``t`` taken under priority ``p``, as the measurement adapter publishes it
+  and the filter's ``likelihood_topics`` take it (the labels carry the integers, as the belief's
+  epoch). A sensor's own likelihood message, the adapter's input, needs no labels: ``S`` values
+  with no layout or one dimension ``("state", S)``.
 * **true_state** (``std_msgs/Int64MultiArray``), data ``[epoch, state]``, label ``"epoch,state"``
   (0-based state after the transition of epoch ``t``; epoch 0 is the initial state).
 * **belief** (``std_msgs/Float64MultiArray``), data ``b(0..S-1)`` (a point of the simplex), two
@@ -43,8 +50,8 @@ from collections.abc import Sequence
 import numpy as np
 from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension, MultiArrayLayout
 
-from ..core.belief import BeliefError, check_belief
-from ..core.loop.samples import ActionSample, BeliefSample, ObservationSample
+from ..core.belief import BeliefError, check_belief, check_likelihood
+from ..core.loop.samples import ActionSample, BeliefSample, LikelihoodSample, ObservationSample
 
 ACTION_LABEL = "epoch,action_priority"
 OBSERVATION_LABEL = "epoch,action_priority,observation"
@@ -56,6 +63,7 @@ PLAN_INFO_LABEL = ",".join(PLAN_INFO_FIELDS)
 #: Largest epoch a message may carry (10^18 - 1 < 2^63 - 1, the int64 range, with room for + 1).
 MAX_EPOCH = 10**18 - 1
 _EPOCH_LABEL_RE = re.compile(r"^epoch=(\d{1,18})$")
+_PRIORITY_LABEL_RE = re.compile(r"^action_priority=(\d{1,18})$")
 
 
 class MessageError(ValueError):
@@ -166,6 +174,57 @@ def decode_belief(msg: Float64MultiArray, num_states: int) -> BeliefSample:
     except BeliefError as exc:
         raise MessageError(str(exc)) from None
     return BeliefSample(int(m.group(1)), b)
+
+
+def encode_likelihood(epoch: int, priority: int, likelihood: Sequence[float]) -> Float64MultiArray:
+    """Soft evidence of epoch ``epoch`` under ``priority`` (module docstring, **likelihood**)."""
+    msg = Float64MultiArray()
+    n = len(likelihood)
+    msg.layout = MultiArrayLayout(
+        dim=[MultiArrayDimension(label=BELIEF_STATE_LABEL, size=n, stride=n),
+             MultiArrayDimension(label=f"epoch={int(epoch)}", size=1, stride=1),
+             MultiArrayDimension(label=f"action_priority={int(priority)}", size=1, stride=1)],
+        data_offset=0,
+    )
+    msg.data = [float(x) for x in likelihood]
+    return msg
+
+
+def decode_likelihood(msg: Float64MultiArray, num_actions: int, num_states: int) -> LikelihoodSample:
+    """Decode soft evidence (layout, labels, length) and check the values with the core's
+    ``check_likelihood``; a priority out of range is an :class:`OutOfRangeError`."""
+    dims = list(msg.layout.dim)
+    labels = [d.label for d in dims[:4]]
+    m_epoch = _EPOCH_LABEL_RE.match(labels[1]) if len(dims) == 3 else None
+    m_prio = _PRIORITY_LABEL_RE.match(labels[2]) if len(dims) == 3 else None
+    if len(dims) != 3 or labels[0] != BELIEF_STATE_LABEL or m_epoch is None or m_prio is None:
+        raise MessageError(f"likelihood: layout must be [('{BELIEF_STATE_LABEL}', S), ('epoch=<t>', 1), "
+                           f"('action_priority=<p>', 1)], got {_short(str(labels))}")
+    if msg.layout.data_offset != 0:
+        raise MessageError(f"likelihood: data_offset must be 0, got {msg.layout.data_offset}")
+    if len(msg.data) != num_states:
+        raise MessageError(f"likelihood: expected {num_states} values (one per state), got {len(msg.data)}")
+    priority = int(m_prio.group(1))
+    if not 1 <= priority <= num_actions:
+        raise OutOfRangeError(f"likelihood: action_priority {priority} out of range 1..{num_actions}")
+    try:
+        lik = check_likelihood(num_states, np.array(msg.data, dtype=float))
+    except BeliefError as exc:
+        raise MessageError(str(exc)) from None
+    return LikelihoodSample(int(m_epoch.group(1)), priority, tuple(float(x) for x in lik))
+
+
+def sensor_likelihood_values(msg: Float64MultiArray, num_states: int) -> list[float]:
+    """The values of a sensor's likelihood message (the adapter's input): the layout (none, or one
+    dimension ``("state", S)``) and the length are checked here; the values are the core's
+    business (the adapter loop counts NaN and checks the rest)."""
+    dims = list(msg.layout.dim)
+    if dims and (len(dims) != 1 or dims[0].label != BELIEF_STATE_LABEL):
+        raise MessageError(f"likelihood: layout must be empty or [('{BELIEF_STATE_LABEL}', S)], got "
+                           f"{_short(str([d.label for d in dims[:4]]))}")
+    if len(msg.data) != num_states:
+        raise MessageError(f"likelihood: expected {num_states} values (one per state), got {len(msg.data)}")
+    return [float(x) for x in msg.data]
 
 
 def encode_plan_info(**fields: float) -> Float64MultiArray:

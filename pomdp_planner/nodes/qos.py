@@ -36,3 +36,11 @@ LATCHED_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=R
 #: that nothing is lost while they catch up.
 RECORDER_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: A real sensor's output (the measurement adapter's input): best effort and volatile, so that it
+#: matches every writer (a best-effort reader matches reliable and best-effort writers, a volatile
+#: reader volatile and transient-local ones; drivers usually publish with ROS's sensor-data profile,
+#: best effort), and KEEP_LAST with a small depth: the adapter answers each action with one fresh
+#: reading, so a backlog is worth nothing and a burst from a fast sensor replaces older samples
+#: instead of queueing them.
+SENSOR_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT,
+                        durability=DurabilityPolicy.VOLATILE)

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
 import rclpy
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
@@ -100,7 +101,8 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     """The Jazzy idiom: init, build nodes, spin a :class:`NodeExecutor`, clean exit on Ctrl-C/SIGTERM.
 
     Returns the process exit code: 0 on a normal or signalled shutdown, 1 if a node could not
-    start (bad parameter or model file; the reason is printed, without traceback).
+    start (bad parameter or model file, or a value a parameter's descriptor refuses; the reason
+    is printed as one line, without traceback).
     """
     sigint = _SigintWhileSpinning()
     signal.signal(signal.SIGINT, sigint)  # before rclpy.init, which chains to it (see the class)
@@ -125,6 +127,12 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         # clean exit like the others, not a traceback
     except NodeConfigError as exc:
         print(f"[FATAL] pomdp_planner: {exc}", file=sys.stderr)
+        code = 1
+    except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+        # a value the parameter's descriptor refuses (range, type) as it is declared: rclpy's
+        # message ends with ": <name>"; one line that starts with the name instead
+        text, _, name = str(exc).rpartition(": ")
+        print(f"[FATAL] pomdp_planner: {name}: {text}", file=sys.stderr)
         code = 1
     finally:
         # A second Ctrl-C during teardown must not print a traceback either.

@@ -36,17 +36,19 @@ def load_observation_models(model: POMDP, files: Sequence[str] | None, num_senso
             f"observation_model_files: {len(files)} entries for {num_sensors} observation_topics "
             "(give one per topic, '' for the model's own)"
         )
-    out = []
-    for k, f in enumerate(files):
-        if not f:
-            out.append(model.O)
-            continue
-        field = f"observation_model_files[{k}]"
-        O = load_model_file(f, field).O
-        if O.shape[:2] != (model.A, model.S):
-            raise ModelError(f"{field}: observation model has shape {O.shape}, expected {model.A} x {model.S} x Z")
-        out.append(O)
-    return out
+    return [load_observation_model(model, f, f"observation_model_files[{k}]") for k, f in enumerate(files)]
+
+
+def load_observation_model(model: POMDP, file: str, field: str) -> np.ndarray:
+    """The observation array ``O`` (``A x S x Z``) of one sensor: the ``observation`` matrix of the
+    model file ``file`` (``""``: the model's own), which must have the model's actions and states;
+    errors name ``field``."""
+    if not file:
+        return model.O
+    O = load_model_file(file, field).O
+    if O.shape[:2] != (model.A, model.S):
+        raise ModelError(f"{field}: observation model has shape {O.shape}, expected {model.A} x {model.S} x Z")
+    return O
 
 
 def initial_distribution(model: POMDP, values: Sequence[float] | None) -> np.ndarray:

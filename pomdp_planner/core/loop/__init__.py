@@ -1,7 +1,8 @@
 """The rules of the node loop, without ROS: simulator -> observation -> filter -> belief -> planner
 -> action -> simulator.
 
-Each loop (:class:`TargetLoop`, :class:`FilterLoop`, :class:`PlannerLoop`) takes decoded inputs
+Each loop (:class:`TargetLoop`, :class:`FilterLoop`, :class:`PlannerLoop`, and :class:`AdapterLoop`
+between a real sensor and the filter) takes decoded inputs
 (:mod:`.samples`) and the current time (``now``, seconds on a monotonic clock, passed in by the
 caller) and returns what to publish, what to log and, on request, what to report (small result
 dataclasses). No loop imports rclpy, starts a thread or reads a clock: the nodes (``nodes/``)
@@ -9,7 +10,8 @@ decode, call the loop, encode and run the timers, and tests drive the loops by h
 (``test/test_loop_*.py``). Modules: :mod:`.epochs` (window, verdicts, re-sync and join evidence,
 re-send), :mod:`.health` (counters, stall watch, throttled warnings, the report rule),
 :mod:`.epoch_buffer` (readings in epoch order), :mod:`.managed` (what a managed node reports
-without a loop), one module per loop.
+without a loop), one module per loop (:mod:`.adapter_loop` has its own table: values, limits,
+staleness, ordering, binning, numbering).
 
 =====================  ====================================================================
 rule                   what it says
@@ -77,19 +79,21 @@ Report                 A node's diagnostics are WARN while a problem count grew 
 =====================  ====================================================================
 """
 
+from .adapter_loop import INPUT_TYPES, POINT_FIELDS, AdapterLoop, AdapterOutput, ObservationBins, point_value
 from .epoch_buffer import EpochBuffer, EpochReadings
 from .epochs import DEFAULT_JOIN_TIMEOUT, JOIN_DELAY, EpochLine, JoinWait, Liveness, Resender, classify
 from .filter_loop import BeliefOut, FilterLoop, FilterOutput
 from .health import Level, Log, LoopHealth, Report, StallLimits
 from .managed import LOOP_STATES, state_report
 from .planner_loop import TUNABLE, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
-from .samples import ActionSample, BeliefSample, ObservationSample
+from .samples import ActionSample, BeliefSample, LikelihoodSample, ObservationSample
 from .target_loop import Readings, TargetLoop, TargetOutput
 
 __all__ = [
-    "DEFAULT_JOIN_TIMEOUT", "JOIN_DELAY", "LOOP_STATES", "TUNABLE", "ActionSample", "BeliefOut", "BeliefSample",
-    "EpochBuffer", "EpochLine", "EpochReadings", "FilterLoop", "FilterOutput", "JoinWait", "Level", "Liveness", "Log",
-    "LoopHealth", "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings", "Report",
-    "Resender", "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify",
+    "DEFAULT_JOIN_TIMEOUT", "INPUT_TYPES", "JOIN_DELAY", "LOOP_STATES", "POINT_FIELDS", "TUNABLE", "ActionSample",
+    "AdapterLoop", "AdapterOutput", "BeliefOut", "BeliefSample", "EpochBuffer", "EpochLine", "EpochReadings",
+    "FilterLoop", "FilterOutput", "JoinWait", "Level", "LikelihoodSample", "Liveness", "Log", "LoopHealth",
+    "ObservationBins", "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings",
+    "Report", "Resender", "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify", "point_value",
     "state_report",
 ]

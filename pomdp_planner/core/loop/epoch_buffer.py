@@ -39,7 +39,8 @@ ACTION_MEMORY = 256
 
 @dataclass
 class EpochReadings:
-    """All readings of one epoch: ``readings[sensor] = observation``.
+    """All readings of one epoch: ``readings[sensor] = observation`` (an index, or for a
+    soft-evidence sensor its likelihood per state as a tuple: compared by value).
 
     ``action``: the action the readings carry (``None`` = a gap, no reading); ``commanded``: the
     action commanded for this epoch, if one was reported with :meth:`EpochBuffer.command`.
@@ -47,7 +48,7 @@ class EpochReadings:
 
     epoch: int
     action: int | None
-    readings: dict[int, int] = field(default_factory=dict)
+    readings: dict[int, int | tuple[float, ...]] = field(default_factory=dict)
     first_seen: float = 0.0
     complete: bool = False
     commanded: int | None = None
@@ -103,7 +104,7 @@ class EpochBuffer:
             self._commanded.popitem(last=False)
         return True
 
-    def add(self, sensor: int, epoch: int, action: int, observation: int, now: float) -> str:
+    def add(self, sensor: int, epoch: int, action: int, observation: int | tuple[float, ...], now: float) -> str:
         """Buffer one reading (arrived at ``now``); returns ``"buffered"``, ``"duplicate"``, ``"conflict"`` or
         ``"out_of_window"`` (``window`` or more epochs ahead: not buffered)."""
         if not 0 <= sensor < self.num_sensors:

@@ -4,6 +4,9 @@ A reading is classified against the filter's epoch (:mod:`.epochs`), buffered in
 (:class:`~.epoch_buffer.EpochBuffer`), and each released epoch goes to the core's epoch filter
 (:class:`~pomdp_planner.core.filter.EpochFilter`, the one ``simulate`` uses): prediction once with
 the action the readings carry (paper Eq. 1), one update per reading (Eq. 2), the recovery rule.
+Soft-evidence topics (``likelihood_topics``: a likelihood per state instead of an observation
+index, :class:`~.samples.LikelihoodSample`) are sensors like the others, after the observation
+topics: the same buffer and rules, and the update ``b'(s) ∝ l(s) b^a(s)``.
 The belief of epoch ``t`` is published after epoch ``t`` is applied; the prior is epoch 0. A run
 of lost epochs is one log line and one belief (its last epoch's). A fresh filter joins a running
 loop on two consecutive readings beyond its window; a stalled one re-syncs to readings counting
@@ -25,7 +28,7 @@ from ..uncertainty import SHANNON
 from .epoch_buffer import EpochBuffer, EpochReadings
 from .epochs import EpochLine, Liveness, Resender
 from .health import InputWatch, Log, LoopHealth, Report
-from .samples import ActionSample, ObservationSample
+from .samples import ActionSample, LikelihoodSample, ObservationSample
 
 COUNTERS = ("readings", "impossible_observations", "contradicting_observations", "out_of_range_observations",
             "malformed_messages", "duplicates", "conflicts", "gaps", "incomplete_epochs", "action_mismatches",
@@ -57,15 +60,16 @@ class FilterOutput:
 
 class FilterLoop:
     """The filter's loop for ``model`` with one observation array per sensor (``sensors``, named
-    ``topics`` in messages), starting from ``prior`` at epoch 0 at time ``now``; ``active=False``:
-    starting inactive (package docstring, "Inactive"; :meth:`activate`)."""
+    ``topics`` in messages) and one soft-evidence sensor per ``likelihood_topics`` (sensor indices
+    after the observation topics), starting from ``prior`` at epoch 0 at time ``now``;
+    ``active=False``: starting inactive (package docstring, "Inactive"; :meth:`activate`)."""
 
     def __init__(self, model: POMDP, sensors: Sequence[np.ndarray], prior: np.ndarray, topics: Sequence[str],
                  live: Liveness, *, now: float, epoch_timeout: float = 0.5, max_pending: int = 10,
-                 active: bool = True):
+                 likelihood_topics: Sequence[str] = (), active: bool = True):
         self.model = model
-        self.topics = list(topics)
-        self.filter = EpochFilter(model, sensors)
+        self.topics = [*topics, *likelihood_topics]
+        self.filter = EpochFilter(model, sensors, likelihoods=len(likelihood_topics))
         if self.filter.num_sensors != len(self.topics):
             raise ValueError(f"topics: {len(self.topics)} names for {self.filter.num_sensors} sensors")
         self.live = live
@@ -115,15 +119,20 @@ class FilterLoop:
         self.health.log("info", f"{self.model.describe()}; sensors {self.topics}; prior published as epoch 0")
         return self._result()
 
-    def observation(self, sensor: int, obs: ObservationSample, now: float) -> FilterOutput:
-        """One decoded reading of sensor ``sensor``: buffered if it is within the window ahead,
-        else counted (and kept as evidence for the join / re-sync rule); ready epochs applied."""
+    def observation(self, sensor: int, obs: ObservationSample | LikelihoodSample, now: float) -> FilterOutput:
+        """One decoded reading of sensor ``sensor`` (a likelihood for a soft-evidence sensor):
+        buffered if it is within the window ahead, else counted (and kept as evidence for the join
+        / re-sync rule); ready epochs applied."""
+        soft = isinstance(obs, LikelihoodSample)
+        if soft != self.filter.soft(sensor):
+            raise ValueError(f"sensor {sensor} ({self.topics[sensor]}) does not take a {type(obs).__name__}")
+        reading = tuple(obs.likelihood) if soft else obs.observation
         self.health.count("readings")
         action = action_of_priority(obs.priority, self.model.A)
         verdict = self.line.classify(obs.epoch)
         watch, topic = self.watches[sensor], self.topics[sensor]
         if verdict in ("next", "ahead"):
-            result = self.buffer.add(sensor, obs.epoch, action, obs.observation, now)
+            result = self.buffer.add(sensor, obs.epoch, action, reading, now)
             watch.arrived(now, result == "buffered", obs.epoch)
             if result == "buffered":
                 self.resender.answered()
@@ -139,7 +148,7 @@ class FilterLoop:
         else:
             self._out_of_window(topic, obs.epoch, now)
         if verdict != "repeat":
-            self.line.off_line(obs.epoch, (sensor, action, obs.observation), now)
+            self.line.off_line(obs.epoch, (sensor, action, reading), now)
             self._resync_if_due(now)
         return self._release(now)
 
@@ -267,15 +276,20 @@ class FilterLoop:
             self.health.warn("bad_beliefs", f"epoch {entry.epoch}: {exc}; not published", now)
             return False
         for k in step.restarted:
-            self.health.warn("impossible_observations", f"epoch {entry.epoch}: {self.topics[k]} observation "
-                             f"{entry.readings[k]} impossible under the belief; filter restarted from the uniform "
-                             "prior with this epoch's readings", now)
+            self.health.warn("impossible_observations", f"epoch {entry.epoch}: {self._reading(k, entry)} impossible "
+                             "under the belief; filter restarted from the uniform prior with this epoch's readings",
+                             now)
         for k in step.dropped:
-            self.health.warn("contradicting_observations", f"epoch {entry.epoch}: {self.topics[k]} observation "
-                             f"{entry.readings[k]} impossible from every state under priority {priority_of(action)}: "
-                             "contradicts the model; reading dropped", now)
+            self.health.warn("contradicting_observations", f"epoch {entry.epoch}: {self._reading(k, entry)} "
+                             f"impossible from every state under priority {priority_of(action)}: contradicts the "
+                             "model; reading dropped", now)
         self.belief = step.belief
         return True
+
+    def _reading(self, sensor: int, entry: EpochReadings) -> str:
+        """A reading as a log line names it: ``<topic> observation <z>`` or ``<topic> likelihood``."""
+        topic = self.topics[sensor]
+        return f"{topic} likelihood" if self.filter.soft(sensor) else f"{topic} observation {entry.readings[sensor]}"
 
     def _publish(self, now: float) -> None:
         """Publish the current belief (withheld while inactive: :meth:`activate` publishes the newest)."""

@@ -29,6 +29,17 @@ class ObservationSample:
     observation: int
 
 
+@dataclass(frozen=True)
+class LikelihoodSample:
+    """Soft evidence ``[epoch, priority, l(0..S-1)]``: a reading taken after the transition of
+    ``epoch`` under ``priority``, given as its likelihood in every state (``l(s) = P(reading | s)``
+    up to a positive factor; checked by the core's ``check_likelihood`` where it is applied)."""
+
+    epoch: int
+    priority: int
+    likelihood: tuple[float, ...]
+
+
 @dataclass(frozen=True, eq=False)
 class BeliefSample:
     """The belief after the observations of ``epoch`` (``0``: the prior), checked on the simplex."""

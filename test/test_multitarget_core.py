@@ -1,0 +1,155 @@
+"""The multi-target problem, the knapsack and the price search (``core/multitarget``).
+
+The knapsack is checked against brute force over every joint action; the price search against a
+dense grid on convex piecewise-linear functions; the problem's budget arithmetic is exact.
+"""
+
+from __future__ import annotations
+
+import itertools
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pomdp_planner.core.errors import OptionError
+from pomdp_planner.core.io.sensors import load_model_file
+from pomdp_planner.core.multitarget.dual import lambda_ceiling, minimise_convex, reward_range_bound
+from pomdp_planner.core.multitarget.knapsack import solve_knapsack
+from pomdp_planner.core.multitarget.problem import default_efforts, make_problem
+
+PERIMETER = load_model_file("perimeter_s3")
+TRACKING = load_model_file("tracking_s3_info")
+
+
+# ----------------------------------------------------------------------------- problem
+def test_default_efforts_cost_most_at_the_highest_priority():
+    assert default_efforts(PERIMETER) == (2, 1, 0)
+    p = make_problem([PERIMETER, PERIMETER], budget=0)
+    assert p.within_budget((2, 2)) and not p.within_budget((1, 2))
+
+
+def test_rational_efforts_are_exact():
+    p = make_problem([PERIMETER, PERIMETER, PERIMETER], budget="0.3",
+                     efforts=[[0.2, 0.1, 0], [0.2, 0.1, 0], ["1/3", 0.1, 0]])
+    assert p.efforts[0][1] == Fraction(1, 10)
+    assert p.within_budget((1, 1, 1))  # 0.1 + 0.1 + 0.1 <= 0.3 exactly (in floats 0.30000000000000004)
+    assert p.within_budget((0, 1, 2)) and not p.within_budget((0, 0, 2))
+    assert not p.within_budget((2, 2, 0))  # 1/3 > 0.3
+    assert p.scale == 30 and p.capacity == 9
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"budget": -1}, "budget"),
+    ({"budget": "x"}, "budget"),
+    ({"budget": 0, "efforts": [[1, 1, 1], None]}, "budget"),
+    ({"budget": 1, "efforts": [[1, 2], None]}, r"efforts\[0\]"),
+    ({"budget": 1, "efforts": [[1, -2, 0], None]}, r"efforts\[0\]\[1\]"),
+    ({"budget": 1, "efforts": [[1, 0.1234567891, 0], None]}, r"efforts\[0\]\[1\]"),
+    ({"budget": 1, "efforts": [None]}, "efforts"),
+    ({"budget": 10**9, "efforts": [["0.000001", 0, 0], None]}, "budget"),
+])
+def test_bad_problems_name_the_field(kwargs, field):
+    with pytest.raises(OptionError, match=rf"^{field}") as info:
+        make_problem([PERIMETER, TRACKING], discount=0.95, **kwargs)
+    assert "\n" not in str(info.value)
+
+
+def test_different_discounts_need_an_explicit_joint_discount():
+    with pytest.raises(OptionError, match=r"^discount: .*different discounts"):
+        make_problem([PERIMETER, TRACKING], budget=1)
+    p = make_problem([PERIMETER, TRACKING], budget=1, discount=0.9)
+    assert p.gamma == 0.9 and all(m.gamma == 0.9 for m in p.models)
+    with pytest.raises(OptionError, match=r"^discount"):
+        make_problem([PERIMETER], budget=1, discount=1.5)
+    assert make_problem([PERIMETER], budget=1, discount=1.0).gamma == 1.0  # a finite lookahead
+
+
+def test_a_budget_that_cannot_bind():
+    assert not make_problem([PERIMETER, PERIMETER], budget=4).budget_binds
+    assert make_problem([PERIMETER, PERIMETER], budget="3.99").budget_binds
+
+
+# ----------------------------------------------------------------------------- knapsack
+def brute_force(values, weights, capacity):
+    best, arg = -np.inf, None
+    for joint in itertools.product(*(range(len(v)) for v in values)):
+        w = sum(int(weights[k][a]) for k, a in enumerate(joint))
+        v = sum(values[k][a] for k, a in enumerate(joint))
+        if w <= capacity and v > best:
+            best, arg = v, joint
+    return best, arg
+
+
+@settings(max_examples=300)
+@given(st.data())
+def test_knapsack_equals_brute_force(data):
+    K = data.draw(st.integers(1, 4))
+    values, weights = [], []
+    for _ in range(K):
+        A = data.draw(st.integers(1, 4))
+        values.append(np.array(data.draw(st.lists(st.integers(-20, 20), min_size=A, max_size=A)), dtype=float))
+        weights.append(np.array(data.draw(st.lists(st.integers(0, 6), min_size=A, max_size=A)), dtype=np.int64))
+    least = sum(int(w.min()) for w in weights)
+    capacity = data.draw(st.integers(least, least + 12))
+    want, _ = brute_force(values, weights, capacity)
+    got, joint = solve_knapsack(values, weights, capacity)
+    assert got == want
+    assert sum(int(weights[k][a]) for k, a in enumerate(joint)) <= capacity
+    assert sum(values[k][a] for k, a in enumerate(joint)) == got
+
+
+def test_knapsack_refuses_an_impossible_capacity():
+    with pytest.raises(ValueError, match="no joint action"):
+        solve_knapsack([np.zeros(2)], [np.array([3, 4])], 2)
+
+
+# ----------------------------------------------------------------------------- price search
+@settings(max_examples=200)
+@given(st.lists(st.tuples(st.floats(-5, 5), st.floats(-10, 10)), min_size=1, max_size=6), st.floats(0, 20))
+def test_minimise_convex_finds_the_minimum_of_a_convex_piecewise_linear_function(lines, x0):
+    slope_up = 3.0  # a line rising to the right keeps the minimum inside [0, ceiling]
+    pieces = [*lines, (slope_up, -30.0)]
+
+    def f(x):
+        return max(s * x + c for s, c in pieces)
+
+    ceiling = 25.0
+    grid = np.linspace(0.0, ceiling, 20001)
+    true_min = float(np.max([s * grid + c for s, c in pieces], axis=0).min())
+    found = minimise_convex(f, ceiling, x0, max_evals=60)
+    assert found.value == f(found.x)
+    assert found.value <= true_min + 1e-3 * (1 + abs(true_min))
+    assert 0.0 <= found.x <= ceiling
+    assert len(found.evaluations) <= 60
+
+
+def test_minimise_convex_never_exceeds_its_evaluations_and_keeps_the_best():
+    calls = []
+
+    def f(x):
+        calls.append(x)
+        return (x - 7.3) ** 2
+
+    for budget in (2, 3, 5, 8):
+        calls.clear()
+        found = minimise_convex(f, 100.0, 0.0, budget)
+        assert len(calls) <= budget
+        assert found.value == min((x - 7.3) ** 2 for x in calls)
+
+
+def test_minimise_convex_prefers_the_smallest_price_of_a_flat_minimum():
+    found = minimise_convex(lambda x: max(0.0, x - 5.0), 10.0, 2.0, 30)
+    assert found.value == 0.0
+    assert found.x == min(x for x, v in found.evaluations if v == 0.0)
+
+
+def test_lambda_ceiling_and_reward_range():
+    # rho = b . r_a - w_a f(b), 0 <= f <= log S
+    r, w = PERIMETER.r, PERIMETER.w
+    assert reward_range_bound(PERIMETER) == pytest.approx(r.max() - r.min() + np.log(3) * w.max())
+    assert lambda_ceiling([PERIMETER], [np.zeros(3)], 3) == 0.0  # equal efforts: the price cannot matter
+    c = lambda_ceiling([PERIMETER], [np.array([2.0, 1.0, 0.0])], 2)
+    assert c == pytest.approx(reward_range_bound(PERIMETER) * (1 + 0.95 + 0.95 ** 2))
