@@ -158,7 +158,8 @@ def test_every_configure_time_error_is_one_line_and_leaves_the_node_configurable
     assert flt.configure_error.startswith("stall_warn_after, stall_error_after: stall limits: need 0 < warn_after")
     assert all(r.successful for r in _set(h, "belief_filter", stall_error_after=10.0))
     assert not lc.change("configure")
-    assert flt.configure_error == "observation_topics: need distinct topics, got ['cam', 'cam']"
+    assert flt.configure_error == ("observation_topics, likelihood_topics: need distinct topics, at least one, got "
+                                   "['cam', 'cam'] and []")
     assert all(r.successful for r in _set(h, "belief_filter", observation_topics=["cam", "radar"],
                                           observation_model_files=["", "nope.yaml"]))
     assert not lc.change("configure")
