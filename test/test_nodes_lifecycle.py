@@ -26,13 +26,16 @@ from rclpy.parameter_client import AsyncParameterClient
 
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.options import TIME_BUDGET_RANGE
 from pomdp_planner.nodes.belief_filter import BeliefFilter
+from pomdp_planner.nodes.params import NodeConfigError
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.target_simulator import TargetSimulator
 
 harness = pytest.fixture(make_harness)
 PERIMETER = str(REPO / "config" / "models" / "perimeter_s3.yaml")  # its depth-1 decisions vary along a run
 MANAGED = {"planner": PlannerNode, "belief_filter": BeliefFilter}
+TB = f"{TIME_BUDGET_RANGE[0]:g}..{TIME_BUDGET_RANGE[1]:g}"
 
 
 def _params(**kw):
@@ -144,6 +147,32 @@ def test_a_failing_configure_stays_unconfigured_with_its_reason_until_the_parame
     assert node.get_parameter("model_file").value == S3
     (res,) = _set(h, "planner", time_budget=0.5)  # a run-time parameter is not affected
     assert res.successful
+
+
+def test_a_value_refused_as_it_is_declared_fails_configure_until_the_parameter_is_set(harness):
+    """Without autostart a refused parameter value does not stop the node: the parameter holds its
+    default, and configure fails with the refusal's one line (in declaration order) until a valid
+    value is set; with autostart the same line is the node's start-up error."""
+    h = harness
+    node = h.add(PlannerNode(context=h.context, parameter_overrides=_params(
+        model_file=S3, autostart=False, time_budget=100.0, chunk_kib=5)))
+    lc = _client(h, "/planner")
+    h.start()
+    assert lc.wait_for_services() and lc.state() == "unconfigured"
+    assert node.get_parameter("time_budget").value == 0.1  # the default while refused
+    assert not lc.change("configure") and lc.state() == "unconfigured"
+    assert node.configure_error == f"time_budget: must be a number in {TB}, got 100.0"
+    assert not _set(h, "planner", time_budget=200.0)[0].successful  # still out of range: still refused
+    assert all(r.successful for r in _set(h, "planner", time_budget=0.5))
+    assert not lc.change("configure")
+    assert node.configure_error == "chunk_kib: must be an integer in 16..1048576, got 5"
+    assert all(r.successful for r in _set(h, "planner", chunk_kib=64))
+    assert lc.change("configure") and lc.change("activate") and lc.state() == "active"
+    assert node.loop.params["time_budget"] == 0.5
+    with pytest.raises(NodeConfigError, match=r"^chunk_kib: must be an integer in 16\.\.1048576, got 5$") as err:
+        PlannerNode(node_name="planner_autostart", context=h.context,
+                    parameter_overrides=_params(model_file=S3, chunk_kib=5))
+    assert err.value.node == "planner_autostart"
 
 
 def test_every_configure_time_error_is_one_line_and_leaves_the_node_configurable(harness):

@@ -76,4 +76,4 @@ def test_with_autostart_a_node_that_cannot_configure_prints_one_fatal_line_and_e
                          text=True, timeout=120)
     lines = [line for line in (res.stdout + res.stderr).splitlines() if line.strip()]
     assert res.returncode == 1, lines
-    assert len(lines) == 1 and lines[0].startswith(f"[FATAL] pomdp_planner: model_file: '{BAD}' not found"), lines
+    assert len(lines) == 1 and lines[0].startswith(f"[FATAL] [{name}]: model_file: '{BAD}' not found"), lines

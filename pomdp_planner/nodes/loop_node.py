@@ -33,11 +33,20 @@ from ..core.loop import LOOP_STATES, Log, Report, state_report
 from ..core.model import POMDP
 from .diagnostics import array, status
 from .messages import MessageError, decode_action
-from .params import accept_integers_for_doubles, declare_liveness, declare_model_file, descriptor, liveness
-from .runtime import NodeConfigError, callback, config_errors
+from .params import (
+    CONFIGURE_TIME,
+    NodeConfigError,
+    ParameterNode,
+    accept_integers_for_doubles,
+    declare_liveness,
+    declare_model_file,
+    descriptor,
+    liveness,
+)
+from .runtime import callback, config_errors
 
-#: The note a managed node adds to a parameter it reads at configure (read-only for a plain node).
-CONFIGURE_TIME = "read at configure: settable only while the node is unconfigured"
+#: The parameters a managed node reads as it is made: read-only, refused at once.
+START_UP_PARAMETERS = frozenset({"autostart", "strict_parameters"})
 
 
 class OneShot:
@@ -70,7 +79,7 @@ class OneShot:
             self._fire()
 
 
-class LoopNode(Node):
+class LoopNode(ParameterNode):
     """Base of the loop nodes; a subclass builds its loop, then calls :meth:`run`, and publishes
     each of the loop's outputs in :meth:`emit`. ``task`` names the diagnostics status. A plain
     loop node reads ``model_file`` and the liveness parameters when it is made (``model_file``,
@@ -167,15 +176,22 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
     starts as a plain one does, and a configure that fails raises :class:`NodeConfigError` (the
     process's one ``[FATAL]`` line). Without it the node waits, unconfigured, for the
     ``change_state`` service; a configure that fails leaves it unconfigured, its reason in the log
-    (one line) and in the diagnostics (ERROR) until a configure succeeds.
+    (one line) and in the diagnostics (ERROR) until a configure succeeds. A value refused as a
+    parameter is declared (:class:`~.params.ParameterNode`'s one line) is such a reason: the
+    parameter takes its default and configure fails with that line until the parameter is set
+    (``autostart`` and ``strict_parameters``, read as the node is made, are refused at once).
+    Built by ``runtime.run_nodes``, the node waits with its autostart until the process has
+    checked the parameters given to its nodes (:meth:`start`): an undeclared parameter is
+    reported before a long configure, and ``strict_parameters`` refuses it before one.
     """
 
     managed = True
 
     def __init__(self, node_name: str, **kwargs):
         self._configure_time: set[str] = set()
+        self._refused: dict[str, str] = {}  # parameter -> its refusal (params.refusal), until it is set
         LoopNode.__init__(self, node_name, **kwargs)
-        Node.declare_parameter(self, "autostart", True, descriptor(
+        self.declare_parameter("autostart", True, descriptor(
             "Configure and activate at start-up (false: wait, unconfigured, for the lifecycle services)",
             read_only=True))
         LifecycleNodeMixin.__init__(self)  # the lifecycle services, in the default callback group
@@ -187,18 +203,38 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
         self._failure: Exception | None = None  # an unexpected error in a transition (a bug)
         self._configured: list = []  # what configure created (released at cleanup)
         self.add_on_set_parameters_callback(self._refuse_configure_time_parameters)
+        self.add_post_set_parameters_callback(self._forget_refusals)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # its own group: diagnostics go on during a long configure (the default group's transition)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=MutuallyExclusiveCallbackGroup())
 
     def declare_parameter(self, name, value=None, descriptor=None, ignore_override=False):
         """``Node.declare_parameter``; a read-only parameter becomes a configure-time one (class docstring)."""
-        if descriptor is not None and descriptor.read_only:
+        if descriptor is not None and descriptor.read_only and name not in START_UP_PARAMETERS:
             descriptor.read_only = False
             descriptor.additional_constraints = "; ".join(filter(None, (descriptor.additional_constraints,
                                                                         CONFIGURE_TIME)))
             self._configure_time.add(name)
         return super().declare_parameter(name, value, descriptor, ignore_override)
+
+    def declare_parameters(self, namespace, parameters, ignore_override=False):
+        """:class:`~.params.ParameterNode`'s, with a refused value kept for configure (class
+        docstring): the parameter is declared with its default."""
+        declared = []
+        for entry in parameters:
+            try:
+                declared += super().declare_parameters(namespace, [entry], ignore_override)
+            except NodeConfigError as exc:
+                name = f"{namespace}.{entry[0]}" if namespace else entry[0]
+                if name in START_UP_PARAMETERS:
+                    raise
+                declared += super().declare_parameters(namespace, [entry], ignore_override=True)
+                self._refused[name] = str(exc)  # after the declaration: its set forgets refusals
+        return declared
+
+    def _forget_refusals(self, params: list[Parameter]) -> None:
+        for p in params:
+            self._refused.pop(p.name, None)
 
     @property
     def lifecycle_state(self) -> str:
@@ -216,6 +252,12 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
 
     # ------------------------------------------------------------- bring-up
     def bring_up(self) -> None:
+        """The end of a subclass's ``__init__``: :meth:`start`, unless ``runtime.run_nodes`` builds
+        the node (it calls :meth:`start` once it has checked the given parameters)."""
+        if not self.start_deferred:
+            self.start()
+
+    def start(self) -> None:
         """With ``autostart``: configure, then activate (class docstring); else wait unconfigured."""
         if not self.get_parameter("autostart").value:
             self.get_logger().info(f"unconfigured (autostart false): waiting for configure "
@@ -229,7 +271,7 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
         if not ok:
             if self._failure is not None:
                 raise self._failure
-            raise NodeConfigError(self.configure_error)
+            raise NodeConfigError(self.configure_error, node=self.get_name())
         if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:  # a bug: rclpy has swallowed it
             raise RuntimeError(f"{self.get_name()}: activate failed (see the log)")
 
@@ -250,6 +292,8 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
         self._failure = None
         before = self._entities()
         try:
+            if self._refused:
+                raise NodeConfigError(next(iter(self._refused.values())))
             with config_errors():
                 self.model_file = self.get_parameter("model_file").value
                 self.live = liveness(self)
