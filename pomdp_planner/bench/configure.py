@@ -48,7 +48,7 @@ from ..core.gate import STAGES
 from ..core.io.sensors import load_model_file
 from ..core.loop import Liveness, PlanJob, PlannerLoop
 from ..core.search import Planner
-from .lp import cell, run_compared
+from .lp import add_json_argument, cell, run_compared
 
 DEFAULT_MODELS = ("comparison:256,64", "perimeter_s8.yaml", "tracking_s8_info.yaml")
 #: The planner node's defaults (nodes/planner.py), as its configure reads them.
@@ -171,8 +171,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seconds per decision (the node's default, %(default)s)")
     parser.add_argument("--max-depth", type=integer, default=NODE_PARAMS["max_depth"], metavar="D",
                         help="deepest search of a decision (the node's default, %(default)s)")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
-                        "the run; '-': the JSON on stdout, the table on stderr)")
+    add_json_argument(parser)
 
 
 def run_from_args(args: argparse.Namespace, prog: str) -> int:

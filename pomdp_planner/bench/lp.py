@@ -113,6 +113,12 @@ def print_rows(rows: Sequence[dict[str, Any]], table: str, json_path: str | None
         write_text_file(json_path, json.dumps(rows, indent=2) + "\n", "--json")
 
 
+def add_json_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--json FILE`` option of the benchmarks (:func:`print_rows`, checked first by :func:`run_compared`)."""
+    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
+                        "the run; '-': the JSON on stdout, the table on stderr)")
+
+
 def run_compared(prog: str, json_path: str | None, run: Callable[[Callable[[str], None]], list[dict[str, Any]]],
                  table: Callable[[Sequence[dict[str, Any]]], str]) -> int:
     """Run a benchmark that compares a new path with the old one: ``--json`` checked first, ``run(log)``
@@ -160,8 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="'comparison:S,A' or model files (default: %(default)s)")
     parser.add_argument("--repeat", type=integer, default=1, metavar="N", help="best of N runs per cell (1)")
     parser.add_argument("--no-old", action="store_true", help="time the new path only")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
-                        "the run; '-': the JSON on stdout, the table on stderr)")
+    add_json_argument(parser)
     args = parser.parse_args(argv)
     if args.repeat < 1:
         parser.error(f"--repeat: must be >= 1, got {args.repeat}")

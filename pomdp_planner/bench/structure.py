@@ -32,7 +32,7 @@ import numpy as np
 from ..core.checks import integer
 from ..core.model import POMDP
 from ..core.structure import REFUTED, AssumptionReport, check_assumptions, estimate_check, is_proven
-from .lp import cell, load_bench_model, old_over_new, run_compared
+from .lp import add_json_argument, cell, load_bench_model, old_over_new, run_compared
 
 DEFAULT_MODELS = ("comparison:256,64", "perimeter:32", "perimeter_s8.yaml", "tracking_s8_natural.yaml",
                   "tracking_s3_info.yaml")
@@ -103,8 +103,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="'comparison:S,A', 'perimeter:S' or model files (default: %(default)s)")
     parser.add_argument("--repeat", type=integer, default=1, metavar="N", help="best of N runs per cell (1)")
     parser.add_argument("--no-old", action="store_true", help="time the fast path only")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
-                        "the run; '-': the JSON on stdout, the table on stderr)")
+    add_json_argument(parser)
 
 
 def run_from_args(args: argparse.Namespace, prog: str) -> int:
