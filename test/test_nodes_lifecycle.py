@@ -313,3 +313,34 @@ def test_deactivate_and_activate_beside_a_sensor_that_keeps_stepping_mispairs_no
     assert h.wait_until(lambda: _newest(rec, "action") >= last_planned + 15, timeout=30)
     assert planner.loop.health.counts["resyncs"] == flt.loop.health.counts["resyncs"] == 0
     _check_no_epoch_mispaired(rec, model, last_planned + 15)
+
+
+@pytest.mark.parametrize("name", sorted(MANAGED))
+def test_an_inactive_node_still_drops_an_oversized_sample_and_refuses_use_sim_time(harness, name):
+    """The stray-message rules hold in every state with a loop: an inactive node drops an oversized
+    sample on its input unread (counted) and refuses ``use_sim_time``; after cleanup it has no input."""
+    from std_msgs.msg import Float64MultiArray, Int64MultiArray
+
+    from pomdp_planner.nodes.qos import STREAM_QOS
+
+    h = harness
+    node = h.add(MANAGED[name](context=h.context, parameter_overrides=_params(model_file=S3, autostart=False)))
+    rec = h.recorder()
+    lc = _client(h, f"/{name}")
+    sender = h.add(Node(f"oversized_sender_{name}", context=h.context))
+    topic, msg = {"planner": ("belief", Float64MultiArray(data=[0.0] * 4096)),
+                  "belief_filter": ("observation", Int64MultiArray(data=[0] * 4096))}[name]
+    pub = sender.create_publisher(type(msg), topic, STREAM_QOS)
+    h.start()
+    assert lc.wait_for_services()
+    assert not _set(h, f"/{name}", use_sim_time=True)[0].successful  # unconfigured: refused too
+    others = sender.count_subscribers(topic)  # the recorder's
+    assert lc.change("configure") and lc.state() == "inactive"
+    assert h.wait_until(lambda: pub.get_subscription_count() > others, timeout=10)
+    pub.publish(msg)
+    assert h.wait_until(lambda: int((_diag_in(rec, name, "inactive") or {}).get("oversized_samples", 0)) >= 1,
+                        timeout=10)
+    result = _set(h, f"/{name}", use_sim_time=True)[0]
+    assert not result.successful and "use_sim_time" in result.reason
+    assert lc.change("cleanup") and node.inputs == {}
+    assert h.wait_until(lambda: sender.count_subscribers(topic) == others, timeout=10)

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import S3, LifecycleClient, rclpy
+from nodes_support import S3, LifecycleClient, die_with_test, rclpy, remove_dead_shm, shm_entries
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -34,9 +34,11 @@ def rclpy_wait(future, timeout: float = 10.0) -> None:
 
 def test_a_failing_configure_is_one_log_line_and_the_process_stays_configurable(domain, tmp_path):  # noqa: F811
     log = tmp_path / "planner.log"
+    shm_before = shm_entries()
     with open(log, "wb") as fh:
         proc = subprocess.Popen([*node_command("planner"), "--ros-args", "-p", f"model_file:={BAD}",
-                                 "-p", "autostart:=false"], stdout=fh, stderr=subprocess.STDOUT)
+                                 "-p", "autostart:=false"], stdout=fh, stderr=subprocess.STDOUT,
+                                preexec_fn=die_with_test)
     procs = {"planner": (proc, log)}
     ctx = Context()
     rclpy.init(context=ctx)
@@ -61,6 +63,8 @@ def test_a_failing_configure_is_one_log_line_and_the_process_stays_configurable(
         shutdown_executor(executor)
         node.destroy_node()
         ctx.try_shutdown()
+        if codes.get("planner", 0) < 0:  # killed: only a killed process leaves segments behind
+            remove_dead_shm(shm_before)
     text = log.read_text(errors="replace")
     assert codes["planner"] == 0 and "Traceback" not in text, text[-2000:]
     failed = [line for line in text.splitlines() if "configure failed" in line]
@@ -73,7 +77,7 @@ def test_a_failing_configure_is_one_log_line_and_the_process_stays_configurable(
 @pytest.mark.parametrize("name", ["planner", "belief_filter"])
 def test_with_autostart_a_node_that_cannot_configure_prints_one_fatal_line_and_exits_1(domain, name):  # noqa: F811
     res = subprocess.run([*node_command(name), "--ros-args", "-p", f"model_file:={BAD}"], capture_output=True,
-                         text=True, timeout=120)
+                         text=True, timeout=120, preexec_fn=die_with_test)
     lines = [line for line in (res.stdout + res.stderr).splitlines() if line.strip()]
     assert res.returncode == 1, lines
     assert len(lines) == 1 and lines[0].startswith(f"[FATAL] [{name}]: model_file: '{BAD}' not found"), lines

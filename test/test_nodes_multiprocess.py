@@ -20,21 +20,17 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import REPO, Recorder, rclpy
+from nodes_support import REPO, Recorder, die_with_test, rclpy, remove_dead_shm, shm_entries
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.io.run_record import read_run_record
 from pomdp_planner.core.simulate import simulate
 from pomdp_planner.nodes.processes import node_command, parameter_set_model, parameter_set_values, stop_nodes
 
 S3_MODEL = load_model(REPO / "config" / "models" / "tracking_s3_info.yaml")
-SHM = Path("/dev/shm")
-
-
-def _shm_entries() -> set[str]:
-    return {p.name for p in SHM.glob("fastrtps_*")} if SHM.is_dir() else set()
 
 
 @pytest.fixture
@@ -65,7 +61,7 @@ def _spin_until(executor, predicate, timeout):
 def _observer() -> tuple[Context, Recorder, SingleThreadedExecutor, set[str]]:
     """The test's own context, a recorder on it and its executor (spun by ``_spin_until``), and
     the shared-memory segments that existed before (a killed process leaves some behind)."""
-    shm_before = _shm_entries()
+    shm_before = shm_entries()
     ctx = Context()
     rclpy.init(context=ctx)
     rec = Recorder(ctx, threading.Condition())
@@ -89,12 +85,14 @@ def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
         for name in ("target_simulator", "belief_filter"):
             logs[name] = tmp_path / f"{name}.err"
             procs[name] = (subprocess.Popen([*node_command(name), "--ros-args", *args[name]], env=env,
-                                            stdout=subprocess.DEVNULL, stderr=_log(logs[name], handles)), logs[name])
+                                            stdout=subprocess.DEVNULL, stderr=_log(logs[name], handles),
+                                            preexec_fn=die_with_test), logs[name])
         # start the planner only once the test sees the prior and the initial state: no epoch is missed
         assert _spin_until(executor, lambda: rec.beliefs and rec.true_states, 30), "no prior / initial state"
         logs["planner"] = tmp_path / "planner.err"
         procs["planner"] = (subprocess.Popen([*node_command("planner"), "--ros-args", *args["planner"]], env=env,
-                                             stdout=subprocess.DEVNULL, stderr=_log(logs["planner"], handles)),
+                                             stdout=subprocess.DEVNULL, stderr=_log(logs["planner"], handles),
+                                             preexec_fn=die_with_test),
                             logs["planner"])
         # discovery between this process and the planner may take a while (the loop may run ahead)
         assert _spin_until(executor, lambda: len(rec.actions) >= 20 and len(rec.belief_epochs(S3_MODEL.S)) > 30,
@@ -114,9 +112,8 @@ def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
         ctx.try_shutdown()
         for fh in handles:
             fh.close()
-        if killed:  # only a killed process leaves segments behind; remove only those new since the start
-            for name in _shm_entries() - shm_before:
-                (SHM / name).unlink(missing_ok=True)
+        if killed:  # only a killed process leaves segments behind
+            remove_dead_shm(shm_before)
 
     for name, code in codes.items():
         err = logs[name].read_text(errors="replace")
@@ -154,12 +151,16 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
     return beside greedy's, exit code 0; on the paper's S = 3 model and on the perimeter model of
     the README's node-loop example (its own parameter files, ``config/<node>_perimeter_s8.yaml``).
     The node logs' temporary directory is removed, unless ``--keep-logs`` (then it holds the three
-    logs and the last line says where)."""
+    logs and the run record ``run.csv``, and the last line says where); ``--record FILE`` writes the
+    record there instead. The record holds the table's rows (epoch, true state, action, bounds,
+    certified, the belief's mode), as the run-record reader reads them."""
     steps = 5
+    record = None if keep else tmp_path / "run.csv"  # with --keep-logs: run.csv in the logs' directory
     proc = subprocess.run([sys.executable, "-m", "pomdp_planner.nodes.demo", "--steps", str(steps), "--model", model,
-                           "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else [])],
+                           "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else []),
+                           *([] if record is None else ["--record", str(record)])],
                           capture_output=True, text=True, timeout=90, cwd=REPO,
-                          env={**os.environ, "TMPDIR": str(tmp_path)})
+                          env={**os.environ, "TMPDIR": str(tmp_path)}, preexec_fn=die_with_test)
     logs = "".join(f"\n--- {log.name}\n{log.read_text(errors='replace')[-3000:]}"
                    for log in sorted(tmp_path.glob("pomdp_planner_demo_*/*.log")))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
@@ -198,10 +199,21 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
     left = list(tmp_path.glob("pomdp_planner_demo_*"))
     if keep:
         assert len(left) == 1 and lines[-1] == f"node logs kept in {left[0]}"
-        assert sorted(p.name for p in left[0].iterdir()) == ["belief_filter.log", "planner.log",
+        assert sorted(p.name for p in left[0].iterdir()) == ["belief_filter.log", "planner.log", "run.csv",
                                                               "target_simulator.log"]
+        record = left[0] / "run.csv"
     else:
         assert left == [] and "node logs" not in proc.stdout
+    # the run record: the table's rows, as pomdp-planner plot reads them
+    assert f"run record ({steps} rows) in {record}; draw it with: pomdp-planner plot {record} -o run.png" in lines
+    rec = read_run_record(record)
+    assert (rec.model, rec.S, rec.A, rec.time_budget) == (m.name, m.S, m.A, 0.02)
+    assert rec.epoch.tolist() == [int(r[0]) for r in rows] and rec.true_state.tolist() == [int(r[1]) for r in rows]
+    assert rec.action.tolist() == [int(r[5]) for r in rows]
+    assert [(lo, up) if lo else None for lo, up in zip(rec.lower.tolist(), rec.upper.tolist(), strict=True)] == \
+        [(int(r[6]), int(r[7])) if r[6] else None for r in rows]
+    assert rec.certified.tolist() == [r[10] == "yes" for r in rows]
+    assert [int(b.argmax()) for b in rec.beliefs] == [int(r[2]) for r in rows]
     assert "Traceback" not in proc.stderr
 
 
@@ -216,7 +228,7 @@ def test_closed_loop_entry_point_one_process(domain, tmp_path):
     with open(err, "wb") as fh:
         proc = subprocess.Popen([*node_command("closed_loop"), "--ros-args", "--params-file",
                                  str(REPO / "config" / "closed_loop_s3.yaml"), "-p", "planner:time_budget:=0.02"],
-                                env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=fh)
+                                env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=fh, preexec_fn=die_with_test)
         try:
             ok = _spin_until(executor, lambda: len(rec.beliefs) >= 10 and rec.diag_values("planner"), 60)
         finally:
@@ -231,7 +243,7 @@ def test_closed_loop_entry_point_one_process(domain, tmp_path):
     assert epochs == sorted(epochs)
 
 
-# ----------------------------------------------------------------- restarts (issue 13)
+# ----------------------------------------------------------------- restarts
 
 RESTART_PARAMS = {  # a small epoch window, so that a restarted filter joins after ~100 epochs already
     "target_simulator": ["-p", "seed:=5", "-p", "epoch_window:=50"],
@@ -286,7 +298,8 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
     def start(name, tag=""):
         log = tmp_path / f"{name}{tag}.err"
         procs[name] = (subprocess.Popen([*node_command(name), "--ros-args", *args[name]], env=env,
-                                        stdout=subprocess.DEVNULL, stderr=_log(log, handles)), log)
+                                        stdout=subprocess.DEVNULL, stderr=_log(log, handles),
+                                        preexec_fn=die_with_test), log)
 
     try:
         for name in ("belief_filter", "planner", "target_simulator"):
@@ -337,8 +350,7 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
         ctx.try_shutdown()
         for fh in handles:
             fh.close()
-        for name in _shm_entries() - shm_before:  # the killed processes' segments (only those new since the start)
-            (SHM / name).unlink(missing_ok=True)
+        remove_dead_shm(shm_before)  # the killed processes' segments
     for name, code in codes.items():
         err = procs[name][1].read_text(errors="replace")
         assert code == 0 and "Traceback" not in err, f"{name}: exit code {code}\n{err[-2000:]}"

@@ -1,4 +1,4 @@
-"""What a managed node reports while it has no loop (package docstring, "Inactive"; ROS: the
+"""What a managed node reports while it has no loop (rule "Inactive"; ROS: the
 lifecycle states of ``rclpy.lifecycle``).
 
 A managed node builds its loop when it is configured and releases it when it is cleaned up; in
