@@ -68,11 +68,12 @@ def optional_array(node: Node, name: str) -> list | None:
     return None if value is None else list(value)
 
 
-def declare_model_file(node: Node) -> None:
-    """Declare the read-only ``model_file`` parameter (every node has it)."""
-    node.declare_parameter("model_file", DEFAULT_MODEL, descriptor(
+def declare_model_file(node: Node) -> str:
+    """Declare the read-only ``model_file`` parameter (every node has it); its value now (a managed
+    node reads it again at configure)."""
+    return node.declare_parameter("model_file", DEFAULT_MODEL, descriptor(
         "Model file: absolute, relative to the current directory, the package share dir or the source tree, "
-        "or a shipped model's name", read_only=True))
+        "or a shipped model's name", read_only=True)).value
 
 
 # rclpy types a parameter by its default: a double parameter refuses the integer ``5`` (from a
