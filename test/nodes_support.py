@@ -11,6 +11,9 @@
   :meth:`RosHarness.wait_until` (a predicate and an upper bound, never a fixed sleep).
 * Discovery runs in DDS threads with no event to wait on, so :meth:`RosHarness.wait_matched` polls
   a publisher's match count (again with an upper bound).
+* :class:`LifecycleClient`: the standard ``lifecycle_msgs`` services of a managed node
+  (``get_state``, ``change_state``, ``get_available_transitions``) called from an rclpy client, as
+  ``ros2 lifecycle`` and a lifecycle manager call them.
 * Node processes a test starts: :func:`die_with_test` (``preexec_fn``) ends them when the test
   process dies, however it dies; :func:`remove_dead_shm` removes the shared-memory files that
   processes killed with SIGKILL left behind, and no file still in use.
@@ -33,6 +36,8 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from lifecycle_msgs.msg import Transition  # noqa: E402
+from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from std_msgs.msg import Float64MultiArray, Int64MultiArray  # noqa: E402
@@ -186,6 +191,43 @@ class Recorder(Node):
     def beliefs_by_epoch(self, S: int) -> dict:
         """The newest belief received for each epoch."""
         return {b.epoch: b.belief for b in self.decoded_beliefs(S)}
+
+
+class LifecycleClient:
+    """Calls the lifecycle services of the managed node ``target`` (e.g. ``"/planner"``) from ``node``.
+
+    The futures are polled, never spun (the harness's executor spins ``node`` in another thread)."""
+
+    def __init__(self, node: Node, target: str, timeout: float = 30.0):
+        self.timeout = timeout
+        self._get = node.create_client(GetState, f"{target}/get_state")
+        self._change = node.create_client(ChangeState, f"{target}/change_state")
+        self._transitions = node.create_client(GetAvailableTransitions, f"{target}/get_available_transitions")
+
+    def wait_for_services(self, timeout: float = 10.0) -> bool:
+        return all(c.wait_for_service(timeout_sec=timeout) for c in (self._get, self._change, self._transitions))
+
+    def _call(self, client, request):
+        future = client.call_async(request)
+        deadline = time.monotonic() + self.timeout
+        while not future.done():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{client.srv_name}: no answer within {self.timeout} s")
+            time.sleep(0.005)
+        return future.result()
+
+    def state(self) -> str:
+        """The label of the node's current state (``GetState``)."""
+        return self._call(self._get, GetState.Request()).current_state.label
+
+    def change(self, label: str) -> bool:
+        """``ChangeState`` by transition label (``configure``, ``activate``, ...); its ``success``."""
+        return self._call(self._change, ChangeState.Request(transition=Transition(label=label))).success
+
+    def transitions(self) -> list[tuple[str, str]]:
+        """``GetAvailableTransitions``: ``(transition label, goal state label)`` pairs."""
+        res = self._call(self._transitions, GetAvailableTransitions.Request())
+        return [(t.transition.label, t.goal_state.label) for t in res.available_transitions]
 
 
 class RosHarness:

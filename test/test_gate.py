@@ -147,7 +147,7 @@ def test_assumption_report_is_computed_once_per_model(monkeypatch: pytest.Monkey
         return real(model)
 
     monkeypatch.setattr(gate, "check_assumptions", counting)
-    monkeypatch.setattr(gate, "_reports", type(gate._reports)())
+    monkeypatch.setattr(gate, "_reports", type(gate._reports)())  # an empty cache: the check runs
     build_planner(s3)
     build_planner(s3, variant="feasible")
     copy = pickle.loads(pickle.dumps(s3))  # e.g. a worker process's copy: same content, same report
@@ -159,7 +159,7 @@ def test_assumption_report_is_computed_once_per_model(monkeypatch: pytest.Monkey
     assumption_report(other)
     assert calls == [s3.name, "other"]
     report = assumption_report(s3)
-    monkeypatch.setattr(gate, "_reports", type(gate._reports)())
+    monkeypatch.setattr(gate, "_reports", type(gate._reports)())  # an empty cache: the check runs
     assert build_planner(s3, report=report).report is report and calls == [s3.name, "other"]
 
 
@@ -222,3 +222,31 @@ def test_a_bad_constant_is_refused_naming_the_field_and_the_choices(s3: POMDP, b
     for use_bounds in (True, False):
         with pytest.raises(OptionError, match=r"constant: expected one of mlr, fosd"):
             build_planner(s3, constant=bad, use_bounds=use_bounds)
+
+
+class TickingClock:
+    """``perf_counter`` stand-in: each reading is ``step`` seconds after the previous one."""
+
+    def __init__(self, step: float) -> None:
+        self.t, self.step = 0.0, step
+
+    def __call__(self) -> float:
+        self.t += self.step
+        return self.t
+
+
+@pytest.mark.parametrize("step,reported", [(0.4, False), (2.0, True)])
+def test_each_stage_is_timed_and_a_long_one_is_reported_as_it_ends(monkeypatch, step, reported):
+    """``seconds`` holds every stage that ran; a stage over STAGE_REPORT_SECONDS says so through
+    ``progress`` right after it, in order (the planner node's configure log)."""
+    model = load_model(S3)
+    monkeypatch.setattr(gate, "_reports", type(gate._reports)())  # an empty cache: the check runs
+    monkeypatch.setattr(gate.SetupStages, "clock", staticmethod(TickingClock(step)))
+    lines: list[str] = []
+    setup = build_planner(model, progress=lines.append)
+    assert setup.mode == "prune" and list(setup.seconds) == list(gate.STAGES)
+    assert all(s == pytest.approx(step) for s in setup.seconds.values())
+    expected = [f"set-up: {stage} took 2 s" for stage in gate.STAGES] if reported else []
+    assert lines == expected
+    exhaustive = build_planner(model, use_bounds=False)
+    assert list(exhaustive.seconds) == ["estimate", "planner tables"]  # no check, no LP

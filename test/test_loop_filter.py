@@ -265,3 +265,36 @@ def test_impossible_and_contradicting_readings_are_counted_and_warned():
 def test_topics_must_name_every_sensor():
     with pytest.raises(ValueError, match="topics"):
         FilterLoop(MODEL, [MODEL.O], UNIFORM, ["a", "b"], LIVE, now=T0)
+
+
+# ----------------------------------------------------------------- inactive (a managed node)
+def test_an_inactive_filter_applies_every_reading_and_publishes_the_newest_belief_when_activated():
+    loop = make()
+    assert loop.deactivate(T0).logs[0].text.startswith("deactivated at epoch 0")
+    expected = UNIFORM
+    for e, (p, z) in enumerate([(1, 0), (3, 2), (2, 1)], start=1):
+        out = feed(loop, e, p, z, T0 + e)
+        assert out.beliefs == []  # withheld
+        expected = bayes(expected, p, (MODEL.O, z))
+    assert loop.watchdog(T0 + 10).beliefs == []  # no re-send while inactive
+    assert loop.report(T0 + 30).level == Level.OK and "inactive" in loop.report(T0 + 30).message
+    out = loop.activate(T0 + 31)
+    assert [b.epoch for b in out.beliefs] == [3]  # the newest, once
+    np.testing.assert_allclose(out.beliefs[0].belief, expected, rtol=1e-12)
+    assert loop.activate(T0 + 32).beliefs == []  # already active
+    out = feed(loop, 4, 1, 0, T0 + 33)  # and on it goes
+    np.testing.assert_allclose(out.beliefs[0].belief, bayes(expected, 1, (MODEL.O, 0)), rtol=1e-12)
+
+
+def test_a_filter_deactivated_and_activated_with_nothing_new_publishes_nothing_twice():
+    loop = make()
+    feed(loop, 1, 2, 1, T0)
+    loop.deactivate(T0 + 0.1)
+    assert loop.activate(T0 + 0.2).beliefs == []  # belief 1 was published before
+    assert loop.watchdog(T0 + 1.0).beliefs[0].epoch == 1  # the re-send rule as usual
+
+
+def test_a_filter_made_inactive_publishes_its_prior_when_activated():
+    loop = FilterLoop(MODEL, [MODEL.O], UNIFORM, ["observation"], LIVE, now=T0, active=False)
+    assert loop.start(T0).beliefs == []
+    assert [b.epoch for b in loop.activate(T0 + 1).beliefs] == [0]

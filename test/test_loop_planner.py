@@ -291,3 +291,99 @@ def test_with_guaranteed_bounds_the_certificate_is_reported():
     loop.decided(job, searched, T0 + 1.7)
     r = loop.report(T0 + 1.8)
     assert "last.certified" not in r.values and r.message == "depth 2, exhaustive search"
+
+
+# ----------------------------------------------------------------- inactive (a managed node)
+def test_an_inactive_planner_plans_nothing_keeps_the_newest_belief_and_plans_it_when_activated():
+    loop = make(use_bounds=False)
+    joined(loop, 3)  # action 4 published at T0 + JOIN_DELAY
+    t = T0 + 1
+    assert loop.deactivate(t).logs[0].text.startswith("deactivated")
+    for e in (4, 5, 6):  # a sensor that keeps stepping: beliefs come, nothing is planned
+        out = loop.belief(bel(e), t + 0.1 * e)
+        assert out.actions == [] and not out.plan_now
+        assert loop.take(t + 0.1 * e) is None and loop.mailbox.epoch == e
+    assert loop.watchdog(t + 5.0).actions == []  # no re-send while inactive
+    out = loop.activate(t + 6.0)
+    assert out.plan_now and out.actions == [] and "planning the belief of epoch 6" in out.logs[0].text
+    job = loop.take(t + 6.0)
+    assert job.epoch == 6  # the newest: epochs 4 and 5 are never planned for
+    out = loop.decided(job, loop.search(job), t + 6.1)
+    assert out.actions == [ActionSample(7, Planner(S3).search(B, 2, use_bounds=False).priority)]
+
+
+def test_an_inactive_planner_follows_the_beliefs_beyond_its_window_without_a_resync():
+    loop = make()
+    joined(loop, 0)
+    loop.deactivate(T0 + 1)
+    for k in range(1, 3 * LIVE.epoch_window):  # three windows of epochs while inactive, 10 per second
+        loop.belief(bel(k), T0 + 1 + k / 10)
+        loop.watchdog(T0 + 1 + k / 10)
+    assert loop.health.counts["out_of_window"] == 0 and loop.health.counts["resyncs"] == 0
+    loop.activate(T0 + 20)
+    assert loop.take(T0 + 20).epoch == 3 * LIVE.epoch_window - 1
+
+
+def test_a_decision_finished_while_inactive_is_sent_when_activated_unless_answered():
+    loop = make()
+    joined(loop, 0)
+    loop.belief(bel(1), T0 + 1)
+    job = loop.take(T0 + 1)  # the search runs ...
+    loop.deactivate(T0 + 1.05)  # ... when the node is deactivated
+    out = loop.decided(job, Searched(stub(priority=3), True, True), T0 + 1.1)
+    assert out.actions == [] and out.plan_info is None  # kept, not published
+    out = loop.activate(T0 + 3.0)
+    assert out.actions == [ActionSample(2, 3)] and loop.health.counts["resent_actions"] == 1
+    # the same again, but the sensor stepped meanwhile: its belief answers the action
+    loop.belief(bel(2), T0 + 3.1)
+    job = loop.take(T0 + 3.1)
+    loop.deactivate(T0 + 3.15)
+    loop.decided(job, Searched(stub(priority=1), True, True), T0 + 3.2)
+    loop.belief(bel(3), T0 + 3.3)
+    out = loop.activate(T0 + 4.0)
+    assert out.actions == [] and out.plan_now and loop.take(T0 + 4.0).epoch == 3
+
+
+def test_an_inactive_planner_reports_no_stall_and_counts_silence_from_its_activation():
+    loop = make()
+    joined(loop, 0)
+    loop.deactivate(T0 + 1)
+    r = loop.report(T0 + 30)
+    assert r.level == Level.OK and r.message.startswith("inactive: not planning or publishing")
+    loop.activate(T0 + 40)
+    assert loop.report(T0 + 41.9).level == Level.OK
+    assert loop.report(T0 + 42.0).level == Level.WARN  # 2 s after the activation, not 42 s after the belief
+
+
+def test_a_planner_made_inactive_joins_at_its_activation():
+    loop = PlannerLoop(S3, PARAMS, LIVE, now=T0, active=False)
+    loop.start(T0)
+    for e in (0, 7, 9):
+        assert not loop.belief(bel(e), T0 + e / 100).plan_now
+    assert loop.take(T0 + 1) is None
+    assert loop.activate(T0 + 5).plan_now and loop.take(T0 + 5).epoch == 9
+
+
+def test_max_depth_beyond_the_memory_budget_is_capped_with_one_warning():
+    """As every anytime search: the deepest depth within the planner's memory budget, said once."""
+    from pomdp_planner.core.search import search_memory_estimate
+
+    loop = make(max_depth=4, time_budget=5.0)
+    planner = loop.setup.planner
+    planner.memory_budget = search_memory_estimate(3, 3, 3, 2, planner.chunk_bytes)  # depth 2 fits, 3 does not
+    loop.belief(bel(0), T0)
+    job = loop.take(T0 + JOIN_DELAY)
+    searched = loop.search(job)
+    assert searched.result.depth <= 2 and [log.level for log in searched.logs] == ["warning"]
+    assert searched.logs[0].text.startswith("max_depth capped at 2 (asked 4): a deeper search needs more than")
+    loop.decided(job, searched, T0 + 1)
+    loop.belief(bel(1), T0 + 1)
+    assert loop.search(loop.take(T0 + 1)).logs == ()  # once
+
+
+def test_a_model_too_large_for_even_depth_1_is_refused_at_construction(monkeypatch):
+    import pomdp_planner.core.search as search
+
+    monkeypatch.setattr(search, "search_memory_estimate", lambda *args: 2**40)  # 1 TiB per search
+    with pytest.raises(OptionError, match=r"^max_depth: a search of depth 1 needs about"):
+        PlannerLoop(S3, PARAMS, LIVE, now=T0)

@@ -21,7 +21,7 @@ from rclpy.parameter import Parameter
 
 from pomdp_planner.core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.params import check_given_parameters
+from pomdp_planner.nodes.params import check_given_parameters, deferred_start
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.processes import node_command, stop_nodes
 from pomdp_planner.nodes.runtime import NodeConfigError
@@ -151,6 +151,7 @@ def test_an_undeclared_parameter_is_a_warning_naming_the_closest_name(tmp_path):
     assert len(warnings) == 1, text
     assert "parameter time_budgett is not a parameter of this node and is ignored; did you mean time_budget?" \
         in warnings[0]
+    assert text.index("time_budgett") < text.index("configured in")  # reported before the managed node configures
     assert codes["planner"] == 0 and "Traceback" not in text
 
 
@@ -226,6 +227,24 @@ def test_unknown_parameters_appear_in_the_diagnostics(harness):
     assert h.wait_until(lambda: rec.diag_values("planner") and rec.diag_values("belief_filter"), timeout=15)
     assert rec.diag_values("planner")[-1]["unknown_parameters"] == "time_budgett (did you mean time_budget?)"
     assert rec.diag_values("belief_filter")[-1]["unknown_parameters"] == "none"
+
+
+def test_a_node_built_for_a_process_starts_only_once_its_parameters_are_checked(harness):
+    """Under ``deferred_start`` (as ``run_nodes`` builds a process's nodes) a managed node does not
+    configure as it is made: ``strict_parameters`` refuses before any configure runs, and
+    :meth:`start` then walks the autostart."""
+    overrides = [Parameter("model_file", value=S3), Parameter("strict_parameters", value=True)]
+    with deferred_start():
+        strict = harness.add(PlannerNode(context=harness.context, parameter_overrides=[
+            *overrides, Parameter("max_dpeth", value=2)]))
+        fine = harness.add(BeliefFilter(context=harness.context, parameter_overrides=overrides))
+    assert strict.lifecycle_state == fine.lifecycle_state == "unconfigured"
+    assert strict.loop is None and strict.model is None
+    with pytest.raises(NodeConfigError, match=r"^max_dpeth \(did you mean max_depth\?\): not a parameter"):
+        check_given_parameters([strict, fine])
+    assert strict.lifecycle_state == "unconfigured" and strict.model is None  # no configure ran
+    fine.start()
+    assert fine.lifecycle_state == "active" and fine.loop is not None
 
 
 def test_a_refused_declaration_is_a_node_config_error_in_process(harness):

@@ -124,12 +124,14 @@ _S8 = tracking(8)
 
 
 # ------------------------------------------------------------------ reference equality
+# ``fused``: with the fused leaf table, or without it (the planner's way beyond FUSED_TABLE_MAX_BYTES)
+@pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_matches_naive_reference_random_models(uncertainty: str, seed: int) -> None:
+def test_matches_naive_reference_random_models(uncertainty: str, seed: int, fused: bool) -> None:
     model = random_model(seed, S=3, A=3, Z=3, uncertainty=uncertainty)
     bounds = random_bounds(model, seed)
-    planner = Planner(model, bounds)
+    planner = Planner(model, bounds, fused=fused)
     rng = np.random.default_rng(seed)
     for depth in (1, 2, 3):
         b = rng.dirichlet(np.ones(model.S))
@@ -143,10 +145,11 @@ def test_matches_naive_reference_random_models(uncertainty: str, seed: int) -> N
             assert res.action == int(np.nanargmax(Q)) or math.isclose(Q[res.action], v, rel_tol=1e-11)
 
 
+@pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
-def test_matches_naive_reference_tracking(uncertainty: str) -> None:
+def test_matches_naive_reference_tracking(uncertainty: str, fused: bool) -> None:
     model = tracking(3, uncertainty)
-    planner = Planner(model, random_bounds(model, 7))
+    planner = Planner(model, random_bounds(model, 7), fused=fused)
     rng = np.random.default_rng(3)
     for depth in (1, 2, 3):
         b = rng.dirichlet(np.ones(3) * 0.5)
@@ -164,11 +167,13 @@ def test_small_chunks_give_the_same_answer(uncertainty: str) -> None:
     model = tracking(8, uncertainty)
     bounds = random_bounds(model, 3)
     big, small = Planner(model, bounds), Planner(model, bounds, chunk_bytes=4096)
+    unfused = Planner(model, bounds, fused=False)
     b = np.random.default_rng(5).dirichlet(np.ones(8))
     for use_bounds in (False, True):
-        r1, r2 = big.search(b, 3, use_bounds), small.search(b, 3, use_bounds)
+        r1, r2, r3 = big.search(b, 3, use_bounds), small.search(b, 3, use_bounds), unfused.search(b, 3, use_bounds)
         np.testing.assert_allclose(r1.q_values, r2.q_values, rtol=1e-13, atol=1e-13, equal_nan=True)
-        assert r1.level_sizes == r2.level_sizes
+        np.testing.assert_allclose(r1.q_values, r3.q_values, rtol=1e-13, atol=1e-13, equal_nan=True)
+        assert r1.level_sizes == r2.level_sizes == r3.level_sizes
 
 
 # -------------------------------------------------------------- B&B versus exhaustive
@@ -349,10 +354,11 @@ def test_custom_uncertainty_uses_the_generic_path() -> None:
     assert r1.nodes_expanded == r2.nodes_expanded
 
 
+@pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
-def test_zero_probability_branches_are_skipped(uncertainty: str) -> None:
+def test_zero_probability_branches_are_skipped(uncertainty: str, fused: bool) -> None:
     model = perfect_sensor_model(uncertainty)
-    planner = Planner(model)
+    planner = Planner(model, fused=fused)
     for b in (np.array([0.5, 0.5, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([1.0, 1e-250, 0.0]) / (1 + 1e-250)):
         with np.errstate(divide="raise", invalid="raise", over="raise"):
             res = planner.search(b, 3, use_bounds=False)
@@ -364,11 +370,12 @@ def test_zero_probability_branches_are_skipped(uncertainty: str) -> None:
         assert res.nodes_pruned[-1] == complete_tree_nodes(3, 3, 3) - nodes
 
 
-def test_tiny_eta_leaves_use_the_safe_path() -> None:
+@pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
+def test_tiny_eta_leaves_use_the_safe_path(fused: bool) -> None:
     """eta ~ 1e-200 at the leaves (u_s^2 underflows): values stay finite and exact."""
     model = perfect_sensor_model("renyi2")
     b = np.array([0.5, 0.5 - 1e-200, 1e-200])
-    res = Planner(model).search(b, 2, use_bounds=False)
+    res = Planner(model, fused=fused).search(b, 2, use_bounds=False)
     _, Q, nodes = reference_search(model, b, 2, None)
     np.testing.assert_allclose(res.q_values, Q, rtol=1e-12, atol=1e-12)
     assert res.nodes_expanded[-1] == nodes

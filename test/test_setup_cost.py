@@ -106,7 +106,7 @@ def no_check(monkeypatch: pytest.MonkeyPatch) -> None:
 @pytest.mark.parametrize("argv", [["plan", "--time-budget", "1"], ["plan", "--exhaustive", "--depth", "1"],
                                   ["simulate", "--policy", "bnb", "--steps", "1"]])
 def test_a_setup_beyond_the_available_memory_is_refused_with_the_figure(big_generator, argv, capsys, monkeypatch):
-    monkeypatch.setattr(gate, "available_memory", lambda: GIB)
+    monkeypatch.setattr(gate, "available_memory", lambda: 128 * 2**20)
     no_check(monkeypatch)
     code = main([argv[0], big_generator, *argv[1:]])
     out, err = capsys.readouterr()
@@ -114,11 +114,26 @@ def test_a_setup_beyond_the_available_memory_is_refused_with_the_figure(big_gene
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in err and "CHECK STARTED" not in err
     head = "pomdp-planner: error: model: the planner's set-up for S=400, A=40, Z=400 needs about "
-    assert lines[0].startswith(head) and lines[0].endswith("more than the 1 GiB of memory available")
+    assert lines[0].startswith(head) and lines[0].endswith("more than the 128 MiB of memory available")
     figure, unit = lines[0][len(head):].split()[:2]
-    leaf_table = 8 * 40 * 41 * 400 * 400 / GIB  # A (A + 1) Z S floats; the other tables add about A S Z each
-    assert unit == "GiB" and leaf_table <= float(figure) <= 1.3 * leaf_table
+    S, A, Z = 400, 40, 400
+    held = 8 * A * S * (S + 3 * Z) / 2**20  # P transposed, O transposed twice, the Renyi leaf table (MiB)
+    fused = 8 * A * (A + 1) * Z * S / 2**20  # the fused leaf table, not built at this size
+    assert unit == "MiB" and held <= float(figure) <= 2 * held < fused
     assert "planner tables" in lines[0]
+
+
+@pytest.mark.parametrize("fused", [True, False])
+def test_the_fused_leaf_table_is_built_only_when_small_or_asked_for(fused):
+    """Beyond FUSED_TABLE_MAX_BYTES the planner keeps no A (A + 1) Z S table; the estimate says so."""
+    S, A, Z = 64, 16, 64
+    model = random_model(S, A, Z)
+    auto = Planner(model)
+    assert auto.fused and planner_table_bytes(S, A, Z) >= 8 * A * (A + 1) * Z * S  # 8.9 MB: under the limit
+    peak = traced_peak(lambda: Planner(model, fused=fused))
+    est = planner_table_bytes(S, A, Z, fused=fused)
+    assert peak <= est <= 1.5 * peak + 16 * 2**10
+    assert (est >= 8 * A * (A + 1) * Z * S) == fused
 
 
 def test_a_setup_expected_to_take_too_long_is_refused_with_the_expected_time(slow_check_model, capsys,

@@ -219,3 +219,22 @@ def test_subnormal_transitions_give_sound_ratio_bounds_and_no_warning(seed, S, t
             assert Fraction(bound[j]) <= min(ratios) * Fraction(1 + 1e-12)  # float rounding of the products
         else:
             assert bound[j] == np.inf
+
+
+@pytest.mark.parametrize("shared", [True, False], ids=["one O for all actions", "one O per action"])
+def test_dominance_margins_equal_the_cumulative_sums_written_out(shared):
+    """(A3)'s margins, whichever way the products are formed: ``sum_{z' <= z} sum_j P[a][i, j] O[a][j, z']``
+    for priority a minus the same for a + 1, by explicit loops."""
+    rng = np.random.default_rng(7)
+    A, S, Z = 4, 5, 3
+    O = rng.dirichlet(np.ones(Z), size=S)
+    O = np.stack([O] * A) if shared else rng.dirichlet(np.ones(Z), size=(A, S))
+    model = POMDP(P=rng.dirichlet(np.ones(S), size=(A, S)), O=O, r=np.zeros((S, A)), gamma=0.9)
+    want = np.zeros((A - 1, S, Z - 1))
+    for a in range(A - 1):
+        for i in range(S):
+            for z in range(Z - 1):
+                cdf = [sum(model.P[b, i, j] * model.O[b, j, y] for j in range(S) for y in range(z + 1))
+                       for b in (a, a + 1)]
+                want[a, i, z] = cdf[0] - cdf[1]
+    np.testing.assert_allclose(structure.observation_cdf_margins(model), want, rtol=1e-12, atol=1e-14)

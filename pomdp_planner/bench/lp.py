@@ -25,7 +25,7 @@ import json
 import re
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
@@ -105,6 +105,36 @@ def cell(x: Any, spec: str) -> str:
     return "-" if x is None else format(x, spec)
 
 
+def print_rows(rows: Sequence[dict[str, Any]], table: str, json_path: str | None) -> None:
+    """A benchmark's output: ``table`` on stdout (on stderr when the rows go to stdout: ``--json -``),
+    then the rows as JSON to ``json_path`` if given."""
+    print(table, file=sys.stderr if json_path is not None and is_stdout(json_path) else sys.stdout)
+    if json_path is not None:
+        write_text_file(json_path, json.dumps(rows, indent=2) + "\n", "--json")
+
+
+def add_json_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--json FILE`` option of the benchmarks (:func:`print_rows`, checked first by :func:`run_compared`)."""
+    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
+                        "the run; '-': the JSON on stdout, the table on stderr)")
+
+
+def run_compared(prog: str, json_path: str | None, run: Callable[[Callable[[str], None]], list[dict[str, Any]]],
+                 table: Callable[[Sequence[dict[str, Any]]], str]) -> int:
+    """Run a benchmark that compares a new path with the old one: ``--json`` checked first, ``run(log)``
+    (progress lines on stderr), :func:`print_rows`. Exit code 0, 1 if a row's ``same`` is false, 2
+    (one line) for a bad model spec or file or an unwritable ``--json``."""
+    try:
+        if json_path is not None:  # before the run, not after minutes of it
+            check_output_file(json_path, "--json")
+        rows = run(lambda s: print(s, file=sys.stderr, flush=True))
+        print_rows(rows, table(rows), json_path)
+    except (ValueError, OSError) as exc:  # InputError included
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0 if all(r["same"] is not False for r in rows) else 1
+
+
 def old_over_new(row: dict[str, Any]) -> float | None:
     """The speed-up of a row with ``old_time`` and ``new_time`` (``None`` without the old path)."""
     return row["old_time"] / row["new_time"] if row["old_time"] is not None and row["new_time"] > 0 else None
@@ -136,8 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="'comparison:S,A' or model files (default: %(default)s)")
     parser.add_argument("--repeat", type=integer, default=1, metavar="N", help="best of N runs per cell (1)")
     parser.add_argument("--no-old", action="store_true", help="time the new path only")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
-                        "the run; '-': the JSON on stdout, the table on stderr)")
+    add_json_argument(parser)
     args = parser.parse_args(argv)
     if args.repeat < 1:
         parser.error(f"--repeat: must be >= 1, got {args.repeat}")
@@ -146,9 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_output_file(args.json, "--json")
         rows = run_lp_bench(args.models, args.repeat, not args.no_old,
                             log=lambda s: print(s, file=sys.stderr, flush=True))
-        print(format_table(rows), file=sys.stderr if args.json is not None and is_stdout(args.json) else sys.stdout)
-        if args.json is not None:
-            write_text_file(args.json, json.dumps(rows, indent=2) + "\n", "--json")
+        print_rows(rows, format_table(rows), args.json)
     except (ValueError, OSError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         return 2

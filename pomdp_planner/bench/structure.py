@@ -22,7 +22,6 @@ verdicts from the two paths, 2 for a bad option or model.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Sequence
@@ -31,10 +30,9 @@ from typing import Any
 import numpy as np
 
 from ..core.checks import integer
-from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.model import POMDP
 from ..core.structure import REFUTED, AssumptionReport, check_assumptions, estimate_check, is_proven
-from .lp import cell, load_bench_model, old_over_new
+from .lp import add_json_argument, cell, load_bench_model, old_over_new, run_compared
 
 DEFAULT_MODELS = ("comparison:256,64", "perimeter:32", "perimeter_s8.yaml", "tracking_s8_natural.yaml",
                   "tracking_s3_info.yaml")
@@ -105,26 +103,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="'comparison:S,A', 'perimeter:S' or model files (default: %(default)s)")
     parser.add_argument("--repeat", type=integer, default=1, metavar="N", help="best of N runs per cell (1)")
     parser.add_argument("--no-old", action="store_true", help="time the fast path only")
-    parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON (a regular file, checked before "
-                        "the run; '-': the JSON on stdout, the table on stderr)")
+    add_json_argument(parser)
 
 
 def run_from_args(args: argparse.Namespace, prog: str) -> int:
     if args.repeat < 1:
         print(f"{prog}: error: --repeat: must be >= 1, got {args.repeat}", file=sys.stderr)
         return 2
-    try:
-        if args.json is not None:  # before the run, not after minutes of it
-            check_output_file(args.json, "--json")
-        rows = run_structure_bench(args.models, args.repeat, not args.no_old,
-                                   log=lambda s: print(s, file=sys.stderr, flush=True))
-        print(format_table(rows), file=sys.stderr if args.json is not None and is_stdout(args.json) else sys.stdout)
-        if args.json is not None:
-            write_text_file(args.json, json.dumps(rows, indent=2) + "\n", "--json")
-    except (ValueError, OSError) as exc:  # InputError included: a bad model spec or file, an unwritable --json
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    return 0 if all(r["same"] is not False for r in rows) else 1
+    return run_compared(prog, args.json, lambda log: run_structure_bench(args.models, args.repeat, not args.no_old,
+                                                                         log=log), format_table)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

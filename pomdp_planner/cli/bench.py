@@ -1,9 +1,11 @@
-"""``pomdp-planner bench search|structure|multitarget|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|structure|configure|multitarget|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
 ``bench structure`` times the Assumption 1 check, fast path against the previous one
 (``pomdp_planner/bench/structure.py``).
+``bench configure`` times what the planner node's configure runs, stage by stage
+(``pomdp_planner/bench/configure.py``).
 ``bench multitarget [--quick] [--json FILE] [--plot FILE]`` is the multi-target benchmark (dual
 bound against the exact joint lookahead, closed-loop regret, decision time against K;
 ``pomdp_planner/bench/multitarget.py``).
@@ -16,6 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..bench import configure as configure_bench
 from ..bench import multitarget as multitarget_bench
 from ..bench import search as search_bench
 from ..bench import structure as structure_bench
@@ -36,6 +39,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=structure_bench.__doc__.split("\n\n")[0])
     structure_bench.add_arguments(t)
     t.set_defaults(func=lambda args: structure_bench.run_from_args(args, "pomdp-planner bench structure"))
+    c = sub.add_parser("configure", help="the planner node's configure, stage by stage, cold",
+                       description=configure_bench.__doc__.split("\n\n")[0])
+    configure_bench.add_arguments(c)
+    c.set_defaults(func=lambda args: configure_bench.run_from_args(args, "pomdp-planner bench configure"))
     m = sub.add_parser("multitarget", help="several targets, one budget: dual bound, regret, scaling",
                        description=multitarget_bench.__doc__.split("\n\n")[0])
     multitarget_bench.add_arguments(m)

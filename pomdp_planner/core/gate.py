@@ -55,9 +55,11 @@ to take more than :data:`SETUP_NOTICE_SECONDS` is announced through ``progress``
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
 from typing import Any
 from weakref import WeakKeyDictionary
 
@@ -73,7 +75,7 @@ from .checks import check_choice
 from .errors import OptionError
 from .model import POMDP, array_digest, format_bytes, infinite_horizon_refusal
 from .myopic import MyopicBounds
-from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner, planner_table_bytes
+from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner, planner_table_bytes, uses_fused_table
 from .structure import AssumptionReport, CheckEstimate, check_assumptions, estimate_check, seconds_text
 
 #: What :func:`build_planner` does when Assumption 1 fails or is unproven.
@@ -192,7 +194,8 @@ class SetupEstimate:
             out.append(f"assumption check {self.check.describe()}, {format_bytes(self.check.bytes)}")
         if self.lp_bytes:
             out.append(f"bound LP about {seconds_text(self.lp_seconds)}, {format_bytes(self.lp_bytes)}")
-        out.append(f"planner tables {format_bytes(self.table_bytes)} (they grow like A^2 S Z)")
+        growth = "A^2 S Z" if uses_fused_table(self.S, self.A, self.Z) else "A S (S + Z)"
+        out.append(f"planner tables {format_bytes(self.table_bytes)} (they grow like {growth})")
         return "; ".join(out)
 
 
@@ -259,6 +262,33 @@ def assumption_failure(report: AssumptionReport) -> str:
     bad = [k for k, v in report.status.items() if v != "holds"]
     verdict = "fails" if any(report.status[k] == "fails" for k in bad) else "is not proven"
     return f"Assumption 1 {verdict} ({', '.join(f'{k} {report.status[k]}' for k in bad)}; see 'pomdp-planner check')"
+
+
+#: A set-up stage that takes longer than this many seconds is reported through ``progress`` as it ends.
+STAGE_REPORT_SECONDS = 1.0
+#: The stages of :func:`build_planner`, in order (keys of :attr:`PlannerSetup.seconds`).
+STAGES = ("estimate", "assumption check", "bound LP", "planner tables")
+
+
+class SetupStages:
+    """The wall-clock seconds of each stage of one set-up (:data:`STAGES`); a stage that took longer
+    than :data:`STAGE_REPORT_SECONDS` is reported through ``progress`` as it ends (``"set-up:
+    assumption check took 1.3 s"``), so that a long set-up shows where it is."""
+
+    #: The wall clock the stages are timed with.
+    clock: Callable[[], float] = staticmethod(time.perf_counter)
+
+    def __init__(self, progress: Callable[[str], None] | None = None):
+        self.seconds: dict[str, float] = {}
+        self._progress = progress
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        t0 = self.clock()
+        yield
+        took = self.seconds[name] = self.clock() - t0
+        if took > STAGE_REPORT_SECONDS and self._progress is not None:
+            self._progress(f"set-up: {name} took {seconds_text(took)}")
 
 
 def _assumption_loss(report: AssumptionReport) -> str:
@@ -335,7 +365,8 @@ class PlannerSetup:
     for people. ``report`` is the Assumption 1 report (``None`` if bounds were disabled),
     ``bounds`` the LP solution (``None`` if the LP was not solved). ``variant`` and ``constant``
     are the bound variant and the belief-independent constant the LP was solved with
-    (:data:`~.bounds.BOUND_CONSTANTS`; both ``None`` when no LP was solved).
+    (:data:`~.bounds.BOUND_CONSTANTS`; both ``None`` when no LP was solved). ``seconds``: the
+    wall-clock seconds of each stage that ran (:class:`SetupStages`).
     """
 
     planner: Planner | None
@@ -347,6 +378,7 @@ class PlannerSetup:
     variant: str | None
     forced: bool = False
     constant: str | None = None
+    seconds: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def pruning(self) -> bool:
@@ -406,20 +438,36 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
     Set-up cost (module docstring): the set-up is refused first (:class:`SetupCostError`) when its
     estimate exceeds the available memory or ``max_setup_seconds`` (then ``setup_hint``, how to
     lift that limit, ends the message), and announced through ``progress`` (one line) when it
-    is expected to be long.
+    is expected to be long; a stage that takes longer than :data:`STAGE_REPORT_SECONDS` is
+    reported through ``progress`` as it ends, and :attr:`PlannerSetup.seconds` holds the time of
+    every stage that ran.
     """
     check_variant(variant)
     check_constant(constant)
     check_choice(on_assumption_failure, ON_ASSUMPTION_FAILURE, "on_assumption_failure")
 
-    est = estimate_setup(model, use_bounds=use_bounds, variant=variant, report=report)
-    check_setup_cost(est, max_setup_seconds, setup_hint)
+    stages = SetupStages(progress)
+    with stages.stage("estimate"):
+        est = estimate_setup(model, use_bounds=use_bounds, variant=variant, report=report)
+        check_setup_cost(est, max_setup_seconds, setup_hint)
     notice = setup_notice(est)
     if notice is not None and progress is not None:
         progress(notice)
+    setup = _decide(model, use_bounds, variant, constant, on_assumption_failure, prune_without_guarantee, report,
+                    override_name, stages,
+                    lambda bounds, guaranteed: Planner(model, bounds, chunk_bytes=chunk_bytes, guaranteed=guaranteed,
+                                                       memory_budget=memory_budget))
+    return replace(setup, seconds=dict(stages.seconds))
+
+
+def _decide(model: POMDP, use_bounds: bool, variant: str, constant: str, on_assumption_failure: str,
+            prune_without_guarantee: bool, report: AssumptionReport | None, override_name: str, stages: SetupStages,
+            build: Callable[[MyopicBounds | None, bool], Planner]) -> PlannerSetup:
+    """The gate's decisions 1-6 (module docstring), each stage timed by ``stages``."""
 
     def planner(bounds: MyopicBounds | None, guaranteed: bool) -> Planner:
-        return Planner(model, bounds, chunk_bytes=chunk_bytes, guaranteed=guaranteed, memory_budget=memory_budget)
+        with stages.stage("planner tables"):
+            return build(bounds, guaranteed)
 
     def exhaustive(reason: str, rep: AssumptionReport | None = None, sol: BoundsSolution | None = None
                    ) -> PlannerSetup:
@@ -429,7 +477,8 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
 
     if not use_bounds:
         return exhaustive("bounds disabled by the user")
-    rep = assumption_report(model) if report is None else report
+    with stages.stage("assumption check"):
+        rep = assumption_report(model) if report is None else report
     unguaranteed = ""  # why the guarantee is lost, if it is
     if not rep.holds:
         unguaranteed = _assumption_loss(rep)
@@ -440,7 +489,8 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
         return exhaustive(horizon + (f"; also, {unguaranteed}" if unguaranteed else ""), rep)
     if unguaranteed and not prune_without_guarantee:
         return exhaustive(unguaranteed, rep)
-    sol = solve_bounds(model, variant, constant=constant)
+    with stages.stage("bound LP"):
+        sol = solve_bounds(model, variant, constant=constant)
     lp = _lp_name(variant, constant)
     if not sol.feasible or sol.myopic is None:
         return exhaustive(f"{lp} is infeasible: {sol.message}", rep, sol)

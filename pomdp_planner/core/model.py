@@ -167,8 +167,10 @@ def model_digest(model: POMDP, digest_size: int = 20) -> bytes:
 
 
 def frozen_copy(x: np.ndarray) -> np.ndarray:
-    """A read-only float copy of ``x`` (the arrays of a model and of a bounds solution)."""
-    x = np.array(x, dtype=float, copy=True)
+    """A read-only, C-contiguous float copy of ``x`` (the arrays of a model and of a bounds solution;
+    a generator's transposed view would otherwise keep its strides, and products with it, e.g.
+    ``P @ O``, take several times longer)."""
+    x = np.array(x, dtype=float, copy=True, order="C")
     x.setflags(write=False)
     return x
 

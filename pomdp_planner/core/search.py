@@ -41,6 +41,14 @@ underflow) are recomputed from the normalised posterior, so no division blows up
 over the small ``S`` dimension are ``einsum`` loops, not BLAS calls: on a shared 2-core
 machine multi-threaded BLAS waiting for a busy core made the leaf level several times slower.
 
+Leaf tables: ``eta`` and ``u · r_a'`` for every ``a'`` are one product per action. Up to
+:data:`FUSED_TABLE_MAX_BYTES` the planner keeps the *fused* table ``WT[a]`` (rows ``O[a][:, z]``
+and ``O[a][:, z] r[:, a']``: ``A (A + 1) Z S`` floats) and multiplies it with ``b^a``; beyond it
+(2.3 GiB at S = Z = 256, A = 64, seconds to fill) it multiplies ``O[a]^T`` with ``b^a`` stacked
+with ``r_a' ∘ b^a``: the same sums with the products taken in another order (equal up to
+rounding), ``S (A + 1)`` floats per parent of temporary instead of the table, and no slower at
+that size (``pomdp-planner bench configure``).
+
 Anytime (:meth:`Planner.plan`): iterative deepening ``1..max_depth``; the deadline is checked
 before every chunk (about 4 MB of work, a few ms), an interrupted depth is discarded and the
 deepest completed one returned; depth 1 ignores the deadline; a depth predicted not to finish
@@ -109,6 +117,8 @@ MAX_TREE_NODES = 10**10
 SEARCH_OVERHEAD_BYTES = 64 * 2**10
 #: Fixed part of :func:`planner_table_bytes` (the planner object and its array headers).
 TABLE_OVERHEAD_BYTES = 8 * 2**10
+#: The planner builds the fused leaf table (module docstring, "Leaf tables") only up to this size.
+FUSED_TABLE_MAX_BYTES = 64 * 2**20
 
 Bounds = MyopicBounds | TrivialBounds
 
@@ -211,17 +221,30 @@ def search_memory_estimate(S: int, A: int, Z: int, depth: int, chunk_bytes: int 
     return 5 * (total + max(expansion, leaf_chunk)) // 4 + SEARCH_OVERHEAD_BYTES
 
 
-def planner_table_bytes(S: int, A: int, Z: int) -> int:
+def fused_table_bytes(S: int, A: int, Z: int) -> int:
+    """Bytes of the fused leaf table ``WT`` (module docstring, "Leaf tables"): ``A (A + 1) Z S`` floats."""
+    return 8 * A * (A + 1) * Z * S
+
+
+def uses_fused_table(S: int, A: int, Z: int, fused: bool | None = None) -> bool:
+    """Whether :class:`Planner` builds the fused leaf table: ``fused`` if given, else when it takes
+    at most :data:`FUSED_TABLE_MAX_BYTES`."""
+    return fused_table_bytes(S, A, Z) <= FUSED_TABLE_MAX_BYTES if fused is None else bool(fused)
+
+
+def planner_table_bytes(S: int, A: int, Z: int, fused: bool | None = None) -> int:
     """Peak bytes :class:`Planner` allocates when it is built (its tables, before any search).
 
-    The fused leaf matrix ``WT`` (module docstring: ``O[a][:, z]`` and ``O[a][:, z] r[:, a']``
-    for every ``a'``) has ``A (A + 1) Z S`` floats and dominates for large models; then five
-    ``(A, Z, S)`` tables (``O`` transposed, squared, ``O log O``, ``P O``), ``P`` transposed
-    (``A S^2``), three ``(A, S, Z)`` temporaries while they are built, and the action masks
-    (``A^3`` bytes), plus :data:`TABLE_OVERHEAD_BYTES`. Needs only the sizes, so an entry point
-    can refuse before it builds anything."""
-    floats = A * (A + 1) * Z * S + 5 * A * Z * S + A * S * S + 3 * A * S * Z + 2 * S * A
-    return 8 * floats + A**3 + A * Z + TABLE_OVERHEAD_BYTES
+    The fused leaf table ``WT`` (module docstring, "Leaf tables": ``A (A + 1) Z S`` floats) when
+    :func:`uses_fused_table` says so; then ``O`` transposed twice and one table of the leaf
+    formula (``O`` squared or ``O log O``: ``(A, Z, S)`` each), three ``(A, Z, S)`` temporaries
+    while that one is built, ``P`` transposed (``A S^2``), ``r`` twice, and the action masks
+    (``A^3`` bytes), plus :data:`TABLE_OVERHEAD_BYTES`. Needs only the sizes, so an entry point can
+    refuse before it builds anything. (``count_nodes`` builds two more ``(A, Z, S)`` tables on its
+    first call.)"""
+    floats = 6 * A * Z * S + A * S * S + 2 * S * A
+    table = fused_table_bytes(S, A, Z) if uses_fused_table(S, A, Z, fused) else 0
+    return table + 8 * floats + A**3 + A * Z + TABLE_OVERHEAD_BYTES
 
 
 def deepest_depth_within_budget(S: int, A: int, Z: int, upto: int, memory_budget: int,
@@ -355,12 +378,14 @@ class Planner:
     finer deadline checks). ``memory_budget`` bounds the memory of one search: a depth whose
     :func:`search_memory_estimate` exceeds it is refused before it starts
     (:class:`SearchMemoryError`), as is a depth beyond :data:`MAX_SEARCH_DEPTH`. ``clock`` is
-    the wall clock used for deadlines and timings (injectable for tests).
+    the wall clock used for deadlines and timings (injectable for tests). ``fused``: build the
+    fused leaf table (module docstring, "Leaf tables"; ``None``: :func:`uses_fused_table` decides
+    by its size); both ways give the same values up to rounding.
     """
 
     def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
                  clock: Callable[[], float] = time.perf_counter, guaranteed: bool = False,
-                 memory_budget: int = DEFAULT_MEMORY_BUDGET):
+                 memory_budget: int = DEFAULT_MEMORY_BUDGET, fused: bool | None = None):
         self.model = model
         self.clock = clock
         self.guaranteed = bool(guaranteed) and bounds is not None
@@ -379,30 +404,30 @@ class Planner:
         self._range_mask = ((ar[:, None, None] >= lo) & (ar[:, None, None] <= up)) | (lo > up)
         S, A, Z = model.S, model.A, model.Z
         P, O, r = model.P, model.O, model.r
-        self._P = np.ascontiguousarray(P)
-        self._O = np.ascontiguousarray(O)
+        self.fused = uses_fused_table(S, A, Z, fused)
         self._OT = np.ascontiguousarray(np.swapaxes(O, 1, 2))  # (A, Z, S)
-        # Transposed leaf matrices: WT[a] rows = O[a][:, z] (z = 0..Z-1), then O[a][:, z] * r[:, a']
-        # for a' = 0..A-1 (Z rows each); O2T, OlogOT likewise (Z x S). Filled in place: the largest
-        # table, A^2 S Z floats (planner_table_bytes).
-        self._WT = np.empty((A, Z * (A + 1), S))
-        self._WT[:, :Z] = self._OT
-        for k in range(A):
-            np.multiply(self._OT, r[:, k], out=self._WT[:, Z * (k + 1):Z * (k + 2)])
+        self._r = np.ascontiguousarray(r)
+        self._WT: np.ndarray | None = None
+        if self.fused:
+            # Transposed leaf matrices: WT[a] rows = O[a][:, z] (z = 0..Z-1), then O[a][:, z] * r[:, a']
+            # for a' = 0..A-1 (Z rows each). Filled in place: A^2 S Z floats (planner_table_bytes).
+            self._WT = np.empty((A, Z * (A + 1), S))
+            self._WT[:, :Z] = self._OT
+            for k in range(A):
+                np.multiply(self._OT, r[:, k], out=self._WT[:, Z * (k + 1):Z * (k + 2)])
         self._PT = np.ascontiguousarray(np.swapaxes(P, 1, 2))
         self._PTs = self._PT.reshape(A * S, S)  # stacked P[a]^T
         self._OS = np.ascontiguousarray(np.swapaxes(O, 0, 1))  # (S, A, Z)
-        self._O2T = np.ascontiguousarray(np.swapaxes(O * O, 1, 2))
-        self._OlogOT = np.ascontiguousarray(np.swapaxes(_xlogx(O), 1, 2))
         self._w = np.asarray(model.w, dtype=float)
         self._rT = np.ascontiguousarray(r.T)
-        PO = P @ O  # (A, S, Z): eta(z | b, a) = b @ PO[a][:, z]
-        self._POT = np.ascontiguousarray(np.swapaxes(PO, 1, 2))
-        self._sure_obs = PO.min(axis=1) > 2.0 * ETA_SKIP  # (A, Z): possible from every belief
         self._gamma = float(model.gamma)
         self._kind = model.uncertainty.name if model.uncertainty.name in ("none", "renyi2", "shannon") else "generic"
         if self._kind != "none" and not np.any(self._w):
             self._kind = "none"
+        # only the leaf formula of the model's uncertainty needs its table
+        self._O2T = np.ascontiguousarray(np.swapaxes(O * O, 1, 2)) if self._kind == "renyi2" else None
+        self._OlogOT = np.ascontiguousarray(np.swapaxes(_xlogx(O), 1, 2)) if self._kind == "shannon" else None
+        self._count_tables: tuple[np.ndarray, np.ndarray] | None = None  # count_nodes only: built on first use
         self._leaf_chunk, self._expand_chunk, _ = _chunk_sizes(S, A, Z, chunk_bytes)
 
     @property
@@ -740,10 +765,10 @@ class Planner:
         quantity is a contiguous ``Z x n`` block. Returns ``Q`` as ``(A, n)`` (``-inf`` where
         not allowed) and the number of leaves (branches with ``eta > ETA_SKIP``).
         """
-        A, Z = self.model.A, self.model.Z
+        A = self.model.A
         n = BT.shape[1]
         w, kind = self._w, self._kind
-        if n <= LEAF_STACK_MAX and kind != "generic":
+        if n <= LEAF_STACK_MAX and kind != "generic" and self._WT is not None:
             out = self._leaf_q_stacked(BT, rhoT, allowed)
             if out is not None:
                 return out
@@ -762,13 +787,13 @@ class Planner:
             else:
                 idx = np.flatnonzero(allowed[a])
                 Ba = _mm(self._PT[a], BT[:, idx])
-            XT = _mm(self._WT[a], Ba)  # rows: eta (Z), then u . r_a' for each a' (Z each)
-            eta = XT[:Z]
+            XT = self._leaf_products(a, Ba)  # eta (Z x m), then u . r_a' for each a' (Z x m each)
+            eta = XT[0]
             ok = eta > ETA_SKIP
             if kind == "none":
-                val = XT[Z:2 * Z].copy()
+                val = XT[1].copy()
                 for k in range(1, A):
-                    np.maximum(val, XT[Z * (1 + k):Z * (2 + k)], out=val)
+                    np.maximum(val, XT[1 + k], out=val)
             elif kind == "generic":
                 val = self._leaf_generic(Ba, a, eta, ok)
             else:
@@ -782,9 +807,9 @@ class Planner:
                         t = _mm(self._OT[a], _xlogx(Ba))
                         t += _mm(self._OlogOT[a], Ba)  # sum_s u_s log u_s
                         t -= eta * np.log(eta)  # -eta f(tau)
-                    val = XT[Z:2 * Z] + w[0] * t
+                    val = XT[1] + w[0] * t
                     for k in range(1, A):
-                        np.maximum(val, XT[Z * (1 + k):Z * (2 + k)] + w[k] * t, out=val)
+                        np.maximum(val, XT[1 + k] + w[k] * t, out=val)
                 tiny = ok & (eta < ETA_FUSED_MIN)
                 if tiny.any():
                     val[tiny] = self._leaf_generic(Ba, a, eta, tiny)[tiny]
@@ -797,6 +822,19 @@ class Planner:
                 count += int(np.count_nonzero(ok[:, ~masked]))
                 QT[a] = np.where(masked, -np.inf, rhoT[a] + self._gamma * val.sum(axis=0))
         return QT, count
+
+    def _leaf_products(self, a: int, Ba: np.ndarray) -> np.ndarray:
+        """``(A + 1, Z, m)``: ``eta = O[a]^T b^a`` and ``u . r_a'`` for every ``a'``, for the predicted
+        beliefs ``Ba (S, m)`` (module docstring, "Leaf tables"): one product with the fused table
+        ``WT[a]``, or, without it, ``O[a]^T`` times ``b^a`` stacked with ``r_a' * b^a``."""
+        A, Z = self.model.A, self.model.Z
+        m = Ba.shape[1]
+        if self._WT is not None:
+            return _mm(self._WT[a], Ba).reshape(A + 1, Z, m)
+        R = np.empty((Ba.shape[0], A + 1, m))
+        R[:, 0] = Ba
+        np.multiply(self._r[:, :, None], Ba[:, None, :], out=R[:, 1:])
+        return _mm(self._OT[a], R.reshape(Ba.shape[0], (A + 1) * m)).reshape(Z, A + 1, m).transpose(1, 0, 2)
 
     def _leaf_q_stacked(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int] | None:
         """:meth:`_leaf_q` for a few parents: all actions in one batch (fewer numpy calls), then
@@ -845,6 +883,10 @@ class Planner:
                bounds: Bounds) -> None:
         n = BT.shape[1]
         if remaining == 1:
+            if self._count_tables is None:
+                PO = self.model.P @ self.model.O  # (A, S, Z): eta(z | b, a) = b @ PO[a][:, z]
+                self._count_tables = (np.ascontiguousarray(np.swapaxes(PO, 1, 2)), PO.min(axis=1) > 2.0 * ETA_SKIP)
+            POT, sure_obs = self._count_tables
             step = self._leaf_chunk
             for s in range(0, n, step):
                 Bp, al = BT[:, s:s + step], allowed[:, s:s + step]
@@ -852,10 +894,10 @@ class Planner:
                     idx = np.flatnonzero(al[a])
                     if not idx.size:
                         continue
-                    sure = self._sure_obs[a]  # eta >= min_s (P O)[a][s, z] > ETA_SKIP for any belief
+                    sure = sure_obs[a]  # eta >= min_s (P O)[a][s, z] > ETA_SKIP for any belief
                     sizes[level + 1] += idx.size * int(np.count_nonzero(sure))
                     if not sure.all():
-                        eta = _mm(self._POT[a][~sure], Bp[:, idx])
+                        eta = _mm(POT[a][~sure], Bp[:, idx])
                         sizes[level + 1] += int(np.count_nonzero(eta > ETA_SKIP))
             return
         step = self._expand_chunk

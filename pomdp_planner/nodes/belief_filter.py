@@ -22,17 +22,18 @@ from __future__ import annotations
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 
-from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
+from ..core.gate import SetupStages
+from ..core.io.sensors import initial_distribution, load_observation_models
 from ..core.loop import FilterLoop, FilterOutput
-from .loop_node import LoopNode, OneShot
+from .loop_node import ManagedLoopNode, OneShot
 from .messages import MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief, wire_limits
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
-from .runtime import NodeConfigError, callback, config_errors, main_for
+from .runtime import NodeConfigError, callback, main_for
 
 
-class BeliefFilter(LoopNode):
-    """Belief filter node (see module docstring)."""
+class BeliefFilter(ManagedLoopNode):
+    """Belief filter node, a managed node (see module docstring; its lifecycle: :class:`ManagedLoopNode`)."""
 
     task = "belief"
 
@@ -54,25 +55,26 @@ class BeliefFilter(LoopNode):
             "Later epochs buffered before a missing one is given up", int_range=(1, 10000)))
         # ranges and types: the descriptors (nothing else to validate); side effects after a set
         self.add_post_set_parameters_callback(self._apply_parameters)
+        self.bring_up()
 
+    def configure_loop(self) -> FilterLoop:
+        """The model, the sensors' observation models and the prior; the topics."""
         self.topics = optional_array(self, "observation_topics") or []  # an empty list ([]) arrives unset
         soft_topics = optional_array(self, "likelihood_topics") or []
         every = self.topics + soft_topics
         if not every or len(set(every)) != len(every):
             raise NodeConfigError(f"observation_topics, likelihood_topics: need distinct topics, at least one, got "
                                   f"{self.topics} and {soft_topics}")
-        with config_errors():
-            self.model = load_model_file(self.model_file)
-            sensors = load_observation_models(self.model, optional_array(self, "observation_model_files"),
-                                              len(self.topics))
-            prior = initial_distribution(self.model, optional_array(self, "initial_distribution"))
-            loop = FilterLoop(self.model, sensors, prior, self.topics, self.live, now=self.now(),
-                              epoch_timeout=self.get_parameter("epoch_timeout").value,
-                              max_pending=self.get_parameter("max_pending_epochs").value,
-                              likelihood_topics=soft_topics)
-        self.belief_pub = self.create_publisher(Float64MultiArray, "belief", STREAM_QOS)
-        self.entropy_pub = self.create_publisher(Float64, "belief_entropy", LATCHED_QOS)
-        limits = wire_limits(self.model.S)
+        model = self.load_model(SetupStages(self.get_logger().info))
+        sensors = load_observation_models(model, optional_array(self, "observation_model_files"), len(self.topics))
+        prior = initial_distribution(model, optional_array(self, "initial_distribution"))
+        loop = FilterLoop(model, sensors, prior, self.topics, self.live, now=self.now(),
+                          epoch_timeout=self.get_parameter("epoch_timeout").value,
+                          max_pending=self.get_parameter("max_pending_epochs").value, likelihood_topics=soft_topics,
+                          active=False)
+        self.belief_pub = self.create_lifecycle_publisher(Float64MultiArray, "belief", STREAM_QOS)
+        self.entropy_pub = self.create_lifecycle_publisher(Float64, "belief_entropy", LATCHED_QOS)
+        limits = wire_limits(model.S)
         for k, topic in enumerate(self.topics):
             self.subscribe_input(topic, Int64MultiArray, topic, STREAM_QOS,
                                  lambda msg, k=k: self._on_observation(k, msg), max_bytes=limits["observation"],
@@ -85,10 +87,12 @@ class BeliefFilter(LoopNode):
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
         self.subscribe_actions(STREAM_QOS)
         self._release = OneShot(self, self._on_release)  # armed only while an epoch waits for its time-out
-        self.run(loop)
+        return loop
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
         with self.lock:
+            if self.loop is None:  # unconfigured: the next configure reads them
+                return
             for p in params:
                 if p.name == "epoch_timeout":
                     self.loop.buffer.timeout = p.value

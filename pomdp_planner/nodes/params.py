@@ -7,7 +7,9 @@ of :class:`ParameterNode` (every node's base): a parameter refused at start-up i
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextvars
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -67,11 +69,11 @@ def optional_array(node: Node, name: str) -> list | None:
 
 
 def declare_model_file(node: Node) -> str:
-    """Declare the read-only ``model_file`` parameter (every node has it) and return its value."""
-    node.declare_parameter("model_file", DEFAULT_MODEL, descriptor(
+    """Declare the read-only ``model_file`` parameter (every node has it); its value now (a managed
+    node reads it again at configure)."""
+    return node.declare_parameter("model_file", DEFAULT_MODEL, descriptor(
         "Model file: absolute, relative to the current directory, the package share dir or the source tree, "
-        "or a shipped model's name", read_only=True))
-    return node.get_parameter("model_file").value
+        "or a shipped model's name", read_only=True)).value
 
 
 # rclpy types a parameter by its default: a double parameter refuses the integer ``5`` (from a
@@ -117,9 +119,9 @@ def accept_integers_for_doubles(node: Node) -> None:
     node.add_pre_set_parameters_callback(pre_set)
 
 
-def declare_liveness(node: Node) -> Liveness:
+def declare_liveness(node: Node) -> None:
     """Declare ``epoch_window``, ``resend_period``, ``stall_warn_after`` and ``stall_error_after``
-    (read-only) and return them; a warn limit above the error limit stops the node."""
+    (read-only; :func:`liveness` reads them)."""
     d = descriptor
     node.declare_parameter("epoch_window", DEFAULT_EPOCH_WINDOW, d(
         "Farthest epoch jump acted on; beyond it an input is dropped and counted (a restarted peer or a forged "
@@ -132,6 +134,11 @@ def declare_liveness(node: Node) -> Liveness:
         float_range=(0.01, 86400.0)))
     declare_double(node, "stall_error_after", DEFAULT_STALL_ERROR, d(
         "Seconds without a new input before diagnostics say ERROR", read_only=True, float_range=(0.01, 86400.0)))
+
+
+def liveness(node: Node) -> Liveness:
+    """The liveness parameters of ``node`` (:func:`declare_liveness`); a warn limit above the error
+    limit is a :class:`NodeConfigError`."""
     value = node.get_parameter
     try:
         stall = StallLimits(value("stall_warn_after").value, value("stall_error_after").value)
@@ -155,15 +162,21 @@ _KINDS = {
 }
 
 
+#: The note a managed node adds to a parameter it reads at configure (read-only for a plain node;
+#: ``loop_node.ManagedLoopNode``). It says when a value may be set, not which values are allowed.
+CONFIGURE_TIME = "read at configure: settable only while the node is unconfigured"
+
+
 def allowed_values(desc: ParameterDescriptor) -> str:
-    """What ``desc`` allows, in words: its type, its range, its other constraints."""
+    """What ``desc`` allows, in words: its type, its range, its other constraints (not :data:`CONFIGURE_TIME`)."""
     text = _KINDS.get(desc.type, "a value")
     for r in desc.integer_range:
         text += f" in {r.from_value}..{r.to_value}"
     for r in desc.floating_point_range:
         text += f" in {r.from_value:g}..{r.to_value:g}"
-    if desc.additional_constraints:
-        text += f" ({desc.additional_constraints})"
+    constraints = "; ".join(c for c in desc.additional_constraints.split("; ") if c and c != CONFIGURE_TIME)
+    if constraints:
+        text += f" ({constraints})"
     return text
 
 
@@ -182,6 +195,17 @@ def refusal(name: str, value, desc: ParameterDescriptor, reason: str = "") -> st
     return f"{name}: must be {allowed_values(desc)}, got {got}"
 
 
+_START_DEFERRED: contextvars.ContextVar[bool] = contextvars.ContextVar("start_deferred", default=False)
+
+
+@contextmanager
+def deferred_start() -> Iterator[None]:
+    """Nodes built inside leave their :meth:`ParameterNode.start` to the caller."""
+    token = _START_DEFERRED.set(True)
+    try:
+        yield
+    finally:
+        _START_DEFERRED.reset(token)
 
 
 class ParameterNode(Node):
@@ -193,7 +217,9 @@ class ParameterNode(Node):
     The node keeps what it was given (``cli_args``, ``parameter_overrides``) so that
     :func:`check_given_parameters` can tell a parameter given to it by name from one given to
     every node, and declares ``strict_parameters`` (read-only): refuse to start on an undeclared
-    parameter instead of warning.
+    parameter instead of warning. A node whose start can wait for that check (a managed node's
+    autostart) does it in :meth:`start`; built under :func:`deferred_start` (``runtime.run_nodes``)
+    it leaves that to the caller.
     """
 
     def __init__(self, node_name: str, *, cli_args: Sequence[str] | None = None,
@@ -204,11 +230,16 @@ class ParameterNode(Node):
         self.uses_global_arguments = use_global_arguments
         #: undeclared parameters given to this node -> the closest declared name ('' if none)
         self.unknown_parameters: dict[str, str] = {}
+        #: built under :func:`deferred_start`: the caller calls :meth:`start`
+        self.start_deferred = _START_DEFERRED.get()
         super().__init__(node_name, cli_args=cli_args, parameter_overrides=parameter_overrides,
                          use_global_arguments=use_global_arguments, **kwargs)
         self.declare_parameter("strict_parameters", False, descriptor(
             "Refuse to start when a parameter given to this node is not one it declares (default: warn)",
             read_only=True))
+
+    def start(self) -> None:
+        """What the node does once the parameters given to it are checked (nothing here)."""
 
     def declare_parameters(self, namespace, parameters, ignore_override=False):
         """rclpy's ``declare_parameters``, one parameter at a time (rclpy declares them one by one

@@ -25,19 +25,19 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
-from ..core.io.sensors import load_model_file
+from ..core.gate import SetupStages
 from ..core.loop import TUNABLE, PlannerLoop, PlannerOutput, check_params
 from ..core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
-from .loop_node import LoopNode, OneShot
+from .loop_node import ManagedLoopNode, OneShot
 from .messages import MessageError, decode_belief, encode_action, encode_plan_info, wire_limits
 from .params import declare_double, descriptor
 from .qos import STREAM_QOS
-from .runtime import callback, config_errors, main_for
+from .runtime import callback, main_for
 from .take import subscribe
 
 
-class PlannerNode(LoopNode):
-    """Planner node (see module docstring)."""
+class PlannerNode(ManagedLoopNode):
+    """Planner node, a managed node (see module docstring; its lifecycle: :class:`ManagedLoopNode`)."""
 
     task = "planning"
 
@@ -68,15 +68,18 @@ class PlannerNode(LoopNode):
             read_only=True, int_range=(16, 1 << 20)))
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        self.bring_up()
 
+    def configure_loop(self) -> PlannerLoop:
+        """The model, the assumption gate, the bound LP and the planner's tables; the topics."""
         value = self.get_parameter
-        with config_errors():
-            self.model = load_model_file(self.model_file)
-            loop = PlannerLoop(self.model, {name: value(name).value for name in TUNABLE}, self.live, now=self.now(),
-                               refuse=value("refuse_if_assumptions_fail").value,
-                               chunk_bytes=1024 * value("chunk_kib").value, progress=self.get_logger().info)
-        self.action_pub = self.create_publisher(Int64MultiArray, "action", STREAM_QOS)
-        self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
+        stages = SetupStages(self.get_logger().info)
+        model = self.load_model(stages)
+        loop = PlannerLoop(model, {name: value(name).value for name in TUNABLE}, self.live, now=self.now(),
+                           refuse=value("refuse_if_assumptions_fail").value,
+                           chunk_bytes=1024 * value("chunk_kib").value, progress=self.get_logger().info, active=False)
+        self.action_pub = self.create_lifecycle_publisher(Int64MultiArray, "action", STREAM_QOS)
+        self.info_pub = self.create_lifecycle_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         plan_group = MutuallyExclusiveCallbackGroup()
         # Two readers of ``belief``: in the default group ``_on_belief`` decodes, checks and counts
         # each sample into the loop's mailbox (during a search too); in plan_group
@@ -93,15 +96,15 @@ class PlannerNode(LoopNode):
                   callback_group=plan_group)
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=plan_group)
         self._join = OneShot(self, self._plan_trigger.trigger)
-        self.run(loop)
+        return loop
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         reason = check_params({p.name: p.value for p in params})
         return SetParametersResult(successful=not reason, reason=reason)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
-        with self.lock:
-            logs = self.loop.set_params({p.name: p.value for p in params})
+        with self.lock:  # unconfigured: the next configure reads them
+            logs = [] if self.loop is None else self.loop.set_params({p.name: p.value for p in params})
         self.log(logs)
 
     @callback
@@ -128,9 +131,10 @@ class PlannerNode(LoopNode):
     def _plan_next(self) -> None:
         """The planning callback (plan_group): plan the belief in the mailbox, if any."""
         with self.lock:
-            job = self.loop.take(self.now())
+            loop = self.loop  # None after a cleanup
+            job = None if loop is None else loop.take(self.now())
         if job is not None:
-            self.call(self.loop.decided, job, None if job.cached is not None else self.loop.search(job))
+            self.call(loop.decided, job, None if job.cached is not None else loop.search(job))
 
     def emit(self, out: PlannerOutput) -> None:
         for a in out.actions:

@@ -7,9 +7,10 @@ and SIGTERM) with the project's :class:`~.executor.NodeExecutor`. A node that ca
 name the field, i.e. the parameter), an undeclared parameter under ``strict_parameters``
 (:func:`~.params.check_given_parameters`). ``run_nodes`` prints it as one ``[FATAL]`` line, exit
 code 1, and so it does when rcl refuses the command line itself (a parameter file it cannot
-parse, a malformed ``-p``). What the process writes to stderr while starting is held until the
-nodes are built (at most :data:`HOLD_STDERR_SECONDS`): on a refusal, the ``[FATAL]`` line is all
-that is printed.
+parse, a malformed ``-p``). The nodes are built, their parameters checked, then started
+(:meth:`~.params.ParameterNode.start`: a managed node's autostart). What the process writes to
+stderr while starting is held until then (at most :data:`HOLD_STDERR_SECONDS`): on a refusal,
+the ``[FATAL]`` line is all that is printed.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from rclpy.node import Node
 
 from ..core.errors import InputError, short_repr
 from .executor import NodeExecutor, shutdown_executor
-from .params import NodeConfigError, check_given_parameters
+from .params import NodeConfigError, ParameterNode, check_given_parameters, deferred_start
 
 
 @contextmanager
@@ -210,10 +211,14 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
             held.release(keep=False)
             print(f"[FATAL] [pomdp_planner]: {command_line_error(str(exc))}", file=sys.stderr)
             return 1
-        for make in factories:
-            nodes.append(make())
+        with deferred_start():
+            for make in factories:
+                nodes.append(make())
         make = None
         check_given_parameters(nodes, argv)
+        for n in nodes:
+            if isinstance(n, ParameterNode):
+                n.start()
         held.release()
         executor = NodeExecutor()
         for n in nodes:

@@ -10,12 +10,13 @@ decode, call the loop, encode and run the timers, and tests drive the loops by h
 (``test/test_loop_*.py``). Modules: :mod:`.epochs` (window, verdicts, re-sync, jump and join
 evidence, re-send), :mod:`.health` (counters, stall watch, throttled warnings, the report rule),
 :mod:`.writers` (one writer per stream), :mod:`.clock` (ROS time), :mod:`.epoch_buffer` (readings
-in epoch order), one module per loop (:mod:`.adapter_loop` adds its own rules for a sensor's
-readings: values, limits, staleness, ordering, binning, numbering).
+in epoch order), :mod:`.managed` (what a managed node reports without a loop), one module per loop
+(:mod:`.adapter_loop` adds its own rules for a sensor's readings: values, limits, staleness,
+ordering, binning, numbering).
 
 The rules themselves (the epoch window, explained epochs, gaps, jumps, re-sync, joining, one
 writer per stream, bounded samples, time, the mailbox, the decision cache, the epoch buffer,
-re-send, stall levels, the report) are stated once, in one table: docs/ros.md, "The loop's rules";
+re-send, stall levels, inactive, the report) are stated once, in one table: docs/ros.md, "The loop's rules";
 every module here cites its rules by the names of that table, and ``test/test_docs.py`` checks
 that each cited name is a row of it.
 """
@@ -25,14 +26,16 @@ from .epoch_buffer import EpochBuffer, EpochReadings
 from .epochs import DEFAULT_JOIN_TIMEOUT, JOIN_DELAY, EpochLine, JoinWait, Liveness, Resender, classify
 from .filter_loop import BeliefOut, FilterLoop, FilterOutput
 from .health import Level, Log, LoopHealth, Report, StallLimits
+from .managed import LOOP_STATES, state_report
 from .planner_loop import TUNABLE, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
 from .samples import ActionSample, BeliefSample, LikelihoodSample, ObservationSample
 from .target_loop import Readings, TargetLoop, TargetOutput
 
 __all__ = [
-    "DEFAULT_JOIN_TIMEOUT", "INPUT_TYPES", "JOIN_DELAY", "POINT_FIELDS", "TUNABLE", "ActionSample", "AdapterLoop",
-    "AdapterOutput", "BeliefOut", "BeliefSample", "EpochBuffer", "EpochLine", "EpochReadings", "FilterLoop",
-    "FilterOutput", "JoinWait", "Level", "LikelihoodSample", "Liveness", "Log", "LoopHealth", "ObservationBins",
-    "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings", "Report", "Resender",
-    "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify", "point_value",
+    "DEFAULT_JOIN_TIMEOUT", "INPUT_TYPES", "JOIN_DELAY", "LOOP_STATES", "POINT_FIELDS", "TUNABLE", "ActionSample",
+    "AdapterLoop", "AdapterOutput", "BeliefOut", "BeliefSample", "EpochBuffer", "EpochLine", "EpochReadings",
+    "FilterLoop", "FilterOutput", "JoinWait", "Level", "LikelihoodSample", "Liveness", "Log", "LoopHealth",
+    "ObservationBins", "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings",
+    "Report", "Resender", "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify", "point_value",
+    "state_report",
 ]

@@ -65,11 +65,12 @@ class FilterOutput:
 class FilterLoop:
     """The filter's loop for ``model`` with one observation array per sensor (``sensors``, named
     ``topics`` in messages) and one soft-evidence sensor per ``likelihood_topics`` (sensor indices
-    after the observation topics), starting from ``prior`` at epoch 0 at time ``now``."""
+    after the observation topics), starting from ``prior`` at epoch 0 at time ``now``;
+    ``active=False``: starting inactive (rule "Inactive"; :meth:`activate`)."""
 
     def __init__(self, model: POMDP, sensors: Sequence[np.ndarray], prior: np.ndarray, topics: Sequence[str],
                  live: Liveness, *, now: float, epoch_timeout: float = 0.5, max_pending: int = 10,
-                 likelihood_topics: Sequence[str] = ()):
+                 likelihood_topics: Sequence[str] = (), active: bool = True):
         self.model = model
         self.topics = [*topics, *likelihood_topics]
         self.filter = EpochFilter(model, sensors, likelihoods=len(likelihood_topics))
@@ -89,6 +90,31 @@ class FilterLoop:
         self._newest_command = -1
         self._last: BeliefOut | None = None
         self._out: list[BeliefOut] = []
+        self.active = active
+        self._withheld = False  # a belief was made while inactive and not published yet
+
+    # ----------------------------------------------------------- lifecycle
+    def activate(self, now: float) -> FilterOutput:
+        """Publish again (rule "Inactive"): the newest belief at once if one was made
+        while inactive; the input watches count silence from now."""
+        if self.active:
+            return self._result()
+        self.active = True
+        self.health.resume(now)
+        if self._withheld and self._last is not None:
+            self._out.append(self._last)
+            self.resender.published(now)
+        self._withheld = False
+        self.health.log("info", f"activated: publishing from the belief of epoch {self.epoch}")
+        return self._result()
+
+    def deactivate(self, now: float) -> FilterOutput:
+        """Stop publishing; readings are still applied, so no epoch is lost (rule "Inactive")."""
+        if self.active:
+            self.active = False
+            self.health.log("info", f"deactivated at epoch {self.epoch}: readings are still applied, beliefs "
+                            "are not published")
+        return self._result()
 
     # ----------------------------------------------------------- inputs
     def start(self, now: float) -> FilterOutput:
@@ -182,7 +208,7 @@ class FilterLoop:
 
     def watchdog(self, now: float) -> FilterOutput:
         """Re-send the last belief while no new reading answers it; the time-based re-sync rule."""
-        if self.resender.due(now) and self._last is not None:
+        if self.active and self.resender.due(now) and self._last is not None:
             self._out.append(self._last)
             self.resender.resending(now)
             self.health.count("resent_beliefs")
@@ -191,9 +217,10 @@ class FilterLoop:
         return self._result()
 
     def report(self, now: float) -> Report:
+        head = [f"epoch {self.epoch}"] + ([] if self.active else ["inactive: applying readings, not publishing"])
         return self.health.report(now, {"epoch": self.epoch, "entropy": float(SHANNON.value(self.belief)),
                                         "pending_epochs": self.buffer.pending_epochs,
-                                        "started_from": self.started_from}, head=[f"epoch {self.epoch}"])
+                                        "started_from": self.started_from}, head=head, inactive=not self.active)
 
     # ----------------------------------------------------------- rules
     def _out_of_window(self, topic: str, epoch: int, now: float) -> None:
@@ -299,8 +326,12 @@ class FilterLoop:
         return f"{topic} likelihood" if self.filter.soft(sensor) else f"{topic} observation {entry.readings[sensor]}"
 
     def _publish(self, now: float) -> None:
+        """Publish the current belief (withheld while inactive: :meth:`activate` publishes the newest)."""
         self._last = BeliefOut(self.epoch, self.belief, float(SHANNON.value(self.belief)))
-        self._out.append(self._last)
+        if self.active:
+            self._out.append(self._last)
+        else:
+            self._withheld = True
         self.resender.published(now)
 
     def _result(self) -> FilterOutput:

@@ -71,7 +71,9 @@ class InputWatch:
     ``what``: how a new input is called in messages ("action", "reading", "belief").
     ``required=False``: an input the node can do without (the filter's ``action``, only a
     cross-check): it is not reported before it has advanced the node once. ``started``: the
-    time the watch starts (silence is counted from it until the first progress).
+    time the watch starts (silence is counted from it until the first progress). A node that
+    was inactive (rule "Inactive") counts silence from its activation
+    (:meth:`resume`): while it did not act, its inputs may well have stopped because of it.
     """
 
     def __init__(self, name: str, what: str, *, started: float, required: bool = True):
@@ -83,6 +85,7 @@ class InputWatch:
         self.last_epoch: int | None = None
         self.received = 0
         self.idle = 0  # inputs received since the last progress that were not progress
+        self.resumed: float | None = None  # the node's last activation
 
     def arrived(self, now: float, progress: bool, epoch: int | None = None) -> None:
         """One input arrived; ``progress``: it advanced the node (a new epoch)."""
@@ -95,9 +98,15 @@ class InputWatch:
         else:
             self.idle += 1
 
+    def resume(self, now: float) -> None:
+        """The node (re)starts acting at ``now``: silence is counted from here at most."""
+        self.resumed = now
+
     def silent_for(self, now: float) -> float:
-        """Seconds since this input last advanced the node (since start if it never did)."""
-        return now - (self.started if self.last_progress is None else self.last_progress)
+        """Seconds since this input last advanced the node (since start if it never did), or
+        since the node's last activation if that is later."""
+        since = self.started if self.last_progress is None else self.last_progress
+        return now - (since if self.resumed is None else max(since, self.resumed))
 
     def status(self, limits: StallLimits, now: float) -> tuple[Level, str]:
         """Level and message of this input (the message is empty while OK)."""
@@ -206,6 +215,11 @@ class LoopHealth:
             watch.arrived(now, False)
         self.warn(counter, text, now)
 
+    def resume(self, now: float) -> None:
+        """The node is activated at ``now`` (:meth:`InputWatch.resume` of every watch)."""
+        for w in self.watches:
+            w.resume(now)
+
     def watch(self, name: str) -> InputWatch | None:
         """The stall watch of input ``name`` (``None``: a stream without one)."""
         return next((w for w in self.watches if w.name == name), None)
@@ -254,16 +268,17 @@ class LoopHealth:
         return worst(w.status(self.stall, now) for w in self.watches)
 
     def report(self, now: float, values: Mapping[str, object], *, head: Sequence[str] = (), level: Level = Level.OK,
-               stall_note: str = "", idle: str = "") -> Report:
+               stall_note: str = "", idle: str = "", inactive: bool = False) -> Report:
         """The report rule: the level is the highest of ``level``, the inputs' stall level and WARN
         if a problem count grew since the previous report (OK again once they stop); the message
         joins ``head``, the stall messages (followed by ``stall_note``) and the problems since the
         previous report with the last warning, or is ``idle`` if there is nothing to say. The
         values are ``values``, the counts and the watches' values. Each call starts a new "since
-        the previous report"."""
+        the previous report". ``inactive``: the node is inactive (rule "Inactive"):
+        no stall level or message (its inputs may have stopped because of it)."""
         recent = {k: self.counts[k] - n for k, n in self._reported.items() if self.counts[k] > n}
         self._reported = {k: self.counts[k] for k in self.problems}
-        stall, stall_text = self.stalled(now)
+        stall, stall_text = (Level.OK, "") if inactive else self.stalled(now)
         clock_text = "" if self.clock is None else self.clock.status(now)
         writers = [t for t in (w.status() for w in self.writers.values()) if t]
         texts = [*head, *([clock_text] if clock_text else [])]

@@ -27,7 +27,7 @@ import numpy as np
 from ..bounds import check_constant, check_variant
 from ..errors import OptionError
 from ..gate import PlannerSetup, build_planner
-from ..model import POMDP, priority_of
+from ..model import POMDP, format_bytes, priority_of
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
 from .epochs import EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Level, Log, LoopHealth, Report
@@ -130,13 +130,14 @@ class PlannerLoop:
     ``refuse``: if the model fails the structural assumptions, plan nothing (the gate's
     ``on_assumption_failure="refuse"``) instead of searching exhaustively. ``chunk_bytes``: the
     search's chunk size (the deadline is checked between chunks). ``progress``: where the gate
-    announces a set-up that will take a while, as it starts (a log line; the loop's other lines
-    come with its outputs).
+    announces a set-up that will take a while, as it starts, and each stage over a second as it
+    ends (log lines; the loop's other lines come with its outputs). ``active=False``: the loop
+    starts inactive (rule "Inactive"; :meth:`activate`).
     """
 
     def __init__(self, model: POMDP, params: Mapping[str, Any], live: Liveness, *, now: float,
                  refuse: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Callable[[str], None] | None = None, active: bool = True):
         missing = [k for k in TUNABLE if k not in params]
         if missing:
             raise ValueError(f"params: missing {missing}")
@@ -154,6 +155,9 @@ class PlannerLoop:
         bounds_warning = self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
         self.assumptions = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
         self.refusing = self.setup.mode == "refuse"
+        if self.setup.planner is not None:
+            self.setup.planner.check_memory(1, "max_depth")  # refused (one line) if not even depth 1 fits
+        self._depth_caps: dict[int, int] = {}  # max_depth asked -> the deepest within the memory budget
         if bounds_warning is not None:
             self.health.logs.append(bounds_warning)
         if self.refusing:
@@ -175,6 +179,7 @@ class PlannerLoop:
         self.resender = Resender(live.resend_period)
         self.last: SearchResult | None = None
         self.last_params: dict[str, Any] = {}
+        self.active = active
 
     @property
     def mailbox(self) -> BeliefSample | None:
@@ -211,6 +216,35 @@ class PlannerLoop:
         self._planner_key = (variant, constant)
         return warning
 
+    # ----------------------------------------------------------- lifecycle
+    def activate(self, now: float) -> PlannerOutput:
+        """Start planning and publishing (rule "Inactive"): the input watch counts
+        silence from now, the last action is sent again at once if no belief has answered it (it
+        may have been decided while inactive), and the belief in the mailbox is planned."""
+        if self.active:
+            return self._result(now)
+        self.active = True
+        self.health.resume(now)
+        actions = []
+        if self.resender.waiting and self.planning is None and self._last_action is not None:
+            actions.append(self._last_action)
+            self.resender.resending(now)
+            self.health.count("resent_actions")
+        waiting = self._mailbox
+        self.health.log("info", "activated: planning " + (
+            f"the belief of epoch {waiting[0].epoch}" if waiting is not None else "the next belief"))
+        return self._result(now, actions=actions, plan_now=waiting is not None)
+
+    def deactivate(self, now: float) -> PlannerOutput:
+        """Stop planning and publishing; the bounds, the decision cache and the newest belief stay
+        (rule "Inactive"). A search already running finishes; its action is kept
+        and sent at activation if still unanswered."""
+        if self.active:
+            self.active = False
+            self.health.log("info", "deactivated: not planning or publishing; the newest belief is kept for "
+                            "the activation")
+        return self._result(now)
+
     # ----------------------------------------------------------- beliefs
     def start(self, now: float) -> PlannerOutput:
         """The start-up lines (the model, the assumptions, the bounds in force)."""
@@ -239,6 +273,8 @@ class PlannerLoop:
             else:
                 self._stream = max(self._stream, bel.epoch)
                 self.line.clear_evidence()
+                if not self.active:  # the epochs skipped while inactive are never planned for ("Inactive")
+                    self.line.advance(self._mailbox[0].epoch - 1, now)
         elif verdict == "unexplained":
             self.line.off_line(bel.epoch, (bel, now), now)
             due = self.line.resync_due(self.live.stall.warn_after, now, jump_after=0.0)
@@ -256,7 +292,7 @@ class PlannerLoop:
             if verdict == "behind":
                 self.line.off_line(bel.epoch, (bel, now), now)
         resynced = self._resync_if_due(now)
-        return self._result(now, plan_now=self._mailbox is not None and (resynced or planner_ahead))
+        return self._result(now, plan_now=self.active and self._mailbox is not None and (resynced or planner_ahead))
 
     def rejected_belief(self, problem: str, now: float) -> PlannerOutput:
         self.health.reject(self.health.watches[0], "bad_beliefs", f"ignored {problem}; no action published", now)
@@ -280,7 +316,9 @@ class PlannerLoop:
 
     # ----------------------------------------------------------- planning
     def take(self, now: float) -> PlanJob | None:
-        """The belief to plan now, if any (``None`` while joining, refusing or with nothing new)."""
+        """The belief to plan now, if any (``None`` while inactive, joining, refusing or with nothing new)."""
+        if not self.active:
+            return None
         if self.line.position is None and not self._join.settled(now):
             return None  # joining: the node calls again at join_at
         taken, self._mailbox = self._mailbox, None
@@ -304,13 +342,22 @@ class PlannerLoop:
         return bool(params["use_bounds"]) and self.setup.pruning
 
     def search(self, job: PlanJob) -> Searched:
-        """Plan ``job`` (not under the node's lock: only the planning side calls it)."""
+        """Plan ``job`` (not under the node's lock: only the planning side calls it). ``max_depth``
+        is capped at the deepest depth within the planner's memory budget (a warning the first
+        time a value is capped), as for every anytime search (``core/policies.py``)."""
         p = job.params
-        warning = self._ensure_planner(p["bound_variant"], p["bound_constant"])
+        logs = [w for w in (self._ensure_planner(p["bound_variant"], p["bound_constant"]),) if w is not None]
         use_bounds = self._use_bounds(p)
-        result = self.setup.planner.plan(job.belief, max_depth=p["max_depth"], time_budget=p["time_budget"],
-                                         use_bounds=use_bounds)
-        return Searched(result, use_bounds, use_bounds and self.setup.guaranteed, () if warning is None else (warning,))
+        planner = self.setup.planner
+        depth = p["max_depth"]
+        fits = self._depth_caps.get(depth)
+        if fits is None:
+            fits = self._depth_caps[depth] = planner.deepest_depth_within_budget(depth)
+            if fits < depth:
+                logs.append(Log("warning", f"max_depth capped at {fits} (asked {depth}): a deeper search needs more "
+                                f"than the planner's memory budget of {format_bytes(planner.memory_budget)}"))
+        result = planner.plan(job.belief, max_depth=fits, time_budget=p["time_budget"], use_bounds=use_bounds)
+        return Searched(result, use_bounds, use_bounds and self.setup.guaranteed, tuple(logs))
 
     def decided(self, job: PlanJob, searched: Searched | None, now: float) -> PlannerOutput:
         """The answer to ``job``: its cached action (``searched is None``) or the new decision."""
@@ -337,6 +384,8 @@ class PlannerLoop:
             self.health.warn("deadline_misses", f"epoch {action.epoch}: decision took {latency * 1e3:.1f} ms "
                              f"(budget {p['time_budget'] * 1e3:.0f} ms)", now, log=False)
         out = self._send(action, now)
+        if not self.active:
+            return out
         out.plan_info = PlanInfo(
             epoch=action.epoch, action_priority=action.priority, depth=int(r.depth),
             nodes_expanded=int(sum(r.nodes_expanded)), pruned_percent=float(r.percent_pruned[-1]) if r.percent_pruned
@@ -345,19 +394,20 @@ class PlannerLoop:
         return out
 
     def _send(self, action: ActionSample, now: float) -> PlannerOutput:
+        """Publish ``action`` (kept, unpublished, while inactive: :meth:`activate` sends it)."""
         self._last_action = action
         self.resender.published(now)
-        return self._result(now, actions=[action])
+        return self._result(now, actions=[action] if self.active else [])
 
     def watchdog(self, now: float) -> PlannerOutput:
         """Re-send the last action while the belief it leads to has not come; the time-based re-sync."""
         actions = []
-        if self.resender.due(now) and self.planning is None and self._last_action is not None:
+        if self.active and self.resender.due(now) and self.planning is None and self._last_action is not None:
             actions.append(self._last_action)
             self.resender.resending(now)
             self.health.count("resent_actions")
         self._resync_if_due(now)
-        return self._result(now, actions=actions, plan_now=self._mailbox is not None)
+        return self._result(now, actions=actions, plan_now=self.active and self._mailbox is not None)
 
     def _result(self, now: float, **kw) -> PlannerOutput:
         join_at = self._join.wake_at(now) if self.line.position is None else None
@@ -381,7 +431,10 @@ class PlannerLoop:
         else:
             idle = f"depth {r.depth}, exhaustive search"
         head = [] if self.assumptions.holds else ["assumptions fail: exhaustive search"]
-        report = self.health.report(now, values, head=head, idle=idle,
+        if not self.active:
+            head.insert(0, "inactive: not planning or publishing" + (
+                f" (newest belief: epoch {self._mailbox[0].epoch})" if self._mailbox is not None else ""))
+        report = self.health.report(now, values, head=head, idle=idle, inactive=not self.active,
                                     level=Level.OK if self.assumptions.holds else Level.WARN)
         values = report.values
         if not setup.guaranteed:
