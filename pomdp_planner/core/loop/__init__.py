@@ -1,8 +1,9 @@
 """The rules of the node loop, without ROS: simulator -> observation -> filter -> belief -> planner
 -> action -> simulator.
 
-Each loop (:class:`TargetLoop`, :class:`FilterLoop`, :class:`PlannerLoop`, and :class:`AdapterLoop`
-between a real sensor and the filter) takes decoded inputs
+Each loop (:class:`TargetLoop`, :class:`FilterLoop`, :class:`PlannerLoop`, :class:`AdapterLoop`
+between a real sensor and the filter, and :class:`ManagerLoop`, the planner of K targets under one
+effort budget) takes decoded inputs
 (:mod:`.samples`) and the current time (``now``, seconds on a monotonic clock, passed in by the
 caller) and returns what to publish, what to log and, on request, what to report (small result
 dataclasses). No loop imports rclpy, starts a thread or reads a clock: the nodes (``nodes/``)
@@ -10,7 +11,9 @@ decode, call the loop, encode and run the timers, and tests drive the loops by h
 (``test/test_loop_*.py``). Modules: :mod:`.epochs` (window, verdicts, re-sync and join evidence,
 re-send), :mod:`.health` (counters, stall watch, throttled warnings, the report rule),
 :mod:`.epoch_buffer` (readings in epoch order), one module per loop (:mod:`.adapter_loop` has
-its own table: values, limits, staleness, ordering, binning, numbering).
+its own table: values, limits, staleness, ordering, binning, numbering; :mod:`.manager_loop` its
+own for the joint decision: pairing, the actions in force, the budget, when to decide, silent
+targets).
 
 =====================  ====================================================================
 rule                   what it says
@@ -72,6 +75,7 @@ from .epoch_buffer import EpochBuffer, EpochReadings
 from .epochs import DEFAULT_JOIN_TIMEOUT, JOIN_DELAY, EpochLine, JoinWait, Liveness, Resender, classify
 from .filter_loop import BeliefOut, FilterLoop, FilterOutput
 from .health import Level, Log, LoopHealth, Report, StallLimits
+from .manager_loop import Allocation, JointJob, ManagerLoop, ManagerOutput
 from .planner_loop import TUNABLE, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
 from .samples import ActionSample, BeliefSample, LikelihoodSample, ObservationSample
 from .target_loop import Readings, TargetLoop, TargetOutput
@@ -83,3 +87,4 @@ __all__ = [
     "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings", "Report", "Resender",
     "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify", "point_value",
 ]
+__all__ += ["Allocation", "JointJob", "ManagerLoop", "ManagerOutput"]
