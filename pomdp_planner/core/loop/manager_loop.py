@@ -488,15 +488,15 @@ class ManagerLoop:
                                                         f"priority {a.priority} (epoch {a.epoch})"))
         d, job = self.last, self.last_job
         if job is None:
-            idle = "waiting for beliefs"
+            head = []
         else:
             label = "bound" if d is not None and d.bound_guaranteed else "estimate, not a bound"
-            idle = f"decision {self.last_info['decision']}: {len(job.beliefs)} of {p.K} targets decided"
+            summary = f"decision {self.last_info['decision']}: {len(job.beliefs)} of {p.K} targets decided"
             if d is not None:
-                idle += (f" at depth {d.depth}, lambda {d.lam:.4g}, dual bound {d.dual_bound:.4g}, gap {d.gap:.4g} "
-                         f"({label})")
-            idle += f"; effort in force {format_effort(effort)}/{format_effort(p.budget)}"
-        report = self.health.report(now, values, idle=idle,
+                summary += (f" at depth {d.depth}, lambda {d.lam:.4g}, dual bound {d.dual_bound:.4g}, "
+                            f"gap {d.gap:.4g} ({label})")
+            head = [summary + f", effort in force {format_effort(effort)}/{format_effort(p.budget)}"]
+        report = self.health.report(now, values, head=head, idle="waiting for beliefs",
                                     stall_note="" if not silent else "; " + "; ".join(silent))
         values = report.values
         if job is not None:
