@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -25,7 +26,8 @@ from rclpy.executors import SingleThreadedExecutor
 
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.nodes.processes import node_command, stop_nodes
+from pomdp_planner.core.simulate import simulate
+from pomdp_planner.nodes.processes import node_command, parameter_set_model, parameter_set_values, stop_nodes
 
 S3_MODEL = load_model(REPO / "config" / "models" / "tracking_s3_info.yaml")
 SHM = Path("/dev/shm")
@@ -139,24 +141,67 @@ def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
         np.testing.assert_allclose(beliefs[t], b, rtol=1e-9, atol=1e-12)
 
 
-@pytest.mark.parametrize("model", ["s3", "perimeter_s8"])
-def test_demo_runs_and_exits_cleanly(domain, model):
-    """``make demo`` in small: three processes, the table (with the greedy action beside the
-    planner's), the summary, exit code 0; on the paper's S = 3 model and on the perimeter model of
-    the README's node-loop example (its own parameter files, ``config/<node>_perimeter_s8.yaml``)."""
-    proc = subprocess.run([sys.executable, "-m", "pomdp_planner.nodes.demo", "--steps", "5", "--model", model,
-                           "--time-budget", "0.02", "--domain-id", str(domain)],
-                          capture_output=True, text=True, timeout=90, cwd=REPO)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+#: A row of the demo's table; bounds, depth, certified and latency are ``-`` for a decision whose
+#: plan_info the monitor missed (it discovered the planner late).
+ROW = re.compile(r"^\s*(\d+)\s+(\d+)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)\s+(?:\[(\d+), (\d+)\]|-)\s+(\d+)"
+                 r"\s+(\d+|-)\s+(yes|no|-)\s+([\d.]+|-)$")
+
+
+@pytest.mark.parametrize(("model", "keep"), [("s3", True), ("perimeter_s8", False)])
+def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
+    """``make demo`` in small: three processes, a legend, the table (with the root bound interval
+    beside the planner's action and the greedy action), the summary with the planner's discounted
+    return beside greedy's, exit code 0; on the paper's S = 3 model and on the perimeter model of
+    the README's node-loop example (its own parameter files, ``config/<node>_perimeter_s8.yaml``).
+    The node logs' temporary directory is removed, unless ``--keep-logs`` (then it holds the three
+    logs and the last line says where)."""
+    steps = 5
+    proc = subprocess.run([sys.executable, "-m", "pomdp_planner.nodes.demo", "--steps", str(steps), "--model", model,
+                           "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else [])],
+                          capture_output=True, text=True, timeout=90, cwd=REPO,
+                          env={**os.environ, "TMPDIR": str(tmp_path)})
+    logs = "".join(f"\n--- {log.name}\n{log.read_text(errors='replace')[-3000:]}"
+                   for log in sorted(tmp_path.glob("pomdp_planner_demo_*/*.log")))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
     lines = proc.stdout.splitlines()
-    name = "tracking_s3_info" if model == "s3" else model
-    assert lines[0].startswith(f"pomdp_planner demo: {name}: S=")
+    m = load_model(parameter_set_model(model))
+    assert lines[0].startswith(f"pomdp_planner demo: {m.name}: S=")
+    assert lines[1].startswith(f"legend: action, bounds, greedy: priorities 1..{m.A}")
+    assert any("certified yes: the bounds agree" in line for line in lines[1:6])
     header = next(i for i, line in enumerate(lines) if line.split()[:2] == ["step", "true"])
-    assert lines[header].split()[5:7] == ["action", "greedy"]
-    rows = [line.split() for line in lines[header + 2: header + 7]]
-    assert [int(r[0]) for r in rows] == [0, 1, 2, 3, 4]
-    assert all(1 <= int(r[5]) <= 3 and 1 <= int(r[6]) <= 3 for r in rows)
-    assert "summary over 5 steps: mean reward" in proc.stdout and "other than greedy's on" in proc.stdout
+    assert lines[header].split()[5:8] == ["action", "bounds", "greedy"]
+    body = [line for line in lines[header + 2:] if not line.startswith("(the monitor matched the nodes late")]
+    rows = [ROW.match(line) for line in body[:steps]]
+    assert all(rows), body[:steps]
+    rows = [r.groups() for r in rows]
+    first = int(rows[0][0])  # 0 unless the monitor matched the nodes late (then it says so)
+    assert [int(r[0]) for r in rows] == list(range(first, first + steps))
+    certified = decisions = 0
+    for r in rows:
+        action, greedy = int(r[5]), int(r[8])
+        assert 1 <= action <= m.A and 1 <= greedy <= m.A
+        if r[10] != "-":
+            lower, upper = int(r[6]), int(r[7])
+            assert 1 <= lower <= action <= upper <= m.A  # B&B picks among the priorities the bounds leave
+            assert (r[10] == "yes") == (lower == upper)  # certified exactly when they agree (guaranteed bounds)
+            certified += r[10] == "yes"
+            decisions += 1
+    assert decisions >= 1
+    assert f"summary over {steps} steps: mean reward" in proc.stdout and "other than greedy's on" in proc.stdout
+    assert f"certified {certified} of {decisions} decisions shown" in proc.stdout
+    # greedy's discounted return: the core's simulation from the simulator's seed, computed here again
+    seed = parameter_set_values(model, "target_simulator")["seed"]
+    greedy_return = simulate(m, "myopic", steps, seed=seed).discounted_return
+    line = next(line for line in lines if line.startswith(f"discounted return over {steps} steps"))
+    assert f"from seed {seed}" in line and line.endswith(f", greedy {greedy_return:.4f}"), line
+    assert re.search(r"planner -?\d+\.\d{4}, greedy", line)
+    left = list(tmp_path.glob("pomdp_planner_demo_*"))
+    if keep:
+        assert len(left) == 1 and lines[-1] == f"node logs kept in {left[0]}"
+        assert sorted(p.name for p in left[0].iterdir()) == ["belief_filter.log", "planner.log",
+                                                              "target_simulator.log"]
+    else:
+        assert left == [] and "node logs" not in proc.stdout
     assert "Traceback" not in proc.stderr
 
 

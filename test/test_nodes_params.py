@@ -24,7 +24,7 @@ from pomdp_planner.core.bounds import BOUND_CONSTANTS, DEFAULT_CONSTANT, sample_
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.measurement_adapter import MeasurementAdapter
-from pomdp_planner.nodes.messages import encode_belief
+from pomdp_planner.nodes.messages import decode_plan_info, encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.processes import PARAMETER_SETS, node_parameters, parameter_set_model
 from pomdp_planner.nodes.qos import LATCHED_QOS
@@ -287,3 +287,36 @@ def test_bound_constant_set_at_run_time_re_solves_the_bounds_for_the_next_decisi
     (res,) = _set(client, bound_constant="mlr")
     assert res.successful, res.reason
     decision(2, "mlr", True)
+
+
+def test_plan_info_carries_the_root_bounds_as_priorities(harness):
+    """``plan_info.bound_lower``, ``bound_upper``: the myopic bounds at the planned belief, as
+    priorities, equal to the bounds solved here independently of the planner (``solve_bounds``);
+    ``certified`` exactly when they agree; NaN when the decision used no bounds (``use_bounds``
+    false)."""
+    h = harness
+    path = str(REPO / "config" / "models" / "perimeter_s8.yaml")
+    model = load_model(path)
+    B = sample_beliefs(model, 200, seed=3)
+    lo, up = solve_bounds(model).myopic.actions(B)
+    picks = [int(np.flatnonzero(lo == up)[0]), int(np.flatnonzero(lo < up)[0])]  # one agreeing, one not
+    h.add(PlannerNode(context=h.context, parameter_overrides=[
+        Parameter("model_file", value=path), Parameter("time_budget", value=0.05), Parameter("max_depth", value=2)]))
+    rec = h.recorder()
+    infos = []
+    rec.create_subscription(Float64MultiArray, "plan_info", lambda msg: infos.append(decode_plan_info(msg)), 10)
+    pub = rec.create_publisher(Float64MultiArray, "belief", LATCHED_QOS)
+    client = AsyncParameterClient(rec, "planner")
+    h.start()
+    assert client.wait_for_services(timeout_sec=10.0)
+    for epoch, i in enumerate(picks):
+        pub.publish(encode_belief(epoch, B[i]))
+        assert h.wait_until(lambda n=epoch + 1: len(infos) >= n, timeout=15)
+        info = infos[epoch]
+        assert (info["bound_lower"], info["bound_upper"]) == (lo[i] + 1, up[i] + 1)
+        assert info["certified"] == float(lo[i] == up[i])
+    (res,) = _set(client, use_bounds=False)
+    assert res.successful
+    pub.publish(encode_belief(len(picks), B[picks[1]]))
+    assert h.wait_until(lambda: len(infos) > len(picks), timeout=15)
+    assert np.isnan(infos[-1]["bound_lower"]) and np.isnan(infos[-1]["bound_upper"])

@@ -1,23 +1,31 @@
 """``make demo``: the three nodes as three processes, a live per-step table, a summary, a clean exit.
 
-``python -m pomdp_planner.nodes.demo [--steps 30] [--model perimeter_s8] [--time-budget 0.1]`` starts
-``target_simulator``, ``belief_filter`` and ``planner`` as separate processes (the installed
-console scripts next to this Python if present, as ``ros2 run`` would start them, else
-``python -m pomdp_planner.nodes.<name>``) with ``config/<node>_<model>.yaml``, on this machine only
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and a ROS domain of its own (``ROS_DOMAIN_ID``,
-random unless ``--domain-id``). ``--model`` is one of the shipped parameter sets
-(``processes.PARAMETER_SETS``): ``s3``, ``s8`` (the paper's tracking models) or ``perimeter_s3``,
-``perimeter_s8`` (issue 12: greedy loses there and lookahead pays; the default, what ``make demo``
-runs, because there the planner searches and differs from greedy). A monitor node prints one row
-per decision epoch: step, true state, belief mode and Shannon entropy (nats), the action chosen
-from that belief, the greedy action ``argmax_a rho(b, a)`` at the same belief (the core's
-``myopic`` policy), depth reached, certified, decision latency. After ``--steps`` epochs it sends
-SIGINT to the three processes, waits for them, and prints the mean reward
-``r(s_t, a_t) - w_a f(b_t)`` (true state, the model's uncertainty function), the mean entropy, on
-how many steps the planner chose other than greedy, and the deadline misses among the decisions
-shown (each decision's ``plan_info.deadline_miss``: the planner's rule, latency >
-``time_budget + deadline_slack``).
-Exit code 0 if all three processes exited cleanly (code 0, no traceback).
+``python -m pomdp_planner.nodes.demo [--steps 30] [--model perimeter_s8] [--time-budget 0.1]
+[--keep-logs]`` starts ``target_simulator``, ``belief_filter`` and ``planner`` as separate
+processes (the installed console scripts next to this Python if present, as ``ros2 run`` would
+start them, else ``python -m pomdp_planner.nodes.<name>``) with ``config/<node>_<model>.yaml``, on
+this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and a ROS domain of its own
+(``ROS_DOMAIN_ID``, random unless ``--domain-id``). ``--model`` is one of the shipped parameter
+sets (``processes.PARAMETER_SETS``): ``s3``, ``s8`` (the paper's tracking models) or
+``perimeter_s3``, ``perimeter_s8`` (greedy loses there and lookahead pays; the default, what
+``make demo`` runs, because there the planner searches and differs from greedy).
+
+A legend says what the columns mean on the model (its priorities, the bounds, "certified"). A
+monitor node prints one row per decision epoch: step, true state, belief mode and Shannon entropy
+(nats), the action chosen from that belief, the root bound interval ``[lower, upper]`` of that
+decision (the myopic policy bounds, Theorem 2, from ``plan_info``), the greedy action
+``argmax_a rho(b, a)`` at the same belief (the core's ``myopic`` policy), depth reached,
+certified (the bounds agree: Proposition 1), decision latency. After ``--steps`` epochs it sends
+SIGINT to the three processes, waits for them, and prints the mean reward ``r(s_t, a_t) - w_a
+f(b_t)`` (true state, the model's uncertainty function), the mean entropy, on how many steps the
+planner chose other than greedy, the deadline misses among the decisions shown (each decision's
+``plan_info.deadline_miss``: the planner's rule, latency > ``time_budget + deadline_slack``), how
+many decisions were certified, and the discounted return ``sum_t gamma^t rho(b_t, a_t)`` of the
+planner's policy (the core's ``bnb`` with the planner's parameters) beside greedy's over as many
+steps, both simulated by the core (``core.simulate``) from the simulator's seed, so with the same
+random numbers. The nodes' logs go to a temporary directory, removed at the end unless
+``--keep-logs`` (which prints where they are). Exit code 0 if all three processes exited cleanly
+(code 0, no traceback).
 
 The demo runs the loop free (``step_period`` 0, whatever the parameter files say: each action
 steps the simulator at once, so each row pairs a belief with the action chosen from it), hundreds
@@ -33,8 +41,10 @@ at the first complete one and says so (no hang).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import random
+import shutil
 import sys
 import tempfile
 import time
@@ -47,10 +57,12 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.io.model_yaml import load_model
-from ..core.policies import MyopicPolicy
+from ..core.model import POMDP
+from ..core.policies import MyopicPolicy, make_policy
+from ..core.simulate import simulate
 from ..core.uncertainty import SHANNON
 from .messages import decode_belief, decode_observation, decode_plan_info, decode_true_state
-from .processes import PARAMETER_SETS, parameter_set_model, ros_env, start_nodes, stop_nodes
+from .processes import PARAMETER_SETS, parameter_set_model, parameter_set_values, ros_env, start_nodes, stop_nodes
 from .qos import RECORDER_QOS
 
 
@@ -122,25 +134,73 @@ class Monitor:
         self.context.try_shutdown()
 
 
-def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, out=sys.stdout) -> int:
+def legend(model: POMDP, time_budget: float, max_depth: int) -> list[str]:
+    """The lines before the table that say what its columns mean on ``model``."""
+    names = model.action_names
+    meaning = (", ".join(f"{k + 1} = {n}" for k, n in enumerate(names)) if names
+               else model.metadata.get("description", ""))
+    return [
+        f"legend: action, bounds, greedy: priorities 1..{model.A}, the model's actions (1 = the greatest priority"
+        f"{'; ' + meaning if meaning else ''})",
+        "        bounds [lower, upper]: the myopic policy bounds at the belief (Theorem 2); the optimal action lies "
+        "in between",
+        "        certified yes: the bounds agree, so the action is optimal (Proposition 1) and the search stops at "
+        "depth 1;",
+        f"        no: they differ at this belief, so the planner searches the priorities in [lower, upper] to "
+        f"depth {max_depth} in {time_budget:g} s",
+    ]
+
+
+def compare_with_greedy(model: POMDP, planner: dict, steps: int, seed: int) -> str:
+    """The discounted return of the planner (the core's policy with the planner node's settings)
+    beside greedy's, both simulated by the core (``core.simulate``) from ``seed``: the same random
+    numbers for both."""
+    policy = make_policy("bnb" if planner["use_bounds"] else "exhaustive", model, time_budget=planner["time_budget"],
+                         max_depth=planner["max_depth"],
+                         **({"variant": planner["bound_variant"], "constant": planner["bound_constant"]}
+                            if planner["use_bounds"] else {}))
+    ours = simulate(model, policy, steps, seed=seed).discounted_return
+    greedy = simulate(model, "myopic", steps, seed=seed).discounted_return
+    return (f"discounted return over {steps} steps, simulated by the core from seed {seed} (the same random numbers "
+            f"for both; one run, not an average): planner {ours:.4f}, greedy {greedy:.4f}")
+
+
+def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, keep_logs: bool = False,
+        out=sys.stdout) -> int:
+    """Run the demo (module docstring); node logs go to a temporary directory, removed at the end
+    unless ``keep_logs``."""
+    log_dir = Path(tempfile.mkdtemp(prefix="pomdp_planner_demo_"))
+    try:
+        return _run(steps, model_key, time_budget, domain_id, log_dir, keep_logs, out)
+    finally:
+        if keep_logs:
+            print(f"node logs kept in {log_dir}", file=out)
+        else:
+            shutil.rmtree(log_dir, ignore_errors=True)
+
+
+def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, log_dir: Path,
+         keep_logs: bool, out) -> int:
     domain_id = random.randint(1, 101) if domain_id is None else domain_id
     os.environ.update(ros_env(domain_id))
     model_path = parameter_set_model(model_key)
+    planner_params = dict(parameter_set_values(model_key, "planner"))
     # free running (step_period 0: one step per decision, so each row pairs a belief with the action
     # chosen from it); min_subscribers 2: the first step waits for the filter and this monitor (docstring)
     extra = {"target_simulator": ["-p", "step_period:=0.0", "-p", "min_subscribers:=2"]}
     if time_budget is not None:
         extra["planner"] = ["-p", f"time_budget:={time_budget}"]
-    log_dir = Path(tempfile.mkdtemp(prefix="pomdp_planner_demo_"))
+        planner_params["time_budget"] = time_budget
     monitor = Monitor(model_path)
     model = monitor.model
     greedy = MyopicPolicy(model)
     print(f"pomdp_planner demo: {model.describe()}; three processes on ROS_DOMAIN_ID={domain_id} "
-          f"(localhost only); logs in {log_dir}", file=out)
-    header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'greedy':>6} " \
-             f"{'depth':>5} {'certified':>9} {'latency ms':>10}"
+          f"(localhost only){f'; node logs in {log_dir}' if keep_logs else ''}", file=out)
+    header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'bounds':>8} " \
+             f"{'greedy':>6} {'depth':>5} {'certified':>9} {'latency ms':>10}"
     rewards, entropies = [], []
-    not_greedy = 0
+    not_greedy = certified = 0
+    widths: list[int] = []
     misses = decisions = 0
     t = 0
     code = 0
@@ -154,6 +214,8 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
             deadline = time.monotonic() + 30.0
             while not ready() and time.monotonic() < deadline and procs[name][0].poll() is None:
                 monitor.spin_once()
+        for line in legend(model, planner_params["time_budget"], planner_params["max_depth"]):
+            print(line, file=out)
         print(header, file=out)
         print("-" * len(header), file=out)
         last_progress = time.monotonic()
@@ -172,6 +234,7 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
                 h = float(SHANNON.value(b))
                 rewards.append(float(model.r[s, a] - model.w[a] * model.uncertainty.value(b)))
                 entropies.append(h)
+                bounds = "-"
                 if info is None:  # plan_info not received (the monitor discovered the planner late)
                     extra_cols = f"{'-':>5} {'-':>9} {'-':>10}"
                 else:
@@ -179,10 +242,15 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
                                   f"{1e3 * info['latency']:>10.1f}")
                     decisions += 1
                     misses += bool(info["deadline_miss"])
+                    certified += bool(info["certified"])
+                    if math.isfinite(info["bound_lower"]):
+                        lo, up = int(info["bound_lower"]), int(info["bound_upper"])
+                        bounds = f"[{lo}, {up}]"
+                        widths.append(up - lo + 1)
                 g = greedy.act(b)
                 not_greedy += g != a
-                print(f"{t:>4} {s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} {g + 1:>6} {extra_cols}",
-                      file=out, flush=True)
+                print(f"{t:>4} {s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} {bounds:>8} {g + 1:>6} "
+                      f"{extra_cols}", file=out, flush=True)
                 t += 1
                 last_progress = time.monotonic()
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
@@ -200,15 +268,22 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
         text = procs[name][1].read_text(errors="replace")
         if c != 0 or "Traceback" in text:
             code = code or 1
-            print(f"demo: {name} exited with code {c}; last lines of {procs[name][1]}:", file=sys.stderr)
+            print(f"demo: {name} exited with code {c}; last lines of its log:", file=sys.stderr)
             print("\n".join(text.splitlines()[-15:]), file=sys.stderr)
     if rewards:
+        open_ = sorted({w for w in widths if w > 1})
+        open_ = (f"; where not, the bounds left {' or '.join(map(str, open_))} of the {model.A} priorities open"
+                 if open_ else "")
         print(f"\nsummary over {len(rewards)} steps: mean reward {sum(rewards) / len(rewards):.4f}, "
               f"mean entropy {sum(entropies) / len(entropies):.4f} nats, action other than greedy's on "
               f"{not_greedy} of {len(rewards)} steps, deadline misses "
               f"{misses} of {decisions} decisions shown (the planner's rule: latency > time_budget + "
               f"deadline_slack); "
               f"exit codes {codes}", file=out)
+        print(f"certified {certified} of {decisions} decisions shown (the bounds agreed){open_}", file=out)
+        if code == 0:
+            seed = parameter_set_values(model_key, "target_simulator")["seed"]
+            print(compare_with_greedy(model, planner_params, len(rewards), seed), file=out)
     return code
 
 
@@ -220,10 +295,12 @@ def main(argv=None) -> int:
                              "models), perimeter_s3, perimeter_s8 (models where lookahead pays; the default)")
     parser.add_argument("--time-budget", type=float, default=None, help="planner time_budget override (s)")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: random 1..101)")
+    parser.add_argument("--keep-logs", action="store_true",
+                        help="keep the nodes' log files (printed at the end; default: removed with their directory)")
     args = parser.parse_args(argv)
     if args.steps < 1:
         parser.error("--steps: must be at least 1")
-    return run(args.steps, args.model, args.time_budget, args.domain_id)
+    return run(args.steps, args.model, args.time_budget, args.domain_id, args.keep_logs)
 
 
 if __name__ == "__main__":

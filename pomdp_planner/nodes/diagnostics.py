@@ -7,6 +7,7 @@ from __future__ import annotations
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ..core.loop import Level
+from .params import unknown_text
 
 LEVELS = {Level.OK: DiagnosticStatus.OK, Level.WARN: DiagnosticStatus.WARN, Level.ERROR: DiagnosticStatus.ERROR}
 
@@ -21,7 +22,12 @@ def status(name: str, hardware_id: str, level: bytes | Level, message: str, valu
 
 
 def array(node, st: DiagnosticStatus) -> DiagnosticArray:
-    """A ``DiagnosticArray`` with ``node``'s clock stamp holding the one status ``st``."""
+    """A ``DiagnosticArray`` with ``node``'s clock stamp holding the one status ``st``, to which the
+    parameters given to ``node`` that it does not declare are added (``unknown_parameters``, as
+    found by ``params.check_given_parameters``; ``none`` if there are none)."""
+    unknown = getattr(node, "unknown_parameters", None)
+    if unknown is not None:
+        st.values.append(KeyValue(key="unknown_parameters", value=unknown_text(unknown)))
     msg = DiagnosticArray()
     msg.header.stamp = node.get_clock().now().to_msg()
     msg.status = [st]

@@ -16,7 +16,7 @@ from std_msgs.msg import Int64MultiArray
 from ..core.loop import Log
 from .diagnostics import array, status
 from .messages import MessageError, decode_action
-from .params import accept_integers_for_doubles, declare_liveness, declare_model_file
+from .params import ParameterNode, accept_integers_for_doubles, declare_liveness, declare_model_file
 from .runtime import callback
 
 
@@ -50,7 +50,7 @@ class OneShot:
             self._fire()
 
 
-class LoopNode(Node):
+class LoopNode(ParameterNode):
     """Base of the loop nodes; a subclass builds its loop, then calls :meth:`run`, and publishes
     each of the loop's outputs in :meth:`emit`. ``task`` names the diagnostics status."""
 

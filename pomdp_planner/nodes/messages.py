@@ -33,11 +33,16 @@ decision epoch it belongs to, and every observation carries the action it was ta
 
 * **plan_info** (``std_msgs/Float64MultiArray``), one record per decision, published right after
   the action: data ``[epoch, action_priority, depth, nodes_expanded, pruned_percent, certified,
-  time_used, latency, deadline_hit, deadline_miss]`` with one dimension labelled with these
-  names (comma separated). ``nodes_expanded`` sums all completed depths, ``pruned_percent`` is
-  that of the deepest one, ``time_used`` is the search time and ``latency`` belief-in to
-  action-out (s); ``deadline_hit`` (1/0): the budget limited the depth; ``deadline_miss`` (1/0):
-  the planner's rule, ``latency > time_budget + deadline_slack`` with the parameters in force.
+  time_used, latency, deadline_hit, deadline_miss, bound_lower, bound_upper]`` with one dimension
+  labelled with these names (comma separated). ``nodes_expanded`` sums all completed depths,
+  ``pruned_percent`` is that of the deepest one, ``time_used`` is the search time and ``latency``
+  belief-in to action-out (s); ``deadline_hit`` (1/0): the budget limited the depth;
+  ``deadline_miss`` (1/0): the planner's rule, ``latency > time_budget + deadline_slack`` with the
+  parameters in force. ``bound_lower``, ``bound_upper``: the myopic policy bounds at the belief
+  (Theorem 2), as priorities: the optimal priority lies in ``[bound_lower, bound_upper]``, and
+  ``certified`` is 1 exactly when they agree (Proposition 1); ``NaN`` when the decision used no
+  guaranteed bounds (``use_bounds`` false, or the model fails the assumptions). The record is
+  ``core.loop.PlanInfo``.
 
 Decoders raise :class:`MessageError` with a message that names the field and the problem. They
 bound what they accept before converting anything: epochs are ``0..MAX_EPOCH`` (so that
@@ -63,7 +68,7 @@ OBSERVATION_LABEL = "epoch,action_priority,observation"
 TRUE_STATE_LABEL = "epoch,state"
 BELIEF_STATE_LABEL = "state"
 PLAN_INFO_FIELDS = ("epoch", "action_priority", "depth", "nodes_expanded", "pruned_percent", "certified",
-                    "time_used", "latency", "deadline_hit", "deadline_miss")
+                    "time_used", "latency", "deadline_hit", "deadline_miss", "bound_lower", "bound_upper")
 PLAN_INFO_LABEL = ",".join(PLAN_INFO_FIELDS)
 #: Largest epoch a message may carry (10^18 - 1 < 2^63 - 1, the int64 range, with room for + 1).
 MAX_EPOCH = 10**18 - 1

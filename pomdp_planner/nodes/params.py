@@ -1,30 +1,39 @@
 """Parameter declarations shared by the nodes: descriptors (types and ranges, enforced by rclpy at
 declare and at set time), the model file parameter, optional array parameters, the liveness
-parameters of every node, and integers accepted for floating-point parameters."""
+parameters of every node, integers accepted for floating-point parameters, and the start-up rules
+of :class:`ParameterNode` (every node's base): a parameter refused at start-up is one line
+(:class:`NodeConfigError`), a parameter given to a node that it does not declare is reported
+(:func:`check_given_parameters`)."""
 
 from __future__ import annotations
 
+import difflib
+import re
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import yaml
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from ..core.errors import short_repr
 from ..core.loop import Liveness, StallLimits
 from ..core.loop.epochs import DEFAULT_EPOCH_WINDOW, DEFAULT_RESEND_PERIOD
 from ..core.loop.health import DEFAULT_STALL_ERROR, DEFAULT_STALL_WARN
-from .runtime import NodeConfigError
 
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
 DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
 
-# Ranges of the planner's search parameters, stated once: in their descriptors, which rclpy
-# enforces at declare time (a bad parameter file) and at set time (a rejected ``ros2 param set``
-# with the reason), so no node callback checks them again; the core's ``Planner.plan`` is the
-# last guard (``time_budget >= 0``, ``max_depth >= 1``). The core exports no limits of its own:
-# these are what a node accepts per decision, not limits of the search.
-#: ``time_budget`` (s): at least a millisecond, at most a minute per decision.
-TIME_BUDGET_RANGE = (0.001, 60.0)
-#: ``max_depth``: the tree grows as ``(A Z)^depth``, so the budget stops any real model far earlier.
-MAX_DEPTH_RANGE = (1, 50)
+
+class NodeConfigError(ValueError):
+    """A node parameter makes the node unable to start (message names the parameter); ``node``:
+    the name of the node it belongs to, when known."""
+
+    def __init__(self, message: str, node: str | None = None):
+        super().__init__(message)
+        self.node = node
 
 
 def descriptor(description: str, *, read_only: bool = False, float_range: tuple[float, float] | None = None,
@@ -132,3 +141,263 @@ def declare_liveness(node: Node) -> Liveness:
     except ValueError as exc:
         raise NodeConfigError(f"stall_warn_after, stall_error_after: {exc}") from None
     return Liveness(value("epoch_window").value, value("resend_period").value, stall)
+
+
+# ----------------------------------------------------------------- start-up rules of every node
+
+_KINDS = {
+    ParameterType.PARAMETER_BOOL: "true or false",
+    ParameterType.PARAMETER_INTEGER: "an integer",
+    ParameterType.PARAMETER_DOUBLE: "a number",
+    ParameterType.PARAMETER_STRING: "a string",
+    ParameterType.PARAMETER_BYTE_ARRAY: "a list of bytes",
+    ParameterType.PARAMETER_BOOL_ARRAY: "a list of true/false values",
+    ParameterType.PARAMETER_INTEGER_ARRAY: "a list of integers",
+    ParameterType.PARAMETER_DOUBLE_ARRAY: "a list of numbers",
+    ParameterType.PARAMETER_STRING_ARRAY: "a list of strings",
+}
+
+
+def allowed_values(desc: ParameterDescriptor) -> str:
+    """What ``desc`` allows, in words: its type, its range, its other constraints."""
+    text = _KINDS.get(desc.type, "a value")
+    for r in desc.integer_range:
+        text += f" in {r.from_value}..{r.to_value}"
+    for r in desc.floating_point_range:
+        text += f" in {r.from_value:g}..{r.to_value:g}"
+    if desc.additional_constraints:
+        text += f" ({desc.additional_constraints})"
+    return text
+
+
+def _out_of_range(value, desc: ParameterDescriptor) -> bool:
+    ranges = (*desc.integer_range, *desc.floating_point_range)
+    return isinstance(value, (int, float)) and any(not r.from_value <= value <= r.to_value for r in ranges)
+
+
+def refusal(name: str, value, desc: ParameterDescriptor, reason: str = "") -> str:
+    """The one-line message for a parameter value refused at start-up: the parameter, the value and
+    what is allowed (in the core's style, ``<field>: must be <allowed>, got <value>``); a value
+    that passes the descriptor but was refused by a callback gives that callback's ``reason``."""
+    got = short_repr(value)
+    if reason and not _out_of_range(value, desc) and Parameter.Type.from_parameter_value(value).value == desc.type:
+        return reason if reason.startswith(f"{name}:") else f"{name}: {reason}, got {got}"
+    return f"{name}: must be {allowed_values(desc)}, got {got}"
+
+
+#: Parameters rclpy reads only on request (``qos_overriding_options``); a parameter file written for
+#: many nodes may carry them, so they are not reported as unknown.
+RCLPY_PARAMETER_PREFIXES = ("qos_overrides.",)
+#: ``difflib`` similarity of the "did you mean" suggestion, and that of a near miss (a typo) for a
+#: parameter given to every node (a wildcard section), which is reported only then.
+SUGGEST_CUTOFF = 0.6
+NEAR_MISS_CUTOFF = 0.85
+
+
+class ParameterNode(Node):
+    """Base of the package's nodes: start-up parameter errors as :class:`NodeConfigError`.
+
+    A value that rclpy refuses while a parameter is declared (out of the descriptor's range, the
+    wrong type; from a parameter file, ``-p`` or ``parameter_overrides``) raises
+    :class:`NodeConfigError` with :func:`refusal`'s one line instead of rclpy's exceptions.
+    The node keeps what it was given (``cli_args``, ``parameter_overrides``) so that
+    :func:`check_given_parameters` can tell a parameter given to it by name from one given to
+    every node, and declares ``strict_parameters`` (read-only): refuse to start on an undeclared
+    parameter instead of warning.
+    """
+
+    def __init__(self, node_name: str, *, cli_args: Sequence[str] | None = None,
+                 parameter_overrides: Sequence[Parameter] | None = None, use_global_arguments: bool = True,
+                 **kwargs):
+        self.given_cli_args = list(cli_args or ())
+        self.given_overrides = frozenset(p.name for p in parameter_overrides or ())
+        self.uses_global_arguments = use_global_arguments
+        #: undeclared parameters given to this node -> the closest declared name ('' if none)
+        self.unknown_parameters: dict[str, str] = {}
+        super().__init__(node_name, cli_args=cli_args, parameter_overrides=parameter_overrides,
+                         use_global_arguments=use_global_arguments, **kwargs)
+        self.declare_parameter("strict_parameters", False, descriptor(
+            "Refuse to start when a parameter given to this node is not one it declares (default: warn)",
+            read_only=True))
+
+    def declare_parameters(self, namespace, parameters, ignore_override=False):
+        """rclpy's ``declare_parameters``, one parameter at a time (rclpy declares them one by one
+        too), with a refused value raised as :class:`NodeConfigError`."""
+        declared = []
+        for entry in parameters:
+            try:
+                declared += super().declare_parameters(namespace, [entry], ignore_override)
+            except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+                name = f"{namespace}.{entry[0]}" if namespace else entry[0]
+                default = entry[1] if len(entry) > 1 else None
+                desc = entry[2] if len(entry) > 2 else ParameterDescriptor(
+                    type=Parameter.Type.from_parameter_value(default).value)
+                given = self._parameter_overrides.get(name)
+                value = default if given is None or ignore_override else given.value
+                reason = str(exc).split("Reason: ", 1)[-1].rsplit(": ", 1)[0]
+                raise NodeConfigError(refusal(name, value, desc, reason), node=self.get_name()) from None
+        return declared
+
+
+# Where a parameter given to a node came from, as far as it matters for reporting it: by the
+# node's name (its own section of a parameter file, also ``/**/<name>``, ``-p node:name:=value``,
+# the node's own arguments or ``parameter_overrides``), to every node of the process
+# (``-p name:=value`` on the command line), or to every node of the system (a wildcard section
+# such as ``/**:``).
+BY_NAME, TO_PROCESS, TO_ALL = 0, 1, 2
+
+
+def _matches(pattern: str, fqn: str) -> bool:
+    """rcl's node-name match: ``*`` is one name token, ``**`` any number of them."""
+    tokens = [t for t in pattern.strip("/").split("/") if t]
+    regex = "".join("(?:/[^/]+)*" if t == "**" else "/" + re.escape(t).replace(r"\*", "[^/]*") for t in tokens)
+    return re.fullmatch(regex, fqn) is not None
+
+
+def _pattern_scope(pattern: str) -> int:
+    """A node pattern that ends in the node's name (``planner``, ``/ns/planner``, ``/**/planner``:
+    that node in any namespace, as the shipped files write it) gives by name; one that ends in a
+    wildcard (``/**``, ``/*``) gives to every node."""
+    return TO_ALL if "*" in pattern.rstrip("/").rsplit("/", 1)[-1] else BY_NAME
+
+
+def _flat(params: dict, prefix: str = "") -> Iterator[str]:
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            yield from _flat(value, name + ".")
+        else:
+            yield name
+
+
+def _file_sections(doc, path: str = "") -> Iterator[tuple[str, dict]]:
+    """``(node pattern, parameters)`` of each section of a parameter file (namespaces may nest)."""
+    if not isinstance(doc, dict):
+        return
+    for key, value in doc.items():
+        if not isinstance(value, dict):
+            continue
+        here = f"{path}/{str(key).strip('/')}"
+        if isinstance(value.get("ros__parameters"), dict):
+            yield here, value["ros__parameters"]
+        yield from _file_sections({k: v for k, v in value.items() if k != "ros__parameters"}, here)
+
+
+def _ros_options(args: Sequence[str]) -> Iterator[tuple[str, str]]:
+    """``(option, value)`` for each ``-p``/``--param`` and ``--params-file`` of the ROS arguments."""
+    inside = False
+    it = iter(args)
+    for arg in it:
+        if arg == "--ros-args":
+            inside = True
+        elif arg == "--":
+            inside = False
+        elif inside and arg in ("-p", "--param", "--params-file"):
+            value = next(it, None)
+            if value is not None:
+                yield ("--params-file" if arg == "--params-file" else "-p"), value
+
+
+def given_scopes(args: Sequence[str], fqn: str, own: bool) -> dict[str, int]:
+    """How each parameter in ``args`` (command-line style) reaches the node named ``fqn``:
+    :data:`BY_NAME`, :data:`TO_PROCESS` or :data:`TO_ALL` (the narrowest if several);
+    ``own``: the node's own arguments (a plain ``-p`` there is by name)."""
+    scopes: dict[str, int] = {}
+
+    def given(name: str, scope: int) -> None:
+        scopes[name] = min(scope, scopes.get(name, scope))
+
+    for option, value in _ros_options(args):
+        if option == "-p":
+            target, _, name = value.split(":=", 1)[0].rpartition(":")
+            if not target:
+                given(name, BY_NAME if own else TO_PROCESS)
+            elif _matches(target, fqn):
+                given(name, _pattern_scope(target))
+            continue
+        try:
+            doc = yaml.safe_load(Path(value).read_text(encoding="utf-8"))
+        except (OSError, yaml.YAMLError, UnicodeDecodeError):
+            continue  # rcl read it (the node exists); what it gave the node is then reported by name
+        for pattern, params in _file_sections(doc):
+            if _matches(pattern, fqn):
+                for name in _flat(params):
+                    given(name, _pattern_scope(pattern))
+    return scopes
+
+
+def _closest(name: str, names: Sequence[str], cutoff: float) -> str:
+    match = difflib.get_close_matches(name, names, n=1, cutoff=cutoff)
+    return match[0] if match else ""
+
+
+def unknown_text(unknown: dict[str, str]) -> str:
+    """``unknown_parameters`` in words: ``time_budgett (did you mean time_budget?), ...`` or ``none``."""
+    return ", ".join(f"{n} (did you mean {s}?)" if s else n for n, s in unknown.items()) or "none"
+
+
+def find_unknown(given: Sequence[dict[str, int]], declared: Sequence[Sequence[str]]) -> list[dict[str, str]]:
+    """The reporting rule, for the nodes of one process: ``given[i]`` maps each parameter node
+    ``i`` was given to how it reached it (:data:`BY_NAME`, :data:`TO_PROCESS`, :data:`TO_ALL`),
+    ``declared[i]`` are its parameters; returns, per node, the undeclared parameters it reports,
+    each with the closest declared name (``''`` if none is close).
+
+    Reported: a parameter given to a node by name (also ``-p name:=value`` to a single-node
+    process); one given to every node of the process that no node of it declares, once (by the
+    node with the closest name, the first one if none is close); one from a wildcard section
+    (meant for every node of the system, also nodes of other packages) only when no node of the
+    process declares it and it is a near miss (:data:`NEAR_MISS_CUTOFF`) of a name the node
+    declares. Names under :data:`RCLPY_PARAMETER_PREFIXES` are never reported."""
+    everyone = {name for names in declared for name in names}
+    found: list[dict[str, str]] = [{} for _ in given]
+    to_process: dict[str, list[int]] = {}
+    for i, scopes in enumerate(given):
+        for name, scope in scopes.items():
+            if name in declared[i] or name.startswith(RCLPY_PARAMETER_PREFIXES):
+                continue
+            if scope == BY_NAME or (scope == TO_PROCESS and len(given) == 1):
+                found[i][name] = _closest(name, declared[i], SUGGEST_CUTOFF)
+            elif name in everyone:
+                continue
+            elif scope == TO_PROCESS:
+                to_process.setdefault(name, []).append(i)
+            elif near := _closest(name, declared[i], NEAR_MISS_CUTOFF):
+                found[i][name] = near
+    for name, nodes in to_process.items():
+        def similarity(i: int, name: str = name) -> float:
+            return max((difflib.SequenceMatcher(None, name, d).ratio() for d in declared[i]), default=0.0)
+        best = max(nodes, key=similarity)  # the first of equals
+        found[best][name] = _closest(name, declared[best], SUGGEST_CUTOFF)
+    return found
+
+
+def _given(node: Node, args: Sequence[str]) -> dict[str, int]:
+    """What ``node`` was given (rclpy's overrides) and how (:func:`given_scopes`; a parameter not
+    found in the arguments counts as given by name)."""
+    fqn = node.get_fully_qualified_name()
+    scopes = given_scopes(args, fqn, own=False) if getattr(node, "uses_global_arguments", True) else {}
+    for name, scope in given_scopes(getattr(node, "given_cli_args", ()), fqn, own=True).items():
+        scopes[name] = min(scope, scopes.get(name, scope))
+    scopes.update(dict.fromkeys(getattr(node, "given_overrides", ()), BY_NAME))
+    return {name: scopes.get(name, BY_NAME) for name in node._parameter_overrides}  # rclpy's dict
+
+
+def check_given_parameters(nodes: Sequence[Node], args: Sequence[str] = ()) -> None:
+    """Report the parameters given to ``nodes`` (one process, started with the command line
+    ``args``) that they do not declare (the rule: :func:`find_unknown`): a WARN naming each and the
+    closest declared name, kept in ``node.unknown_parameters`` (the diagnostics show it); a node
+    whose ``strict_parameters`` is true raises :class:`NodeConfigError` instead. Parameters rclpy
+    itself reads are declared by rclpy (``use_sim_time``, ``start_type_description_service``) or
+    skipped (:data:`RCLPY_PARAMETER_PREFIXES`)."""
+    found = find_unknown([_given(n, args) for n in nodes], [list(n.list_parameters([], 0).names) for n in nodes])
+    for node, unknown in zip(nodes, found, strict=True):
+        if unknown and node.has_parameter("strict_parameters") and node.get_parameter("strict_parameters").value:
+            what = "not a parameter" if len(unknown) == 1 else "not parameters"
+            raise NodeConfigError(f"{unknown_text(unknown)}: {what} of this node; refused because "
+                                  "strict_parameters is true", node=node.get_name())
+    for node, unknown in zip(nodes, found, strict=True):
+        node.unknown_parameters = unknown
+        for name, near in unknown.items():
+            hint = f"did you mean {near}?" if near else f"`ros2 param list {node.get_fully_qualified_name()}` " \
+                                                       "lists the parameters"
+            node.get_logger().warning(f"parameter {name} is not a parameter of this node and is ignored; {hint}")

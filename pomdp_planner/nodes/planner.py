@@ -27,9 +27,10 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.io.sensors import load_model_file
 from ..core.loop import TUNABLE, PlannerLoop, PlannerOutput, check_params
+from ..core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 from .loop_node import LoopNode, OneShot
 from .messages import MessageError, decode_belief, encode_action, encode_plan_info
-from .params import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, declare_double, descriptor
+from .params import declare_double, descriptor
 from .qos import STREAM_QOS
 from .runtime import callback, config_errors, main_for
 

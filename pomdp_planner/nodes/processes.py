@@ -23,7 +23,7 @@ from ..core.io.paths import resolve_path
 NODES = ("target_simulator", "belief_filter", "planner")
 #: The shipped parameter sets: ``config/<node>_<key>.yaml`` for every node (and
 #: ``config/closed_loop_<key>.yaml``): the paper's tracking models (``s3``, ``s8``) and the
-#: perimeter models where lookahead pays (issue 12, docs/MODEL_SEARCH.md).
+#: perimeter models where lookahead pays (docs/MODEL_SEARCH.md).
 PARAMETER_SETS = ("s3", "s8", "perimeter_s3", "perimeter_s8")
 
 
@@ -36,12 +36,16 @@ def node_parameters(doc: dict, node: str) -> dict:
     raise KeyError(f"no section for node {node!r} (keys: {', '.join(map(str, doc))})")
 
 
+def parameter_set_values(key: str, node: str) -> dict:
+    """The parameters ``config/<node>_<key>.yaml`` gives node ``node`` (its ``ros__parameters``)."""
+    params = resolve_path(f"config/{node}_{key}.yaml", "params file")
+    return node_parameters(yaml.safe_load(params.read_text(encoding="utf-8")), node)
+
+
 def parameter_set_model(key: str) -> Path:
     """The model file of parameter set ``key``: the ``model_file`` of ``config/planner_<key>.yaml``
     (every node of a set names the same model; a test checks it), resolved as the nodes resolve it."""
-    params = resolve_path(f"config/planner_{key}.yaml", "params file")
-    doc = yaml.safe_load(params.read_text(encoding="utf-8"))
-    return resolve_path(node_parameters(doc, "planner")["model_file"], "model_file")
+    return resolve_path(parameter_set_values(key, "planner")["model_file"], "model_file")
 
 
 def node_command(name: str) -> list[str]:

@@ -15,6 +15,7 @@ touches only the planner; every other method is called with the node's lock held
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -25,7 +26,7 @@ import numpy as np
 from ..bounds import check_constant, check_variant
 from ..errors import OptionError
 from ..gate import PlannerSetup, build_planner
-from ..model import POMDP
+from ..model import POMDP, priority_of
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
 from .epochs import EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Level, Log, LoopHealth, Report
@@ -56,9 +57,21 @@ class PlanInfo:
     latency: float
     deadline_hit: bool
     deadline_miss: bool
+    #: The myopic policy bounds at the belief (Theorem 2) as priorities: the optimal priority lies in
+    #: ``[bound_lower, bound_upper]``; ``nan`` when the decision used no guaranteed bounds.
+    bound_lower: float = math.nan
+    bound_upper: float = math.nan
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def _bound_fields(r: SearchResult, guaranteed: bool) -> dict[str, float]:
+    """``bound_lower``, ``bound_upper`` of a decision's :class:`PlanInfo`: its root bounds as
+    priorities, shown only when they are guaranteed."""
+    if r.root_bounds is None or not guaranteed:
+        return {}
+    return {"bound_lower": float(priority_of(r.root_bounds[0])), "bound_upper": float(priority_of(r.root_bounds[1]))}
 
 
 @dataclass(frozen=True, eq=False)
@@ -307,7 +320,7 @@ class PlannerLoop:
             epoch=action.epoch, action_priority=action.priority, depth=int(r.depth),
             nodes_expanded=int(sum(r.nodes_expanded)), pruned_percent=float(r.percent_pruned[-1]) if r.percent_pruned
             else 0.0, certified=certified, time_used=float(r.time_used), latency=latency,
-            deadline_hit=bool(r.deadline_hit), deadline_miss=missed)
+            deadline_hit=bool(r.deadline_hit), deadline_miss=missed, **_bound_fields(r, searched.guaranteed))
         return out
 
     def _send(self, action: ActionSample, now: float) -> PlannerOutput:
