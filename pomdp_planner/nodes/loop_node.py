@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Int64MultiArray
 
 from ..core.loop import Log
@@ -84,6 +87,22 @@ class LoopNode(ParameterNode):
 
     def emit(self, out) -> None:
         raise NotImplementedError
+
+    def accept_changes(self, check: Callable[[Mapping[str, Any]], str]) -> None:
+        """Run-time parameter changes: refused with the reason the core's ``check`` gives (after the
+        descriptors' ranges, which rclpy enforces first), else handed to the loop's ``set_params``
+        with the lock held, its lines logged."""
+        def validate(params: list[Parameter]) -> SetParametersResult:
+            reason = check({p.name: p.value for p in params})
+            return SetParametersResult(successful=not reason, reason=reason)
+
+        def apply(params: list[Parameter]) -> None:
+            with self.lock:
+                logs = self.loop.set_params({p.name: p.value for p in params})
+            self.log(logs)
+
+        self.add_on_set_parameters_callback(validate)
+        self.add_post_set_parameters_callback(apply)
 
     def log(self, logs: Iterable[Log]) -> None:
         logger = self.get_logger()

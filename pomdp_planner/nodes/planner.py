@@ -19,9 +19,7 @@ topics and diagnostics: docs/ros.md.
 
 from __future__ import annotations
 
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
@@ -65,8 +63,7 @@ class PlannerNode(LoopNode):
             "Memory per search chunk (KiB); the deadline is checked between chunks, so smaller = tighter "
             "deadlines (32 MiB chunks overshot a 0.2 s budget by up to 0.7 s on S = 8)",
             read_only=True, int_range=(16, 1 << 20)))
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
+        self.accept_changes(check_params)
 
         value = self.get_parameter
         with config_errors():
@@ -89,15 +86,6 @@ class PlannerNode(LoopNode):
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=plan_group)
         self._join = OneShot(self, self._plan_trigger.trigger)
         self.run(loop)
-
-    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        reason = check_params({p.name: p.value for p in params})
-        return SetParametersResult(successful=not reason, reason=reason)
-
-    def _apply_parameters(self, params: list[Parameter]) -> None:
-        with self.lock:
-            logs = self.loop.set_params({p.name: p.value for p in params})
-        self.log(logs)
 
     @callback
     def _on_belief(self, msg: Float64MultiArray) -> None:

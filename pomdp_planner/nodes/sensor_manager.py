@@ -21,9 +21,7 @@ search. Parameters, topics and diagnostics: docs/ros.md, "Sensor manager".
 
 from __future__ import annotations
 
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
@@ -84,8 +82,7 @@ class SensorManager(LoopNode):
         self.declare_parameter("bound_constant", DEFAULT_CONSTANT, d(
             "Constant of the bound LP (mlr or fosd)", read_only=True,
             constraints=f"one of {', '.join(BOUND_CONSTANTS)}"))
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
+        self.accept_changes(check_params)
 
         value = self.get_parameter
         with config_errors():
@@ -116,15 +113,6 @@ class SensorManager(LoopNode):
         self._decide_trigger = self.create_guard_condition(self._decide, callback_group=group)
         self._wake = OneShot(self, self._decide_trigger.trigger)
         self.run(loop)
-
-    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        reason = check_params({p.name: p.value for p in params if p.name in TUNABLE})
-        return SetParametersResult(successful=not reason, reason=reason)
-
-    def _apply_parameters(self, params: list[Parameter]) -> None:
-        with self.lock:
-            logs = self.loop.set_params({p.name: p.value for p in params})
-        self.log(logs)
 
     @callback
     def _on_belief(self, k: int, msg: Float64MultiArray) -> None:

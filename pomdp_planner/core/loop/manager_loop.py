@@ -61,14 +61,14 @@ from typing import Any
 
 from ..bounds import DEFAULT_CONSTANT, check_constant, check_variant
 from ..checks import check_choice
-from ..errors import InputError, OptionError
+from ..errors import InputError
 from ..model import POMDP
 from ..multitarget.planner import DEFAULT_EVALUATIONS, SEARCH_MODES, JointDecision, MultiTargetPlanner
 from ..multitarget.problem import MultiTargetProblem, format_effort, make_problem
 from .epochs import EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Log, LoopHealth, Report
 from .manager_params import TUNABLE, check_params
-from .planner_loop import DECISION_CACHE
+from .planner_loop import DECISION_CACHE, apply_changes, checked_params
 from .samples import ActionSample, BeliefSample
 
 #: Planners kept for sub-problems (decided targets, budget left), least recently used dropped.
@@ -186,18 +186,13 @@ class ManagerLoop:
     def __init__(self, problem: MultiTargetProblem, params: Mapping[str, Any], live: Liveness, *, now: float,
                  search: str = "bnb", variant: str = "tight", constant: str = DEFAULT_CONSTANT,
                  max_evaluations: int = DEFAULT_EVALUATIONS):
-        missing = [k for k in TUNABLE if k not in params]
-        if missing:
-            raise ValueError(f"params: missing {missing}")
-        bad = check_params(params)
-        if bad:
-            raise OptionError(bad)
+        params = checked_params(params, TUNABLE, check_params)
         check_choice(search, SEARCH_MODES, "search")
         check_variant(variant, "bound_variant")
         check_constant(constant, "bound_constant")
         self.problem = problem
         self.live = live
-        self.params = {k: params[k] for k in TUNABLE}
+        self.params = params
         self._knobs = {"search": search, "variant": variant, "constant": constant, "max_evaluations": max_evaluations}
         self.inboxes = [TargetInbox(n, m, live, now) for n, m in zip(problem.names, problem.models, strict=True)]
         self.health = LoopHealth(COUNTERS, PROBLEMS, [ib.watch for ib in self.inboxes], live.stall)
@@ -235,11 +230,8 @@ class ManagerLoop:
     # ----------------------------------------------------------- parameters
     def set_params(self, changed: Mapping[str, Any]) -> list[Log]:
         """Parameters changed at run time (checked with :func:`check_params`); in force from the next decision."""
-        changed = {k: v for k, v in changed.items() if k in TUNABLE}
-        if not changed:
-            return []
-        self.params = {**self.params, **changed}
-        return [Log("info", f"parameters changed {changed}; in force from the next decision")]
+        self.params, logs = apply_changes(self.params, changed, TUNABLE)
+        return logs
 
     def _planner_for(self, decided: tuple[int, ...], budget: Fraction, params: Mapping[str, Any]) -> MultiTargetPlanner:
         """The planner of the sub-problem ``decided`` within ``budget`` (built once, kept in an LRU cache)."""
