@@ -35,7 +35,8 @@ endif
 TEST_ENV := ROS_PYTHON_CHECK_FIELDS=1 POMDP_PLANNER_REQUIRE_INSTALLED=1
 PYTEST_ARGS ?=
 
-DEMO_CMD := $(BIN)/python -m pomdp_planner.nodes.demo --steps 30 --model perimeter_s8
+DEMO_ARGS ?=
+DEMO_CMD := $(BIN)/python -m pomdp_planner.nodes.demo --steps 30 --model perimeter_s8 $(DEMO_ARGS)
 
 .PHONY: help setup demo test lint clean experiments
 

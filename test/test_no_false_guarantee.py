@@ -185,7 +185,8 @@ def test_bounds_on_a_valid_model_says_guaranteed_and_exits_0(capsys: pytest.Capt
 @pytest.mark.parametrize("force", [False, True])
 def test_a_run_record_certifies_no_decision(capsys: pytest.CaptureFixture[str], tmp_path: Path, model: str,
                                             force: bool) -> None:
-    """``simulate --record``: the ``certified`` column (agreeing guaranteed bounds) stays 0."""
+    """``simulate --record``: the ``certified`` column (agreeing guaranteed bounds) stays 0, and root
+    bounds used by forced pruning are written labelled ``guaranteed`` 0 (and drawn as not guaranteed)."""
     from pomdp_planner.core.io.run_record import read_run_record
 
     record = tmp_path / "run.csv"
@@ -194,3 +195,5 @@ def test_a_run_record_certifies_no_decision(capsys: pytest.CaptureFixture[str], 
     code, out, _ = _run(capsys, cli_main, argv)
     rec = read_run_record(record)
     assert code == 0 and len(rec.epoch) == 6 and not rec.certified.any() and not claims(out)
+    assert not rec.guaranteed.any()
+    assert rec.has_bounds.all() == force and (rec.unguaranteed_bounds == rec.has_bounds).all()

@@ -26,6 +26,7 @@ from rclpy.executors import SingleThreadedExecutor
 
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.io.run_record import read_run_record
 from pomdp_planner.core.simulate import simulate
 from pomdp_planner.nodes.processes import node_command, parameter_set_model, parameter_set_values, stop_nodes
 
@@ -154,10 +155,14 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
     return beside greedy's, exit code 0; on the paper's S = 3 model and on the perimeter model of
     the README's node-loop example (its own parameter files, ``config/<node>_perimeter_s8.yaml``).
     The node logs' temporary directory is removed, unless ``--keep-logs`` (then it holds the three
-    logs and the last line says where)."""
+    logs and the run record ``run.csv``, and the last line says where); ``--record FILE`` writes the
+    record there instead. The record holds the table's rows (epoch, true state, action, bounds,
+    certified, the belief's mode), as the run-record reader reads them."""
     steps = 5
+    record = None if keep else tmp_path / "run.csv"  # with --keep-logs: run.csv in the logs' directory
     proc = subprocess.run([sys.executable, "-m", "pomdp_planner.nodes.demo", "--steps", str(steps), "--model", model,
-                           "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else [])],
+                           "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else []),
+                           *([] if record is None else ["--record", str(record)])],
                           capture_output=True, text=True, timeout=90, cwd=REPO,
                           env={**os.environ, "TMPDIR": str(tmp_path)})
     logs = "".join(f"\n--- {log.name}\n{log.read_text(errors='replace')[-3000:]}"
@@ -198,10 +203,21 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
     left = list(tmp_path.glob("pomdp_planner_demo_*"))
     if keep:
         assert len(left) == 1 and lines[-1] == f"node logs kept in {left[0]}"
-        assert sorted(p.name for p in left[0].iterdir()) == ["belief_filter.log", "planner.log",
+        assert sorted(p.name for p in left[0].iterdir()) == ["belief_filter.log", "planner.log", "run.csv",
                                                               "target_simulator.log"]
+        record = left[0] / "run.csv"
     else:
         assert left == [] and "node logs" not in proc.stdout
+    # the run record: the table's rows, as pomdp-planner plot reads them
+    assert f"run record ({steps} rows) in {record}; draw it with: pomdp-planner plot {record} -o run.png" in lines
+    rec = read_run_record(record)
+    assert (rec.model, rec.S, rec.A, rec.time_budget) == (m.name, m.S, m.A, 0.02)
+    assert rec.epoch.tolist() == [int(r[0]) for r in rows] and rec.true_state.tolist() == [int(r[1]) for r in rows]
+    assert rec.action.tolist() == [int(r[5]) for r in rows]
+    assert [(lo, up) if lo else None for lo, up in zip(rec.lower.tolist(), rec.upper.tolist(), strict=True)] == \
+        [(int(r[6]), int(r[7])) if r[6] else None for r in rows]
+    assert rec.certified.tolist() == [r[10] == "yes" for r in rows]
+    assert [int(b.argmax()) for b in rec.beliefs] == [int(r[2]) for r in rows]
     assert "Traceback" not in proc.stderr
 
 

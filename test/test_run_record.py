@@ -43,8 +43,8 @@ def small_record(path: Path, S: int = 3, A: int = 3, rows: int = 4, budget: floa
         w = RunRecordWriter(fh, "m", S, A, budget)
         rng = np.random.default_rng(0)
         for t in range(rows):
-            w.write(2 * t, rng.dirichlet(np.ones(S)), 1 + t % A, true_state=t % S, bounds=(1, A), depth=2,
-                    certified=t == 0, latency=0.01 * (t + 1))
+            w.write(2 * t, rng.dirichlet(np.ones(S)), 1 + t % A, true_state=t % S, bounds=(1, 1) if t == 0 else (1, A),
+                    guaranteed=True, depth=2, certified=t == 0, latency=0.01 * (t + 1))
 
 
 # ------------------------------------------------------------------ writer and reader
@@ -59,13 +59,17 @@ def test_a_record_reads_back_to_what_was_written(S, A, T, seed, with_budget):
     for _ in range(T):
         epoch += int(rng.integers(1, 4))
         b = rng.dirichlet(np.ones(S))
+        guaranteed = bool(rng.uniform() < 0.5)
+        pair = [int(x) for x in rng.integers(1, A + 1, 2)]
+        bounds = None if rng.uniform() < 0.3 else tuple(sorted(pair) if guaranteed else pair)  # only these may cross
         row = dict(epoch=epoch, belief=b, priority=int(rng.integers(1, A + 1)),
-                   true_state=None if rng.uniform() < 0.3 else int(rng.integers(S)),
-                   bounds=None if rng.uniform() < 0.3 else tuple(sorted(int(x) for x in rng.integers(1, A + 1, 2))),
-                   depth=None if rng.uniform() < 0.3 else int(rng.integers(0, 9)), certified=bool(rng.uniform() < 0.5),
+                   true_state=None if rng.uniform() < 0.3 else int(rng.integers(S)), bounds=bounds,
+                   guaranteed=bounds is not None and guaranteed,
+                   depth=None if rng.uniform() < 0.3 else int(rng.integers(0, 9)),
+                   certified=bounds is not None and guaranteed and bounds[0] == bounds[1],
                    latency=None if rng.uniform() < 0.3 else float(rng.uniform(0, 2)))
         w.write(row["epoch"], b, row["priority"], true_state=row["true_state"], bounds=row["bounds"],
-                depth=row["depth"], certified=row["certified"], latency=row["latency"])
+                guaranteed=guaranteed, depth=row["depth"], certified=row["certified"], latency=row["latency"])
         rows.append(row)
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "run.csv"
@@ -77,6 +81,8 @@ def test_a_record_reads_back_to_what_was_written(S, A, T, seed, with_budget):
         assert np.array_equal(rec.beliefs[t], row["belief"])  # floats written exactly (repr)
         assert rec.true_state[t] == (-1 if row["true_state"] is None else row["true_state"])
         assert (rec.lower[t], rec.upper[t]) == ((0, 0) if row["bounds"] is None else row["bounds"])
+        assert rec.guaranteed[t] == row["guaranteed"]
+        assert rec.unguaranteed_bounds[t] == (row["bounds"] is not None and not row["guaranteed"])
         assert rec.depth[t] == (-1 if row["depth"] is None else row["depth"])
         assert rec.certified[t] == row["certified"]
         assert (np.isnan(rec.latency[t]) if row["latency"] is None else rec.latency[t] == row["latency"])
@@ -100,10 +106,14 @@ def test_the_writer_refuses_what_the_reader_would_refuse():
         w.write(6, [0.5, 0.5], 4)
     with pytest.raises(RunRecordError, match="model name"):
         RunRecordWriter(io.StringIO(), "a;b", 2, 3)
+    with pytest.raises(RunRecordError, match=r"column certified: 1 needs guaranteed bounds that agree"):
+        w.write(6, [0.5, 0.5], 2, bounds=(2, 2), certified=True)  # bounds not labelled guaranteed
+    w.write(6, [0.5, 0.5], 2, bounds=(2, 2))
+    assert w.stream.getvalue().splitlines()[-1].split(",")[columns(2).index("guaranteed")] == "0"
 
 
 GOOD_HEAD = "# pomdp_planner run record 1; model=m; S=2; A=3; time_budget=0.05\n" + ",".join(columns(2)) + "\n"
-GOOD_ROW = "0,1,0.25,0.75,2,1,3,2,0,0.01"
+GOOD_ROW = "0,1,0.25,0.75,2,1,3,1,2,0,0.01"
 
 MALFORMED = [  # (text, line, column or None, fragment of the problem)
     ("epoch,true_state\n", 1, None, "not a run record"),
@@ -112,7 +122,7 @@ MALFORMED = [  # (text, line, column or None, fragment of the problem)
     ("# pomdp_planner run record 1; model=m; S=2; A=3; time_budget=-1\n", 1, "time_budget", "must be > 0"),
     (GOOD_HEAD.replace(",b1,", ",belief1,"), 2, None, "header column 4: expected 'b1'"),
     (GOOD_HEAD, 3, None, "no rows"),
-    (GOOD_HEAD + "0,1,0.25,0.75,2,1,3,2,0\n", 3, None, "expected 10 columns"),
+    (GOOD_HEAD + "0,1,0.25,0.75,2,1,3,2,0\n", 3, None, "expected 11 columns"),
     (GOOD_HEAD + GOOD_ROW.replace("0,1,", "x,1,", 1) + "\n", 3, "epoch", "expected an integer >= 0"),
     (GOOD_HEAD + GOOD_ROW + "\n" + GOOD_ROW + "\n", 4, "epoch", "0 does not increase"),
     (GOOD_HEAD + GOOD_ROW.replace("0,1,", "0,2,", 1) + "\n", 3, "true_state", "expected an integer in 0..1"),
@@ -120,8 +130,14 @@ MALFORMED = [  # (text, line, column or None, fragment of the problem)
     (GOOD_HEAD + GOOD_ROW.replace("0.25,0.75", "1.5,-0.5") + "\n", 3, "b0", "must be in [0, 1]"),
     (GOOD_HEAD + GOOD_ROW.replace("0.25,0.75", "0.25,0.7") + "\n", 3, "b0..b1", "the belief sums to"),
     (GOOD_HEAD + GOOD_ROW.replace("0.75,2,", "0.75,0,") + "\n", 3, "action", "expected an integer in 1..3"),
-    (GOOD_HEAD + GOOD_ROW.replace(",1,3,2,", ",1,,2,") + "\n", 3, "upper", "both given or both empty"),
-    (GOOD_HEAD + GOOD_ROW.replace(",3,2,0,", ",3,2,2,") + "\n", 3, "certified", "expected an integer in 0..1"),
+    (GOOD_HEAD + GOOD_ROW.replace(",1,3,1,", ",1,,1,") + "\n", 3, "upper", "both given or both empty"),
+    (GOOD_HEAD + GOOD_ROW.replace(",1,3,1,", ",1,3,,") + "\n", 3, "guaranteed", "given exactly where lower"),
+    (GOOD_HEAD + GOOD_ROW.replace(",1,3,1,", ",,,0,") + "\n", 3, "guaranteed", "given exactly where lower"),
+    (GOOD_HEAD + GOOD_ROW.replace(",1,3,1,", ",1,3,2,") + "\n", 3, "guaranteed", "expected an integer in 0..1"),
+    (GOOD_HEAD + GOOD_ROW.replace(",1,3,1,", ",3,1,1,") + "\n", 3, "upper", "guaranteed bounds never cross"),
+    (GOOD_HEAD + GOOD_ROW.replace(",3,1,2,0,", ",3,1,2,2,") + "\n", 3, "certified", "expected an integer in 0..1"),
+    (GOOD_HEAD + GOOD_ROW.replace(",3,1,2,0,", ",3,1,2,1,") + "\n", 3, "certified", "needs guaranteed bounds"),
+    (GOOD_HEAD + GOOD_ROW.replace(",1,3,1,2,0,", ",2,2,0,2,1,") + "\n", 3, "certified", "needs guaranteed bounds"),
     (GOOD_HEAD + GOOD_ROW.replace("0.01", "-0.01") + "\n", 3, "latency", "must be >= 0 seconds"),
 ]
 
@@ -160,7 +176,7 @@ def test_simulate_records_every_decision_with_its_belief(tmp_path, capsys):
     assert list(rec.true_state) == [s["state"] for s in steps["steps"]]
     assert np.all(rec.depth == 2) and np.all(rec.has_bounds) and np.all(rec.latency > 0)
     assert np.all((rec.lower <= rec.action) & (rec.action <= rec.upper))  # B&B keeps its action in the bounds
-    assert np.all(rec.certified == (rec.lower == rec.upper))  # the gate proved the bounds for this model
+    assert np.all(rec.guaranteed) and np.all(rec.certified == (rec.lower == rec.upper))  # the gate proved them
 
 
 def test_simulate_record_of_a_policy_without_bounds(tmp_path):

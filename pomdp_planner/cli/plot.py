@@ -6,7 +6,8 @@ against the epoch:
 1. the belief as a heat map (states upwards, probability as colour) with the true state, where
    the record knows it, as white dots;
 2. the chosen priority, the root bound interval ``[lower, upper]`` as a band where the decision
-   had bounds, and the certified decisions (agreeing guaranteed bounds, Proposition 1) marked;
+   had bounds (hatched grey and labelled "NOT GUARANTEED" where the record says they are not
+   guaranteed), and the certified decisions (agreeing guaranteed bounds, Proposition 1) marked;
 3. the decision latency in milliseconds against the run's time budget (dashed), decisions over
    the budget marked.
 
@@ -36,7 +37,8 @@ INSTALL_HINT = "matplotlib is not installed: pip install matplotlib (or, in the 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("plot", help="draw a run record (belief heat map, actions and bounds, latency)",
                               description=__doc__.split("\n\n")[0].replace("``", ""))
-    p.add_argument("record", metavar="RUN.csv", help="a run record (simulate --record FILE)")
+    p.add_argument("record", metavar="RUN.csv",
+                   help="a run record (simulate --record FILE, the run_recorder node, the demo's --record)")
     p.add_argument("-o", "--output", required=True, metavar="FILE", help=f"the picture: {', '.join(FORMATS)}")
     p.add_argument("--dpi", type=float_in(20, 600), default=100.0, metavar="N", help="dots per inch, 20..600 (100)")
     p.add_argument("--width", type=float_in(3, 40, " of inches"), default=10.0, metavar="IN",
@@ -99,12 +101,14 @@ def draw(plt, rec: RunRecord, size: tuple[float, float], title: str | None):
     ax_b.set_ylim(-0.5, rec.S - 0.5)
     ax_b.set_title(title or f"{rec.model}: {len(x)} decisions (S={rec.S}, A={rec.A})")
 
-    bounded = rec.has_bounds
-    if bounded.any():
-        lo = np.where(bounded, rec.lower, np.nan).astype(float)
-        up = np.where(bounded, rec.upper, np.nan).astype(float)
-        ax_a.fill_between(x, lo - 0.3, up + 0.3, step="mid", color="tab:orange", alpha=0.3, linewidth=0,
-                          label="root bounds [lower, upper]")
+    for rows, style in ((rec.has_bounds & rec.guaranteed, {"color": "tab:orange", "alpha": 0.3,
+                                                            "label": "root bounds [lower, upper]"}),
+                        (rec.unguaranteed_bounds, {"facecolor": "none", "edgecolor": "tab:gray", "hatch": "////",
+                                                   "label": "root bounds NOT GUARANTEED"})):
+        if rows.any():
+            lo = np.where(rows, np.minimum(rec.lower, rec.upper), np.nan).astype(float)
+            up = np.where(rows, np.maximum(rec.lower, rec.upper), np.nan).astype(float)
+            ax_a.fill_between(x, lo - 0.3, up + 0.3, step="mid", linewidth=0, **style)
     ax_a.step(x, rec.action, where="mid", color="tab:blue", linewidth=1.2, label="priority chosen")
     if rec.certified.any():
         ax_a.plot(x[rec.certified], rec.action[rec.certified], "s", color="tab:green", markersize=3,

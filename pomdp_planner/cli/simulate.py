@@ -32,7 +32,7 @@ from collections.abc import Iterator, Sequence
 from ..core.checks import option_value
 from ..core.errors import OptionError
 from ..core.io.outputs import check_output_file
-from ..core.io.run_record import RunRecordWriter
+from ..core.io.run_record import RunRecordWriter, open_run_record
 from ..core.model import POMDP, short_repr
 from ..core.multitarget.policies import JOINT_POLICIES, joint_policy_names
 from ..core.options import STEPS_RANGE
@@ -180,11 +180,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _open_record(path: str, model: POMDP, policy: object) -> RunRecordWriter:
     """The ``--record`` writer (every row is flushed as written; closed after the last step)."""
-    try:
-        stream = open(path, "w", encoding="utf-8")
-    except OSError as exc:
-        raise OptionError(f"--record: cannot write {path}: {exc.strerror or type(exc).__name__}") from None
-    return RunRecordWriter(stream, model.name, model.S, model.A, getattr(policy, "time_budget", None))
+    return open_run_record(path, "--record", model.name, model.S, model.A, getattr(policy, "time_budget", None))
 
 
 class StepTable:

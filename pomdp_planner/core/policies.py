@@ -298,19 +298,23 @@ def make_policy(name: str, model: POMDP, **options: Any) -> Policy:
 
 def last_decision(policy: Policy, belief: np.ndarray) -> dict[str, Any]:
     """What a run record (:mod:`~.io.run_record`) keeps of the decision ``policy`` just made at ``belief``:
-    ``bounds`` (lower, upper priorities ``1..A``, or ``None``), ``depth``, ``certified`` and
-    ``latency`` (seconds of search), ``None`` where the policy has no such figure. A search policy
-    reports its last search; a bound policy the bounds at ``belief``."""
-    out: dict[str, Any] = {"bounds": None, "depth": None, "certified": False, "latency": None}
+    ``bounds`` (lower, upper priorities ``1..A``, or ``None``), ``guaranteed``, ``depth``, ``certified``
+    and ``latency`` (seconds of search), ``None`` where the policy has no such figure. A search policy
+    reports its last search; a bound policy the bounds at ``belief``. ``guaranteed`` is the assumption
+    gate's verdict on those bounds (:func:`~.gate.build_planner`: the planner's flag, or the bound
+    policy's ``setup``; crossed root bounds are never guaranteed), so bounds used without the
+    guarantee (``prune_without_guarantee``) are recorded as such."""
+    out: dict[str, Any] = {"bounds": None, "guaranteed": False, "depth": None, "certified": False, "latency": None}
     last = getattr(policy, "last", None)
     if isinstance(last, SearchResult):
         rb = last.root_bounds
         out.update(bounds=None if rb is None else (rb[0] + 1, rb[1] + 1), depth=last.depth,
-                   certified=last.certified, latency=last.time_used)
+                   guaranteed=rb is not None and last.guaranteed and not last.crossed,
+                   certified=last.certified and last.guaranteed, latency=last.time_used)
     elif isinstance(policy, BoundPolicy):
         lo, up = (int(x[0]) for x in policy.bounds.actions(np.asarray(belief, dtype=float)[None, :]))
-        guaranteed = policy.setup is not None and policy.setup.guaranteed
-        out.update(bounds=(lo + 1, up + 1), certified=guaranteed and lo == up)
+        guaranteed = policy.setup is not None and policy.setup.guaranteed and lo <= up
+        out.update(bounds=(lo + 1, up + 1), guaranteed=guaranteed, certified=guaranteed and lo == up)
     return out
 
 

@@ -1,7 +1,7 @@
 """``make demo``: the three nodes as three processes, a live per-step table, a summary, a clean exit.
 
 ``python -m pomdp_planner.nodes.demo [--steps 30] [--model perimeter_s8] [--time-budget 0.1]
-[--keep-logs]`` starts ``target_simulator``, ``belief_filter`` and ``planner`` as separate
+[--keep-logs] [--record FILE]`` starts ``target_simulator``, ``belief_filter`` and ``planner`` as separate
 processes (the installed console scripts next to this Python if present, as ``ros2 run`` would
 start them, else ``python -m pomdp_planner.nodes.<name>``) with ``config/<node>_<model>.yaml``, on
 this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and a ROS domain of its own
@@ -11,63 +11,79 @@ sets (``processes.PARAMETER_SETS``): ``s3``, ``s8`` (the paper's tracking models
 ``make demo`` runs, because there the planner searches and differs from greedy).
 
 A legend says what the columns mean on the model (its priorities, the bounds, "certified"). A
-monitor node prints one row per decision epoch: step, true state, belief mode and Shannon entropy
-(nats), the action chosen from that belief, the root bound interval ``[lower, upper]`` of that
-decision (the myopic policy bounds, Theorem 2, from ``plan_info``), the greedy action
-``argmax_a rho(b, a)`` at the same belief (the core's ``myopic`` policy), depth reached,
-certified (the bounds agree: Proposition 1), decision latency. After ``--steps`` epochs it sends
-SIGINT to the three processes, waits for them, and prints the mean reward ``r(s_t, a_t) - w_a
-f(b_t)`` (true state, the model's uncertainty function), the mean entropy, on how many steps the
-planner chose other than greedy, the deadline misses among the decisions shown (each decision's
-``plan_info.deadline_miss``: the planner's rule, latency > ``time_budget + deadline_slack``), how
-many decisions were certified, and the discounted return ``sum_t gamma^t rho(b_t, a_t)`` of the
-planner's policy (the core's ``bnb`` with the planner's parameters) beside greedy's over as many
-steps, both simulated by the core (``core.simulate``) from the simulator's seed, so with the same
-random numbers. The nodes' logs go to a temporary directory, removed at the end unless
-``--keep-logs`` (which prints where they are). Exit code 0 if all three processes exited cleanly
-(code 0, no traceback).
+monitor node pairs the loop's topics into rows by the run recorder's rule
+(``nodes/run_recorder.py``, the core's ``RecorderLoop``: row ``t`` is the belief and true state of
+epoch ``t``, the action ``[t + 1, p]`` and the ``plan_info`` of that decision) and prints one row
+per decision epoch: step, true state, belief mode and Shannon entropy (nats), the action chosen
+from that belief, the root bound interval ``[lower, upper]`` of that decision (the myopic policy
+bounds, Theorem 2, from ``plan_info``), the greedy action ``argmax_a rho(b, a)`` at the same
+belief (the core's ``myopic`` policy), depth reached, certified (the bounds agree: Proposition 1),
+decision latency. After ``--steps`` epochs it sends SIGINT to the three processes, waits for them,
+and prints the mean reward ``r(s_t, a_t) - w_a f(b_t)`` (true state, the model's uncertainty
+function), the mean entropy, on how many steps the planner chose other than greedy, the deadline
+misses among the decisions shown (each decision's ``plan_info.deadline_miss``: the planner's rule,
+latency > ``time_budget + deadline_slack``), how many decisions were certified, and the discounted
+return ``sum_t gamma^t rho(b_t, a_t)`` of the planner's policy (the core's ``bnb`` with the
+planner's parameters) beside greedy's over as many steps, both simulated by the core
+(``core.simulate``) from the simulator's seed, so with the same random numbers. ``--record FILE``
+writes the table's rows as a run record (``core/io/run_record.py``; ``pomdp-planner plot FILE -o
+run.png`` draws it), and says where at the end. The nodes' logs go to a temporary directory,
+removed at the end unless ``--keep-logs`` (which prints where they are, and records the run into
+``run.csv`` there unless ``--record``). Exit code 0 if all three processes exited cleanly (code 0,
+no traceback).
 
 The demo runs the loop free (``step_period`` 0, whatever the parameter files say: each action
 steps the simulator at once, so each row pairs a belief with the action chosen from it), hundreds
 of epochs per second on the shipped models, and discovery between processes can take seconds,
 more than the writers' transient-local history (100 epochs) covers. So the monitor must have matched every writer
 before the loop starts: the nodes are started filter, planner, simulator, each once the monitor
-has the previous one's prior or has matched its writer, and the simulator gets
+has matched the previous one's writer, and the simulator gets
 ``min_subscribers`` 2: it takes its first step only when the filter and the monitor both
 subscribe to its observations. If the monitor still misses the first epochs, the table starts
-at the first complete one and says so (no hang).
+at the first row the rule gives and says so (no hang).
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import random
 import shutil
 import sys
 import tempfile
 import time
+from collections import deque
 from pathlib import Path
 
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from std_msgs.msg import Float64MultiArray, Int64MultiArray
+from std_msgs.msg import Int64MultiArray
 
+from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
+from ..core.io.outputs import check_output_file
+from ..core.io.run_record import open_run_record
+from ..core.loop.recorder_loop import RecorderLoop, RecordRow
 from ..core.model import POMDP
 from ..core.policies import MyopicPolicy, make_policy
 from ..core.simulate import simulate
 from ..core.uncertainty import SHANNON
-from .messages import decode_belief, decode_observation, decode_plan_info, decode_true_state
 from .processes import PARAMETER_SETS, parameter_set_model, parameter_set_values, ros_env, start_nodes, stop_nodes
 from .qos import RECORDER_QOS
+from .run_recorder import RunInputs
+
+#: Seconds a row of the table waits for its plan_info or true state when their topic has not moved
+#: past it (the first row waits for the simulator, started last, to publish its initial state).
+ROW_TIMEOUT = 30.0
 
 
 class Monitor:
-    """Subscribes to the loop's topics (in its own rclpy context) and assembles per-epoch rows."""
+    """Subscribes to the loop's topics (in its own rclpy context) and pairs them into rows: the run
+    recorder's subscriptions and pairing rule (``nodes/run_recorder.RunInputs``, the core's
+    ``RecorderLoop``), true states awaited from the start; and ``observation``, only so that the
+    simulator (``min_subscribers`` 2) waits for this monitor too."""
 
     def __init__(self, model_path: Path):
         self.model = load_model(model_path)
@@ -76,35 +92,13 @@ class Monitor:
         self.node = Node("demo_monitor", context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.beliefs: dict[int, object] = {}
-        self.states: dict[int, int] = {}
-        self.info: dict[int, dict] = {}
-        self.observations: dict[int, tuple[int, int]] = {}
-        self.observation_time: dict[int, float] = {}
-        S = self.model.S
-        self.node.create_subscription(Float64MultiArray, "belief",
-                                      lambda msg: self._store(self.beliefs, decode_belief(msg, S)), RECORDER_QOS)
-        self.node.create_subscription(Int64MultiArray, "true_state",
-                                      lambda msg: self.states.__setitem__(*decode_true_state(msg)), RECORDER_QOS)
-        self.subs = {
-            "plan_info": self.node.create_subscription(Float64MultiArray, "plan_info", self._on_info,
-                                                       RECORDER_QOS),
-            "observation": self.node.create_subscription(Int64MultiArray, "observation", self._on_observation,
-                                                         RECORDER_QOS),
-        }
-
-    @staticmethod
-    def _store(d, bel):
-        d[bel.epoch] = bel.belief
-
-    def _on_info(self, msg):
-        info = decode_plan_info(msg)
-        self.info[int(info["epoch"])] = info
-
-    def _on_observation(self, msg):
-        obs = decode_observation(msg, self.model.A, self.model.Z)
-        self.observations[obs.epoch] = (obs.priority, obs.observation)
-        self.observation_time.setdefault(obs.epoch, time.monotonic())
+        self.rows: deque[RecordRow] = deque()
+        self.loop = RecorderLoop(self.model.S, self.model.A, now=time.monotonic(), row_timeout=ROW_TIMEOUT,
+                                 expect_true_state=True)
+        self.inputs = RunInputs(self.node, self.loop, lambda out: self.rows.extend(out.rows))
+        self.subs = {**self.inputs.subscriptions,
+                     "observation": self.node.create_subscription(Int64MultiArray, "observation", lambda msg: None,
+                                                                  RECORDER_QOS)}
 
     def matched(self, topic: str) -> bool:
         """Whether the monitor's subscription to ``topic`` has matched a publisher."""
@@ -113,20 +107,14 @@ class Monitor:
     def spin_once(self, timeout: float = 0.05) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
-    def first_complete_epoch(self) -> int | None:
-        """The first epoch from which on belief, true state and next observation have all come (the
-        earliest each writer delivered), or None before all three have delivered something."""
-        if not (self.beliefs and self.states and self.observations):
-            return None
-        return max(min(self.beliefs), min(self.states), min(self.observations) - 1)
-
-    def row_ready(self, t: int, info_wait: float = 1.0) -> bool:
-        """Belief and true state of epoch ``t``, the observation of ``t + 1`` (it carries the action
-        chosen from that belief) and the planner's ``plan_info`` of ``t + 1``, or, if that has not
-        come ``info_wait`` s after the observation (missed before discovery), the row without it."""
-        if not (t in self.beliefs and t in self.states and (t + 1) in self.observations):
-            return False
-        return (t + 1) in self.info or time.monotonic() - self.observation_time[t + 1] > info_wait
+    def state(self) -> str:
+        """One line for a run that stalls: the pairing's report and the topics no writer was matched on."""
+        with self.inputs.lock:
+            report = self.loop.report(time.monotonic())
+        newest = ", ".join(f"{t} {self.loop.newest[t]}" for t in sorted(self.loop.newest)) or "none"
+        unmatched = [t for t in self.subs if not self.matched(t)]
+        return (f"monitor: {report.message}, {len(self.loop.pending)} rows waiting, newest row epoch per topic: "
+                f"{newest}; no writer matched on: {', '.join(unmatched) or 'none'}")
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)
@@ -166,13 +154,19 @@ def compare_with_greedy(model: POMDP, planner: dict, steps: int, seed: int) -> s
 
 
 def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, keep_logs: bool = False,
-        out=sys.stdout) -> int:
+        out=sys.stdout, record: str | os.PathLike | None = None) -> int:
     """Run the demo (module docstring); node logs go to a temporary directory, removed at the end
-    unless ``keep_logs``."""
+    unless ``keep_logs``; the rows of the table go to the run record ``record`` (by default, with
+    ``keep_logs``, ``run.csv`` in that directory)."""
     log_dir = Path(tempfile.mkdtemp(prefix="pomdp_planner_demo_"))
+    path = Path(record) if record is not None else log_dir / "run.csv" if keep_logs else None
+    written: list[int] = []
     try:
-        return _run(steps, model_key, time_budget, domain_id, log_dir, keep_logs, out)
+        return _run(steps, model_key, time_budget, domain_id, log_dir, keep_logs, out, path, written)
     finally:
+        if path is not None and written:
+            print(f"run record ({written[0]} rows) in {path}; draw it with: pomdp-planner plot {path} -o run.png",
+                  file=out)
         if keep_logs:
             print(f"node logs kept in {log_dir}", file=out)
         else:
@@ -180,7 +174,7 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
 
 
 def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, log_dir: Path,
-         keep_logs: bool, out) -> int:
+         keep_logs: bool, out, record: Path | None, written: list[int]) -> int:
     domain_id = random.randint(1, 101) if domain_id is None else domain_id
     os.environ.update(ros_env(domain_id))
     model_path = parameter_set_model(model_key)
@@ -193,21 +187,24 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
         planner_params["time_budget"] = time_budget
     monitor = Monitor(model_path)
     model = monitor.model
+    writer = None
+    if record is not None:
+        writer = open_run_record(record, "--record", model.name, model.S, model.A, planner_params["time_budget"])
+        written.append(0)
     greedy = MyopicPolicy(model)
     print(f"pomdp_planner demo: {model.describe()}; three processes on ROS_DOMAIN_ID={domain_id} "
           f"(localhost only){f'; node logs in {log_dir}' if keep_logs else ''}", file=out)
     header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'bounds':>8} " \
              f"{'greedy':>6} {'depth':>5} {'certified':>9} {'latency ms':>10}"
     rewards, entropies = [], []
-    not_greedy = certified = 0
+    not_greedy = certified = shown = 0
     widths: list[int] = []
     misses = decisions = 0
-    t = 0
     code = 0
     procs: dict = {}
     try:
         # Start order (module docstring): filter, planner, simulator (which waits for its subscribers)
-        for name, ready in (("belief_filter", lambda: 0 in monitor.beliefs),
+        for name, ready in (("belief_filter", lambda: monitor.matched("belief")),
                             ("planner", lambda: monitor.matched("plan_info")),
                             ("target_simulator", lambda: True)):
             procs.update(start_nodes(model_key, domain_id, log_dir, extra, names=(name,)))
@@ -219,44 +216,42 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
         print(header, file=out)
         print("-" * len(header), file=out)
         last_progress = time.monotonic()
-        t_end = steps
-        while t < t_end:
+        while shown < steps:
             monitor.spin_once()
-            first = monitor.first_complete_epoch() if not rewards else None
-            if first is not None and first > t:  # epochs before the monitor matched a writer never come
-                print(f"(the monitor matched the nodes late; the table starts at epoch {first})", file=out)
-                t, t_end = first, first + steps
-            while t < t_end and monitor.row_ready(t):
-                b, s = monitor.beliefs[t], monitor.states[t]
-                a = monitor.observations[t + 1][0] - 1
-                info = monitor.info.get(t + 1)
+            while shown < steps and monitor.rows:
+                row = monitor.rows.popleft()
+                if shown == 0 and row.epoch > 0:  # epochs before the monitor matched a writer never come
+                    print(f"(the monitor matched the nodes late; the table starts at epoch {row.epoch})", file=out)
+                t, b, s, a, info = row.epoch, row.belief, row.true_state, row.priority - 1, row.info
                 mode = int(b.argmax())
                 h = float(SHANNON.value(b))
-                rewards.append(float(model.r[s, a] - model.w[a] * model.uncertainty.value(b)))
+                if s is not None:
+                    rewards.append(float(model.r[s, a] - model.w[a] * model.uncertainty.value(b)))
                 entropies.append(h)
-                bounds = "-"
+                bounds = "-" if row.bounds is None else f"[{row.bounds[0]}, {row.bounds[1]}]"
+                if row.bounds is not None:
+                    widths.append(row.bounds[1] - row.bounds[0] + 1)
                 if info is None:  # plan_info not received (the monitor discovered the planner late)
                     extra_cols = f"{'-':>5} {'-':>9} {'-':>10}"
                 else:
-                    extra_cols = (f"{int(info['depth']):>5} {'yes' if info['certified'] else 'no':>9} "
-                                  f"{1e3 * info['latency']:>10.1f}")
+                    extra_cols = (f"{info.depth:>5} {'yes' if info.certified else 'no':>9} "
+                                  f"{1e3 * info.latency:>10.1f}")
                     decisions += 1
-                    misses += bool(info["deadline_miss"])
-                    certified += bool(info["certified"])
-                    if math.isfinite(info["bound_lower"]):
-                        lo, up = int(info["bound_lower"]), int(info["bound_upper"])
-                        bounds = f"[{lo}, {up}]"
-                        widths.append(up - lo + 1)
+                    misses += info.deadline_miss
+                    certified += info.certified
                 g = greedy.act(b)
                 not_greedy += g != a
-                print(f"{t:>4} {s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} {bounds:>8} {g + 1:>6} "
-                      f"{extra_cols}", file=out, flush=True)
-                t += 1
+                print(f"{t:>4} {'-' if s is None else s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} "
+                      f"{bounds:>8} {g + 1:>6} {extra_cols}", file=out, flush=True)
+                if writer is not None:
+                    writer.write(t, b, row.priority, **row.record_fields())
+                    written[0] += 1
+                shown += 1
                 last_progress = time.monotonic()
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
             if dead or time.monotonic() - last_progress > 60.0:
                 print(f"demo: {'process(es) ' + ', '.join(dead) + ' exited' if dead else 'no progress for 60 s'}; "
-                      "stopping", file=sys.stderr)
+                      f"stopping ({monitor.state()})", file=sys.stderr)
                 code = 1
                 break
     except KeyboardInterrupt:
@@ -264,26 +259,30 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
     finally:
         codes = stop_nodes(procs)
         monitor.close()
+        if writer is not None:
+            writer.stream.close()
     for name, c in codes.items():
         text = procs[name][1].read_text(errors="replace")
         if c != 0 or "Traceback" in text:
             code = code or 1
             print(f"demo: {name} exited with code {c}; last lines of its log:", file=sys.stderr)
             print("\n".join(text.splitlines()[-15:]), file=sys.stderr)
-    if rewards:
+    if shown:
         open_ = sorted({w for w in widths if w > 1})
         open_ = (f"; where not, the bounds left {' or '.join(map(str, open_))} of the {model.A} priorities open"
                  if open_ else "")
-        print(f"\nsummary over {len(rewards)} steps: mean reward {sum(rewards) / len(rewards):.4f}, "
+        known = "" if len(rewards) == shown else f" (over the {len(rewards)} steps with the true state)"
+        mean_reward = f"{sum(rewards) / len(rewards):.4f}" if rewards else "-"
+        print(f"\nsummary over {shown} steps: mean reward {mean_reward}{known}, "
               f"mean entropy {sum(entropies) / len(entropies):.4f} nats, action other than greedy's on "
-              f"{not_greedy} of {len(rewards)} steps, deadline misses "
+              f"{not_greedy} of {shown} steps, deadline misses "
               f"{misses} of {decisions} decisions shown (the planner's rule: latency > time_budget + "
               f"deadline_slack); "
               f"exit codes {codes}", file=out)
         print(f"certified {certified} of {decisions} decisions shown (the bounds agreed){open_}", file=out)
         if code == 0:
             seed = parameter_set_values(model_key, "target_simulator")["seed"]
-            print(compare_with_greedy(model, planner_params, len(rewards), seed), file=out)
+            print(compare_with_greedy(model, planner_params, shown, seed), file=out)
     return code
 
 
@@ -296,11 +295,19 @@ def main(argv=None) -> int:
     parser.add_argument("--time-budget", type=float, default=None, help="planner time_budget override (s)")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: random 1..101)")
     parser.add_argument("--keep-logs", action="store_true",
-                        help="keep the nodes' log files (printed at the end; default: removed with their directory)")
+                        help="keep the nodes' log files and the run record run.csv (printed at the end; default: "
+                             "removed with their directory)")
+    parser.add_argument("--record", default=None, metavar="FILE",
+                        help="write the table's rows as a run record (CSV; pomdp-planner plot FILE draws it)")
     args = parser.parse_args(argv)
     if args.steps < 1:
         parser.error("--steps: must be at least 1")
-    return run(args.steps, args.model, args.time_budget, args.domain_id, args.keep_logs)
+    if args.record is not None:
+        try:
+            check_output_file(args.record, "--record", stdout=False)
+        except OptionError as exc:
+            parser.error(str(exc))
+    return run(args.steps, args.model, args.time_budget, args.domain_id, args.keep_logs, record=args.record)
 
 
 if __name__ == "__main__":

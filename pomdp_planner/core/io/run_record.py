@@ -16,8 +16,12 @@ b0..bS-1   the belief the decision was made from (``S`` columns, on the simplex 
 action     the chosen action as a tracking priority ``1..A``
 lower      the root's lower-bound priority ``1..A`` (Theorem 2); empty without bounds
 upper      the root's upper-bound priority ``1..A``; empty without bounds (both or neither)
+guaranteed ``1`` if ``lower``/``upper`` are guaranteed (the assumption gate's verdict,
+           ``core/gate.py``; then ``lower <= upper``), ``0`` if they are shown without a guarantee
+           (a diagnostic, e.g. pruning forced on a model failing Assumption 1); empty without bounds
 depth      the depth searched (Table II convention); empty for a policy that does not search
-certified  ``1`` if the root bounds agree and are guaranteed (Proposition 1), else ``0``
+certified  ``1`` if the root bounds agree and are guaranteed (Proposition 1), else ``0``; ``1``
+           only with ``guaranteed`` ``1`` and ``lower == upper``
 latency    seconds the decision took; empty where not measured
 ========== ==================================================================================
 
@@ -44,7 +48,7 @@ FORMAT = "pomdp_planner run record"
 VERSION = 1
 #: Columns before and after the ``S`` belief columns.
 HEAD_COLUMNS = ("epoch", "true_state")
-TAIL_COLUMNS = ("action", "lower", "upper", "depth", "certified", "latency")
+TAIL_COLUMNS = ("action", "lower", "upper", "guaranteed", "depth", "certified", "latency")
 #: A belief row may miss the simplex by this much (the package's belief rule, ``core/belief.py``).
 BELIEF_ATOL = 1e-6
 
@@ -85,24 +89,45 @@ class RunRecordWriter:
         stream.flush()
 
     def write(self, epoch: int, belief: Sequence[float] | np.ndarray, priority: int, *, true_state: int | None = None,
-              bounds: tuple[int, int] | None = None, depth: int | None = None, certified: bool = False,
-              latency: float | None = None) -> None:
+              bounds: tuple[int, int] | None = None, guaranteed: bool = False, depth: int | None = None,
+              certified: bool = False, latency: float | None = None) -> None:
         """One decision: ``priority`` and ``bounds`` (lower, upper) as priorities ``1..A``, ``true_state``
-        0-based; ``None`` where unknown."""
+        0-based; ``None`` where unknown. ``guaranteed``: the gate guarantees ``bounds`` (default: they
+        are written as not guaranteed)."""
+        label = None if bounds is None else int(bool(guaranteed))
         row = [str(int(epoch)), _blank(true_state), *(_float_text(p) for p in np.asarray(belief, dtype=float)),
                str(int(priority)), _blank(None if bounds is None else int(bounds[0])),
-               _blank(None if bounds is None else int(bounds[1])), _blank(None if depth is None else int(depth)),
-               "1" if certified else "0", "" if latency is None else _float_text(latency)]
+               _blank(None if bounds is None else int(bounds[1])), _blank(label),
+               _blank(None if depth is None else int(depth)), "1" if certified else "0",
+               "" if latency is None else _float_text(latency)]
         self._last_epoch = _check_row(row, self.S, self.A, self._last_epoch, f"run record, epoch {int(epoch)}", None)
         self._csv.writerow(row)
         self.stream.flush()
 
 
+def open_run_record(path: str | os.PathLike, field: str, model_name: str, S: int, A: int,
+                    time_budget: float | None = None) -> RunRecordWriter:
+    """A :class:`RunRecordWriter` streaming into the file ``path`` (created or overwritten; closing
+    ``writer.stream`` ends it); a file that cannot be written is a :class:`RunRecordError` naming
+    ``field`` (the option or parameter that gave the path)."""
+    try:
+        stream = open(path, "w", encoding="utf-8")
+    except OSError as exc:
+        raise RunRecordError(f"{field}: cannot write {path}: {exc.strerror or type(exc).__name__}") from None
+    try:
+        return RunRecordWriter(stream, model_name, S, A, time_budget)
+    except (OSError, RunRecordError) as exc:
+        stream.close()
+        reason = exc.strerror if isinstance(exc, OSError) else str(exc)
+        raise RunRecordError(f"{field}: cannot write {path}: {reason or type(exc).__name__}") from None
+
+
 @dataclass(frozen=True, eq=False)
 class RunRecord:
     """A run record read back: ``beliefs`` ``(T, S)``; ``true_state`` ``(T,)`` with -1 where unknown;
-    ``action``, ``lower``, ``upper`` priorities ``1..A`` (bounds 0 where absent); ``depth`` (-1 where
-    absent), ``certified`` (bool), ``latency`` (seconds, NaN where absent)."""
+    ``action``, ``lower``, ``upper`` priorities ``1..A`` (bounds 0 where absent); ``guaranteed`` (bool:
+    the bounds are guaranteed; ``False`` where absent or not guaranteed); ``depth`` (-1 where absent),
+    ``certified`` (bool), ``latency`` (seconds, NaN where absent)."""
 
     model: str
     S: int
@@ -114,6 +139,7 @@ class RunRecord:
     action: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+    guaranteed: np.ndarray
     depth: np.ndarray
     certified: np.ndarray
     latency: np.ndarray
@@ -121,6 +147,11 @@ class RunRecord:
     @property
     def has_bounds(self) -> np.ndarray:
         return self.lower > 0
+
+    @property
+    def unguaranteed_bounds(self) -> np.ndarray:
+        """Rows whose bounds are shown without a guarantee (a diagnostic)."""
+        return self.has_bounds & ~self.guaranteed
 
 
 def _fail(where: str, line: int | None, column: str | None, problem: str) -> RunRecordError:
@@ -174,8 +205,15 @@ def _check_row(row: Sequence[str], S: int, A: int, last_epoch: int | None, where
     up = _int(cell["upper"], 1, A, where, line, "upper", True)
     if (lo is None) != (up is None):
         raise _fail(where, line, "upper" if up is None else "lower", "lower and upper are both given or both empty")
+    guaranteed = _int(cell["guaranteed"], 0, 1, where, line, "guaranteed", True)
+    if (guaranteed is None) != (lo is None):
+        raise _fail(where, line, "guaranteed", "given exactly where lower and upper are: 1 guaranteed bounds, "
+                    "0 bounds without a guarantee")
+    if guaranteed == 1 and lo > up:
+        raise _fail(where, line, "upper", f"guaranteed bounds never cross, got lower {lo} above upper {up}")
     _int(cell["depth"], 0, None, where, line, "depth", True)
-    _int(cell["certified"], 0, 1, where, line, "certified", False)
+    if _int(cell["certified"], 0, 1, where, line, "certified", False) == 1 and not (guaranteed == 1 and lo == up):
+        raise _fail(where, line, "certified", "1 needs guaranteed bounds that agree (guaranteed 1, lower == upper)")
     lat = _float(cell["latency"], where, line, "latency", True)
     if lat is not None and lat < 0:
         raise _fail(where, line, "latency", f"must be >= 0 seconds, got {lat!r}")
@@ -244,7 +282,8 @@ def read_run_record(path: str | os.PathLike) -> RunRecord:
     return RunRecord(
         model=model, S=S, A=A, time_budget=budget, epoch=ints("epoch", -1), true_state=ints("true_state", -1),
         beliefs=np.array([[float(cols[f"b{i}"][t]) for i in range(S)] for t in range(len(rows))]),
-        action=ints("action", 0), lower=ints("lower", 0), upper=ints("upper", 0), depth=ints("depth", -1),
+        action=ints("action", 0), lower=ints("lower", 0), upper=ints("upper", 0),
+        guaranteed=ints("guaranteed", 0).astype(bool), depth=ints("depth", -1),
         certified=ints("certified", 0).astype(bool),
         latency=np.array([math.nan if v.strip() == "" else float(v) for v in cols["latency"]]),
     )

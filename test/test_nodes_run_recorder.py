@@ -1,0 +1,180 @@
+"""The ``run_recorder`` node: a short loop of the three nodes recorded by it reads back with the
+run-record reader, row ``t`` holding exactly the belief and true state of epoch ``t``, the action
+``[t + 1, p]`` and that decision's ``plan_info`` (as an independent subscriber saw them), bounds
+only where the planner published them, and ``pomdp-planner plot`` draws it; bad messages are
+counted in ``/diagnostics``; a file it cannot write is one ``[FATAL]`` line; SIGINT ends it cleanly
+with the record complete."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diagnostic_msgs.msg import DiagnosticStatus
+from nodes_support import S3, make_harness
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray, Int64MultiArray
+from test_run_record import png_size
+
+from pomdp_planner.cli import main as cli_main
+from pomdp_planner.core.io.run_record import read_run_record
+from pomdp_planner.nodes.belief_filter import BeliefFilter
+from pomdp_planner.nodes.messages import decode_plan_info, encode_true_state
+from pomdp_planner.nodes.planner import PlannerNode
+from pomdp_planner.nodes.processes import node_command
+from pomdp_planner.nodes.qos import RECORDER_QOS, STREAM_QOS
+from pomdp_planner.nodes.run_recorder import RunRecorderNode
+from pomdp_planner.nodes.target_simulator import TargetSimulator
+
+harness = pytest.fixture(make_harness)
+ROWS = 40
+
+
+def _params(**kw):
+    return [Parameter(k, value=v) for k, v in kw.items()]
+
+
+def _rows_written(node: RunRecorderNode) -> int:
+    with node.inputs.lock:
+        return node.loop.health.counts["rows_written"]
+
+
+def _stop(h, node: Node) -> None:
+    """Take ``node`` out of the running harness and destroy it (the recorder: its file is complete)."""
+    h.executor.remove_node(node)
+    h.nodes.remove(node)
+    node.destroy_node()
+
+
+@pytest.mark.parametrize("use_bounds", [True, False])
+def test_a_recorded_loop_reads_back_pairs_by_epoch_and_plots(harness, tmp_path, use_bounds):
+    h = harness
+    path, png = tmp_path / "run.csv", tmp_path / "run.png"
+    recorder = h.add(RunRecorderNode(context=h.context, parameter_overrides=_params(
+        model_file=S3, file=str(path), time_budget=0.02, expect_true_state=True)))
+    infos: list = []
+    listener = h.add(Node("plan_info_listener", context=h.context))
+
+    def on_info(msg):
+        with h.cond:
+            infos.append(decode_plan_info(msg))
+            h.cond.notify_all()
+
+    listener.create_subscription(Float64MultiArray, "plan_info", on_info, RECORDER_QOS)
+    rec = h.recorder()
+    sim = TargetSimulator(context=h.context, parameter_overrides=_params(model_file=S3, seed=5))
+    flt = BeliefFilter(context=h.context, parameter_overrides=_params(model_file=S3))
+    planner = PlannerNode(context=h.context, parameter_overrides=_params(
+        model_file=S3, time_budget=0.02, max_depth=2, use_bounds=use_bounds))
+    h.start()  # the observers spin; the loop cannot advance before its nodes are added
+    for pub, n in ((flt.belief_pub, 3), (planner.action_pub, 4), (planner.info_pub, 2), (sim.state_pub, 2),
+                   (sim.obs_pubs[0], 2)):
+        assert h.wait_matched(pub, n), f"{pub.topic_name}: subscribers not matched"
+    for node in (sim, flt, planner):
+        h.add(node)
+    assert h.wait_until(lambda: _rows_written(recorder) >= ROWS, timeout=60), f"{_rows_written(recorder)} rows"
+    _stop(h, recorder)
+
+    record = read_run_record(path)
+    assert (record.model, record.S, record.A, record.time_budget) == ("tracking_s3_info", 3, 3, 0.02)
+    n = len(record.epoch)
+    assert n >= ROWS and record.epoch.tolist() == list(range(n))  # matched before the loop ran: every epoch
+    beliefs = rec.beliefs_by_epoch(3)
+    with h.cond:
+        actions, states, plan = dict(rec.actions), dict(rec.true_states), {int(i["epoch"]): i for i in infos}
+    for k, t in enumerate(record.epoch.tolist()):
+        np.testing.assert_array_equal(record.beliefs[k], beliefs[t])  # the same floats, read back
+        assert record.true_state[k] == states[t]
+        assert record.action[k] == actions[t + 1]
+        i = plan[t + 1]
+        assert int(i["action_priority"]) == actions[t + 1]
+        if math.isnan(i["bound_lower"]):
+            assert record.lower[k] == record.upper[k] == 0  # empty: no bound the planner did not publish
+        else:
+            assert (record.lower[k], record.upper[k]) == (i["bound_lower"], i["bound_upper"])
+        assert record.guaranteed[k] == record.has_bounds[k]  # the planner publishes only guaranteed bounds
+        assert record.certified[k] == bool(i["certified"]) and record.depth[k] == i["depth"]
+        assert record.latency[k] == i["latency"]
+    if use_bounds:  # the S = 3 model passes the gate: the planner publishes guaranteed bounds
+        assert record.has_bounds.all()
+        assert np.all(record.certified == (record.lower == record.upper))
+    else:
+        assert not record.has_bounds.any() and not record.certified.any()
+    assert cli_main(["plot", str(path), "-o", str(png), "--width", "6", "--height", "4", "--dpi", "50"]) == 0
+    assert png_size(png) == (300, 200)
+
+
+def test_bad_messages_are_counted_in_the_diagnostics(harness, tmp_path):
+    h = harness
+    recorder = h.add(RunRecorderNode(context=h.context, parameter_overrides=_params(
+        model_file=S3, file=str(tmp_path / "run.csv"))))
+    rec = h.recorder()
+    pub = rec.create_publisher(Int64MultiArray, "true_state", STREAM_QOS)
+    belief_pub = rec.create_publisher(Float64MultiArray, "belief", STREAM_QOS)
+    h.start()
+    assert h.wait_matched(pub, 2) and h.wait_matched(belief_pub, 2)
+    pub.publish(encode_true_state(3, 7))  # no state 7 in an S = 3 model
+    bad = Float64MultiArray()
+    bad.data = [0.5, 0.5]
+    belief_pub.publish(bad)
+
+    def status():
+        found = rec.diag_values("run_recorder: recording")
+        return found[-1] if found and found[-1].get("malformed_messages") == "2" else None
+
+    assert h.wait_until(lambda: status() is not None, timeout=10), rec.diag_values("run_recorder")
+    st = status()
+    assert st["file"] == str(tmp_path / "run.csv") and st["rows_written"] == "0"
+    assert st["_level"] == DiagnosticStatus.WARN and "since the last report: 2 malformed messages" in st["_message"]
+    assert recorder.loop.health.counts["malformed_messages"] == 2
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF", "PYTHONUNBUFFERED": "1"}
+
+
+@pytest.mark.parametrize(("file", "expected"), [
+    (None, "file: must name the CSV file to write, e.g. -p file:=run.csv"),
+    ("no_such_folder/run.csv", "file: cannot write no_such_folder/run.csv: the folder no_such_folder does not exist"),
+    (".", "file: cannot write .: it is a directory, not a regular file"),
+])
+def test_a_file_it_cannot_write_is_one_fatal_line(tmp_path, file, expected):
+    args = [] if file is None else ["-p", f"file:={file}"]
+    proc = subprocess.run([*node_command("run_recorder"), "--ros-args", "-p", f"model_file:={S3}", *args],
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path, env=_env())
+    lines = proc.stderr.splitlines()
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr[-3000:]
+    assert lines[0].startswith("[FATAL] [run_recorder]: " + expected), lines[0]
+    assert proc.stdout == "" and "Traceback" not in proc.stderr
+
+
+def test_sigint_ends_it_cleanly_with_the_record_readable_so_far(tmp_path):
+    log = tmp_path / "recorder.log"
+    with open(log, "wb") as fh:
+        proc = subprocess.Popen([*node_command("run_recorder"), "--ros-args", "-p", f"model_file:={S3}",
+                                 "-p", "file:=run.csv"], cwd=tmp_path, env=_env(), stdout=fh, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while "recording tracking_s3_info" not in log.read_text(errors="replace") and time.monotonic() < deadline:
+            assert proc.poll() is None, log.read_text(errors="replace")
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text(errors="replace")
+    assert "Traceback" not in text
+    assert (tmp_path / "run.csv").read_text().splitlines() == [
+        "# pomdp_planner run record 1; model=tracking_s3_info; S=3; A=3; time_budget=none",
+        "epoch,true_state,b0,b1,b2,action,lower,upper,guaranteed,depth,certified,latency"]
