@@ -199,9 +199,9 @@ def test_three_targets_within_budget_paired_and_a_filter_restarted(tmp_path, mon
 
     The eight participants talk over UDP on localhost only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``,
     for this test's processes): with Fast DDS's shared-memory transport, on the loaded shared
-    machine, 3 of 9 runs had a participant that matched its peers but received nothing from some
-    of them (once before any kill: no action at all; twice after the SIGKILL: the recorder or the
-    loop deaf from then on); over UDP 0 of 4 under the same load."""
+    machine, 4 of 11 runs had a participant that matched its peers but received nothing from some
+    of them (twice before any kill: the loop never started; twice after the SIGKILL: the recorder
+    or the loop deaf from then on); over UDP 0 of 6 under the same load."""
     monkeypatch.setenv("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")  # before rclpy.init: the recorder too
     shm_before = _shm_entries()
     ctx = Context()
