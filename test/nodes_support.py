@@ -11,11 +11,18 @@
   :meth:`RosHarness.wait_until` (a predicate and an upper bound, never a fixed sleep).
 * Discovery runs in DDS threads with no event to wait on, so :meth:`RosHarness.wait_matched` polls
   a publisher's match count (again with an upper bound).
+* Node processes a test starts: :func:`die_with_test` (``preexec_fn``) ends them when the test
+  process dies, however it dies; :func:`remove_dead_shm` removes the shared-memory files that
+  processes killed with SIGKILL left behind, and no file still in use.
 """
 
 from __future__ import annotations
 
+import ctypes
+import fcntl
 import os
+import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -37,6 +44,90 @@ from pomdp_planner.nodes.qos import RECORDER_QOS  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 S3 = str(REPO / "config" / "models" / "tracking_s3_info.yaml")
 S8 = str(REPO / "config" / "models" / "tracking_s8_info.yaml")
+SHM = Path("/dev/shm")
+
+_PR_SET_PDEATHSIG = 1
+_libc = ctypes.CDLL(None, use_errno=True) if sys.platform == "linux" else None
+if _libc is not None:
+    _libc.signal.restype = ctypes.c_void_p  # the previous handler, a pointer: not truncated to an int
+
+
+def die_with_test() -> None:
+    """``preexec_fn`` for a node process a test starts: SIGINT (how Ctrl-C ends a node: a clean exit
+    that releases its shared memory) reaches it when the test process dies, even by SIGKILL, so a
+    killed pytest leaves no orphan node talking in its ROS domain (Linux ``PR_SET_PDEATHSIG``; the
+    signal survives the wheels' re-exec at start-up). SIGINT is set back to its default first: a
+    test run in the background of a non-interactive shell would pass it on ignored. Runs in the
+    child between fork and exec, so it only calls libc through handles made beforehand. The signal
+    comes when the *thread* that started the process ends: start node processes from the test's
+    own thread, or from a pool that outlives them."""
+    if _libc is None:
+        return
+    parent = os.getppid()
+    _libc.signal(signal.SIGINT, 0)  # SIG_DFL
+    _libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGINT), 0, 0, 0)
+    if os.getppid() != parent:  # the test died before the prctl: the signal would never come
+        os._exit(1)
+
+
+def shm_entries(shm: Path = SHM) -> set[str]:
+    """Names of the Fast DDS shared-memory files (segments, ports and their lock files) in ``shm``."""
+    return {p.name for p in shm.glob("fastrtps_*")} if shm.is_dir() else set()
+
+
+def shm_mapped(pid: int | str, shm: Path = SHM) -> set[str]:
+    """Names of the files in ``shm`` that process ``pid`` has mapped (empty if it cannot be inspected:
+    ended, or another user's)."""
+    prefix = f"{shm}/"
+    try:
+        lines = Path(f"/proc/{pid}/maps").read_text(errors="replace").splitlines()
+    except OSError:
+        return set()
+    fields = (line.split(maxsplit=5) for line in lines)
+    return {f[5].removeprefix(prefix).removesuffix(" (deleted)") for f in fields
+            if len(f) == 6 and f[5].startswith(prefix)}
+
+
+def remove_dead_shm(before: set[str], shm: Path = SHM) -> list[str]:
+    """Remove the Fast DDS shared-memory files that appeared since ``before`` and that no live
+    process uses; return their names.
+
+    A process killed with SIGKILL leaves its segment and its ports behind. Every Fast DDS segment
+    and port has a lock file ``<name>_el`` (or ``_sl``) that its owner holds locked while it lives
+    (what ``fastdds shm clean`` tests): a lock that can be taken belongs to a dead process. A dead
+    node's port may still be mapped by live writers that have not yet noticed the death; a node
+    restarted with the same participant id opens that same port again and receives what they
+    write. So a file goes only if its owner is dead *and* no process maps it. Unlinking a file in
+    use (another test's, another run's on this machine, however new) cuts its users off from
+    every participant that opens it later: a node restarted there would receive nothing, ever."""
+    candidates = sorted(n for n in shm_entries(shm) - before if n.endswith(("_el", "_sl")))
+    in_use = set().union(*(shm_mapped(p.name, shm) for p in Path("/proc").glob("[0-9]*"))) if candidates else set()
+    removed = []
+    for lock in candidates:
+        name = lock[:-3]
+        if name in in_use:
+            continue
+        files = [name, lock] + ([f"sem.{name}_mutex"] if name.startswith("fastrtps_port") else [])
+        if _locked_while(shm / lock, lambda files=files: [(shm / f).unlink(missing_ok=True) for f in files]):
+            removed += files
+    return removed
+
+
+def _locked_while(lock: Path, action: Callable[[], object]) -> bool:
+    """Take Fast DDS lock file ``lock`` (free only if its owner is dead) and run ``action`` holding
+    it; False if the lock is held (or the file is gone)."""
+    try:
+        with open(lock, "ab") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            action()
+    except OSError:
+        return False
+    return True
+
+
+def owner_dead(name: str, shm: Path = SHM) -> bool:
+    """Whether the process that created Fast DDS file ``name`` (a segment or a port) has ended."""
+    return any(_locked_while(shm / f"{name}{suffix}", lambda: None) for suffix in ("_el", "_sl"))
 
 
 class Recorder(Node):

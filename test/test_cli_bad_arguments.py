@@ -1,4 +1,4 @@
-"""Every option's bad value is a clean exit 2 with one line naming the option (issue 13, item 2).
+"""Every option's bad value is a clean exit 2 with one line naming the option.
 
 Table-driven: each case runs ``pomdp_planner.cli.main([...])`` in-process and must return 2 (not
 raise: no ``SystemExit``, no traceback) with exactly one line on stderr that names the option

@@ -1,4 +1,4 @@
-"""Random argument strings at every subcommand: exit code 0, 1 or 2, never a traceback (issue 13).
+"""Random argument strings at every subcommand: exit code 0, 1 or 2, never a traceback.
 
 Hypothesis draws, for each subcommand, a few of its options (and some unknown ones) with values
 from a pool of troublesome strings (negative, zero, NaN, infinity, overflow, hex, empty, text,

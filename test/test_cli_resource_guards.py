@@ -1,4 +1,4 @@
-"""Resource guards of ``plan`` and the ``simulate`` search policies (issue 13, item 2).
+"""Resource guards of ``plan`` and the ``simulate`` search policies.
 
 * A fixed depth whose complete tree exceeds ``MAX_TREE_NODES`` is refused with the node count,
   the limit and the deepest depth within it (computed here by summing ``(A Z)^i``), unless

@@ -1,5 +1,5 @@
-"""The pure core and the command line never import rclpy (issue 2); the layers import only
-downwards (issue 11).
+"""The pure core and the command line never import rclpy; the layers import only
+downwards.
 
 ``pomdp_planner/core`` and ``pomdp_planner/cli`` must run without ROS. Checked twice: statically
 (every import statement, including relative imports of ``pomdp_planner.nodes`` and

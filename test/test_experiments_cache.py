@@ -1,4 +1,4 @@
-"""The experiments' cache holds data, never code (issue 13, item 3).
+"""The experiments' cache holds data, never code.
 
 Whoever can write into ``bench all``'s output folder can put any file into its cache. Such a
 file is never unpickled or executed: a pickle that would create a marker file when loaded is

@@ -1,4 +1,4 @@
-"""Unit tests of the experiments' building blocks (issue 6), each against an independent computation."""
+"""Unit tests of the experiments' building blocks, each against an independent computation."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Smoke test of `pomdp-planner bench all --quick` (issue 6): the whole pipeline at toy sizes.
+"""Smoke test of `pomdp-planner bench all --quick`: the whole pipeline at toy sizes.
 
 Runs every experiment once into a temporary directory (about a minute on 2 cores) and checks
 what a reader of docs/RESULTS.md relies on: all files are produced, every table is complete,

@@ -2,7 +2,7 @@
 refuse on request, the explicit override says that no guarantee holds; Assumption 1 checked
 once per model.
 
-``test/models/fails_assumption1_s3.yaml`` (issue 11's reproduction) fails (A1), (A2) and (A3)
+``test/models/fails_assumption1_s3.yaml`` fails (A1), (A2) and (A3)
 but has a feasible LP: its "bounds" agree at (0.3, 0.4, 0.3) on priority 2, which exhaustive
 search to depth 6 does not choose, and cross at (0.1, 0.8, 0.1).
 """

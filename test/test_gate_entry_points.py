@@ -1,4 +1,4 @@
-"""Issue 11: from every entry point, a model failing Assumption 1 never gets a certificate, the
+"""From every entry point, a model failing Assumption 1 never gets a certificate, the
 search falls back to exhaustive with the reason, and the explicit override says no guarantee.
 
 The model is ``test/models/fails_assumption1_s3.yaml`` (see test_gate.py); before the gate,

@@ -86,17 +86,76 @@ def test_an_incomplete_epoch_is_applied_at_its_time_out_with_the_readings_it_has
 def test_a_run_of_lost_epochs_is_one_warning_and_one_belief_predicted_with_the_commanded_action():
     loop = make(epoch_timeout=0.5)
     (b1,) = feed(loop, 1, 1, 0).beliefs
-    loop.action(ActionSample(3, 3), T0)  # the planner commanded priority 3 for epoch 3; 2 and 4: unknown
-    out = feed(loop, 5, 2, 1, T0 + 0.1)
+    loop.action(ActionSample(2, 3), T0)  # the planner commanded priority 3 for epoch 2; 3: unknown
+    out = feed(loop, 4, 2, 1, T0 + 0.1)
+    assert out.beliefs == [] and out.release_at is None  # one reading ahead: no epoch lost on its word
+    out = feed(loop, 5, 2, 0, T0 + 0.2)
     assert out.beliefs == [] and out.release_at == pytest.approx(T0 + 0.6)
     out = loop.release(T0 + 0.6)
-    assert [b.epoch for b in out.beliefs] == [4, 5]
-    held_2_predicted_3_held_4 = b1.belief @ MODEL.P[2]
-    np.testing.assert_allclose(out.beliefs[0].belief, held_2_predicted_3_held_4, rtol=1e-12)
-    np.testing.assert_allclose(out.beliefs[1].belief, bayes(held_2_predicted_3_held_4, 2, (MODEL.O, 1)), rtol=1e-12)
+    assert [b.epoch for b in out.beliefs] == [3, 4, 5]
+    predicted_2_held_3 = b1.belief @ MODEL.P[2]
+    np.testing.assert_allclose(out.beliefs[0].belief, predicted_2_held_3, rtol=1e-12)
+    b4 = bayes(predicted_2_held_3, 2, (MODEL.O, 1))
+    np.testing.assert_allclose(out.beliefs[1].belief, b4, rtol=1e-12)
+    np.testing.assert_allclose(out.beliefs[2].belief, bayes(b4, 2, (MODEL.O, 0)), rtol=1e-12)
     assert [x.text for x in out.logs] == [
-        "epochs 2..4 lost (3, no reading): predicted with the commanded action for 1, held for 2"]
-    assert loop.health.counts["gaps"] == 3
+        "epochs 2..3 lost (2, no reading): predicted with the commanded action for 1, held for 1"]
+    assert loop.health.counts["gaps"] == 2
+
+
+def test_one_reading_ahead_declares_nothing_lost_and_costs_at_most_its_own_epoch():
+    loop = make(epoch_timeout=0.5)
+    for t in range(1, 11):
+        feed(loop, t, 2, t % 3)
+    feed(loop, 13, 1, 0, T0 + 0.1)  # a stray's guess of a later epoch, within the reach
+    for k in range(1, 5):
+        assert loop.release(T0 + k).beliefs == []
+        assert [b.epoch for b in loop.watchdog(T0 + k).beliefs] in ([], [10])  # at most the re-sent belief
+    assert loop.epoch == 10 and loop.health.counts["gaps"] == 0
+    assert [b.epoch for b in feed(loop, 11, 2, 1, T0 + 5).beliefs] == [11]
+    assert [b.epoch for b in feed(loop, 12, 2, 1, T0 + 5).beliefs] == [12, 13]  # the guess: its own epoch only
+    assert feed(loop, 13, 2, 2, T0 + 5).beliefs == [] and loop.health.counts["duplicates"] == 1
+    assert [b.epoch for b in feed(loop, 14, 2, 2, T0 + 5).beliefs] == [14]
+
+
+def test_one_reading_far_ahead_is_unexplained_and_a_jump_needs_two_and_a_quiet_line():
+    loop = make(epoch_timeout=0.5, max_pending=10)
+    for t in range(1, 11):
+        feed(loop, t, 2, t % 3)
+    b10 = loop.belief
+    out = feed(loop, 40, 1, 0, T0 + 0.1)  # 30 ahead: beyond the reach (10), inside the window (50)
+    assert out.beliefs == [] and loop.buffer.pending_epochs == 0
+    assert loop.health.counts["unexplained_epochs"] == 1 and "more than 10 epochs ahead" in out.logs[0].text
+    # a stream far ahead while the line advances (a replay beside the real readings): never followed
+    for t in range(11, 21):
+        feed(loop, t + 30, 1, 0, T0 + 0.1 + t / 100)
+        feed(loop, t, 2, 0, T0 + 0.1 + t / 100)
+    assert loop.epoch == 20 and loop.health.counts["gaps"] == 0
+    for k in range(1, 4):  # one reading far ahead, however long the line then stays quiet
+        feed(loop, 60, 2, 1, T0 + k)
+        loop.watchdog(T0 + k)
+    assert loop.epoch == 20
+    # the readings go on far ahead and nothing has been applied for epoch_timeout: a long loss
+    out = feed(loop, 61, 2, 0, T0 + 4)
+    assert [b.epoch for b in out.beliefs] == [61] and loop.epoch == 61
+    np.testing.assert_allclose(out.beliefs[0].belief, bayes(loop_belief_at_20(b10), 2, (MODEL.O, 0)), rtol=1e-12)
+    assert loop.health.counts["gaps"] == 40 and "epochs 21..60 lost (40" in out.logs[0].text
+
+
+def test_two_consecutive_readings_far_ahead_are_followed_only_once_the_line_is_quiet():
+    loop = make(epoch_timeout=0.5, max_pending=10)
+    feed(loop, 1, 2, 0, T0)
+    feed(loop, 30, 2, 0, T0 + 0.1)
+    assert feed(loop, 31, 2, 0, T0 + 0.2).beliefs == [] and loop.epoch == 1  # the line advanced 0.2 s ago
+    out = loop.watchdog(T0 + 0.5)
+    assert [b.epoch for b in out.beliefs][-1:] == [31] and loop.epoch == 31
+
+
+def loop_belief_at_20(b10):
+    b = b10
+    for _ in range(11, 21):
+        b = bayes(b, 2, (MODEL.O, 0))
+    return b
 
 
 def test_a_reading_beyond_the_window_is_dropped_never_buffered_never_walked():
@@ -123,12 +182,15 @@ def test_a_fresh_filter_joins_a_running_loop_on_two_consecutive_readings_beyond_
     assert loop.health.counts["resyncs"] == 0  # a join is not a re-sync
 
 
-def test_actions_out_of_the_window_warn_only_once_the_filter_has_joined():
+def test_actions_out_of_the_window_or_ahead_warn_only_once_the_filter_has_joined():
     loop = make()
     assert loop.action(ActionSample(9000, 1), T0).logs == []  # the planner's history before the join
     feed(loop, 1, 1, 0)
     out = loop.action(ActionSample(9000, 1), T0)
     assert loop.health.counts["out_of_window"] == 1 and "action: epoch 9000 is beyond" in out.logs[0].text
+    out = loop.action(ActionSample(5, 1), T0)  # ahead of the epoch the filter applies next (2)
+    assert loop.health.counts["unexplained_epochs"] == 1 and "beyond epoch 2, the one the filter" in out.logs[0].text
+    assert loop.action(ActionSample(2, 1), T0).logs == []
 
 
 def test_a_stalled_filter_resyncs_to_a_simulator_counting_on_a_numbering_of_its_own():

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from pomdp_planner.core.loop import Level, LoopHealth, StallLimits
-from pomdp_planner.core.loop.health import InputWatch, LogThrottle, worst
+from pomdp_planner.core.loop.health import COMMON_COUNTERS, InputWatch, LogThrottle, worst
 
 T0 = 100.0
 LIMITS = StallLimits(2.0, 10.0)
@@ -61,7 +61,7 @@ def test_warnings_are_counted_always_and_logged_once_per_interval_per_counter():
     h.warn("bad", "bad 11", T0 + 11)
     h.warn(None, "a note", T0 + 12)
     h.warn("bad", "quiet", T0 + 30, log=False)
-    assert h.counts == {"steps": 0, "bad": 7, "odd": 1}
+    assert h.counts == {"steps": 0, "bad": 7, "odd": 1, **dict.fromkeys(COMMON_COUNTERS, 0)}
     assert [(x.level, x.text) for x in h.drain_logs()] == [
         ("warning", "bad 0"), ("warning", "odd 0"), ("warning", "bad 11 (and 4 similar since the last such line)"),
         ("warning", "a note")]
@@ -79,7 +79,7 @@ def test_report_warns_while_problems_keep_coming_and_is_ok_once_they_stop():
     r = h.report(T0 + 1, {"epoch": 4}, head=["epoch 4"])
     assert r.level == Level.WARN
     assert r.message == "epoch 4; since the last report: 2 bad, 1 odd; last: the third"
-    assert r.values == {"epoch": 4, "steps": 10, "bad": 2, "odd": 1}
+    assert r.values == {"epoch": 4, "steps": 10, "bad": 2, "odd": 1, **dict.fromkeys(COMMON_COUNTERS, 0)}
     r = h.report(T0 + 2, {}, head=["epoch 4"])  # nothing new since: OK again, counts kept
     assert (r.level, r.message, r.values["bad"]) == (Level.OK, "epoch 4", 2)
     h.warn("odd", "again", T0 + 2)

@@ -200,6 +200,28 @@ def test_a_forged_epoch_is_dropped_and_a_stale_one_counted():
     assert report.level == Level.WARN and "target1: belief of epoch 1000000000000000" in report.message
 
 
+def test_a_targets_belief_that_does_not_follow_its_beliefs_so_far_is_decided_only_if_the_next_one_follows_it():
+    loop = make()
+    joined(loop, epochs=(10, 10, 10))
+    out = loop.belief(0, bel(40, 0), T0 + 1.0)  # 30 ahead of target1's newest belief: inside the window, unexplained
+    assert loop.inboxes[0].mailbox is None and loop.health.counts["unexplained_epochs"] == 1
+    assert "target1: belief of epoch 40 does not follow the beliefs so far (newest: epoch 10)" in out.logs[0].text
+    for k in range(20):  # a single stray belief is never decided, however long the manager waits
+        loop.watchdog(T0 + 2.0 + k)
+    assert loop.inboxes[0].line.position == 10 and loop.inboxes[0].mailbox is None
+    loop.belief(1, bel(11, 1), T0 + 30.0)  # another target's stream is no evidence for target1's
+    assert loop.inboxes[0].mailbox is None and loop.inboxes[1].mailbox.epoch == 11
+    # a jump of target1's filter: two consecutive beliefs beyond its newest
+    loop.belief(0, bel(30, 0), T0 + 30.0)
+    out = loop.belief(0, bel(31, 0), T0 + 30.1)
+    assert loop.inboxes[0].mailbox.epoch == 31
+    assert "target1: followed the beliefs from epoch 10 to epoch 31" in out.logs[0].text
+    assert loop.health.counts["resyncs"] == 0 and loop.health.counts["unexplained_epochs"] == 2  # 40, 30
+    job, out = decide(loop, T0 + 30.2)
+    assert {k: b.epoch for k, b in job.beliefs.items()} == {0: 31, 1: 11}
+    assert loop.belief(0, bel(32, 0), T0 + 30.3).logs == [] and loop.inboxes[0].mailbox.epoch == 32
+
+
 def test_a_bad_belief_is_counted_with_its_target():
     loop = make()
     out = loop.rejected_belief(1, "belief: expected 3 probabilities, got 4", T0)

@@ -86,13 +86,37 @@ def test_a_decision_answers_the_belief_of_epoch_t_with_the_action_of_t_plus_1():
 def test_the_mailbox_keeps_the_newest_new_belief_and_a_stale_one_cannot_displace_it():
     loop = make()
     joined(loop, 10)
-    for e, t in ((11, 1.0), (13, 1.1), (12, 1.2), (9, 1.3), (10, 1.4)):  # older, stale and repeated ones come later
+    for e, t in ((11, 1.0), (12, 1.1), (13, 1.2), (9, 1.3), (10, 1.4), (12, 1.5)):  # stale and repeated ones come later
         loop.belief(bel(e), T0 + t)
     assert loop.mailbox.epoch == 13 and loop.health.counts["stale_beliefs"] == 2
     job = loop.take(T0 + 2.0)
-    assert job.epoch == 13 and job.arrived == T0 + 1.1 and loop.take(T0 + 2.0) is None
+    assert job.epoch == 13 and job.arrived == T0 + 1.2 and loop.take(T0 + 2.0) is None
     loop.belief(bel(12), T0 + 2.1)  # planned past it: stale now
     assert loop.mailbox is None and loop.health.counts["stale_beliefs"] == 3
+
+
+def test_a_belief_that_does_not_follow_the_beliefs_so_far_is_planned_only_if_the_next_one_follows_it():
+    loop2 = make()
+    joined(loop2, 10)
+    out = loop2.belief(bel(40), T0 + 1.0)  # 30 ahead of the newest belief: inside the window, unexplained
+    assert loop2.mailbox is None and loop2.health.counts["unexplained_epochs"] == 1
+    assert "belief of epoch 40 does not follow the beliefs so far (newest: epoch 10)" in out.logs[0].text
+    loop2.belief(bel(11), T0 + 1.1)  # the real stream goes on: planned; the stray is forgotten
+    assert loop2.mailbox.epoch == 11
+    loop2.take(T0 + 1.2)
+    loop2.belief(bel(41), T0 + 1.3)  # 40 and 41, with 11 in between: no jump
+    assert loop2.mailbox is None and loop2.health.counts["unexplained_epochs"] == 2
+    for k in range(20):  # a single stray belief is never planned, however long the planner waits
+        loop2.watchdog(T0 + 2.0 + k)
+    assert loop2.line.position == 11
+    # a jump of the filter (a lost run of readings, or a filter restarted ahead): two consecutive beliefs
+    loop2.belief(bel(30), T0 + 30.0)
+    out = loop2.belief(bel(31), T0 + 30.1)
+    assert loop2.mailbox.epoch == 31 and out.plan_now
+    assert "followed the beliefs from epoch 11 to epoch 31" in out.logs[0].text
+    assert loop2.health.counts["resyncs"] == 0 and loop2.health.counts["unexplained_epochs"] == 3  # 40, 41, 30
+    assert loop2.take(T0 + 30.2).epoch == 31
+    assert loop2.belief(bel(32), T0 + 30.3).logs == [] and loop2.mailbox.epoch == 32
 
 
 def test_plan_now_wakes_the_planning_side_only_when_it_would_miss_the_mailbox():

@@ -62,17 +62,20 @@ def test_no_step_before_the_subscribers_are_there():
     assert [r.epoch for r in out.readings] == [1] and "observation subscribers matched; stepping" in out.logs[0].text
 
 
-def test_stepping_on_actions_steps_new_epochs_only_and_a_jump_once():
+def test_stepping_on_actions_steps_the_next_epoch_only():
     loop = make()
     joined(loop, 1)
     assert [r.epoch for r in loop.action(act(2), T0 + 1).readings] == [2]
     for e in (2, 1):  # a repeat and a stale action
         assert loop.action(act(e), T0 + 1).readings == []
     assert loop.health.counts["stale_actions"] == 2
-    out = loop.action(act(6, 3), T0 + 1)  # actions 3..5 lost: one step, counted
-    assert [(r.epoch, r.priority) for r in out.readings] == [(6, 3)]
-    assert loop.health.counts["epoch_gaps"] == 1 and "action jumps from epoch 2 to 6" in out.logs[0].text
-    assert loop.epoch == 6 and loop.health.counts["steps"] == 3
+    out = loop.action(act(6, 3), T0 + 1)  # beyond epoch 3, the one it steps next: no planner of the loop sent it
+    assert out.readings == [] and loop.epoch == 2
+    assert loop.health.counts["unexplained_epochs"] == 1
+    assert "action of epoch 6 is beyond epoch 3, the one the simulator steps next: dropped" in out.logs[0].text
+    assert loop.action(act(40, 3), T0 + 1.1).readings == [] and loop.health.counts["unexplained_epochs"] == 2
+    assert [(r.epoch, r.priority) for r in loop.action(act(3, 1), T0 + 1.2).readings] == [(3, 1)]
+    assert loop.health.counts["steps"] == 3
 
 
 def test_one_action_beyond_the_window_is_dropped_and_never_moves_the_target():
@@ -123,6 +126,19 @@ def test_timer_mode_joins_on_the_belief_epoch_and_actions_only_set_the_priority(
     assert r.level == Level.WARN and r.message == ("epoch 72; action: no new action for 2.1 s (last: epoch 72); "
                                                    "1 received meanwhile, none new (repeats, stale or out of window); "
                                                    "stepping with priority 1")
+
+
+def test_timer_mode_never_takes_the_priority_of_an_action_beyond_the_next_step():
+    loop = make(step_period=0.1, default_priority=2)
+    loop.belief_epoch(70, T0)
+    loop.tick(T0 + JOIN_DELAY)  # steps 71
+    for e in (71 + 900 - 40, 80, 73):  # inside the window (50) or beyond it, all beyond epoch 72
+        loop.action(act(e, 3), T0 + 0.3)
+    assert loop.health.counts["unexplained_epochs"] == 2 and loop.health.counts["out_of_window"] == 1
+    assert [(r.epoch, r.priority) for r in loop.tick(T0 + 0.4).readings] == [(72, 2)]
+    loop.action(act(73, 1), T0 + 0.45)  # the planner's answer to the belief of 72
+    loop.action(act(73, 3), T0 + 0.46)  # the same epoch again: not newer, ignored
+    assert [(r.epoch, r.priority) for r in loop.tick(T0 + 0.5).readings] == [(73, 1)]
 
 
 def test_timer_mode_with_nothing_received_numbers_on_its_own_after_join_timeout():

@@ -1,4 +1,4 @@
-"""Hostile model files (issue 13): every case ends in one clean line, in bounded memory.
+"""Hostile model files: every case ends in one clean line, in bounded memory.
 
 One test per crash class found by the mutation fuzzer (tools/fuzz_models.py) and
 listed in the issue: binary content, non-regular files, oversized files, alias bombs, deep

@@ -25,7 +25,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from geometry_msgs.msg import Point, PointStamped
-from nodes_support import S3, make_harness, rclpy
+from nodes_support import S3, die_with_test, make_harness, rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy
@@ -287,7 +287,7 @@ def test_a_fast_sensor_burst_neither_stalls_the_loop_nor_queues_anything(harness
 def test_a_bad_parameter_stops_the_executable_with_one_fatal_line(exe, args, message):
     proc = subprocess.run([*node_command(exe), "--ros-args", "-p", f"model_file:={S3}", *args],
                           capture_output=True, text=True, timeout=60,
-                          env={**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"})
+                          env={**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"}, preexec_fn=die_with_test)
     assert proc.returncode == 1, proc.stderr[-2000:]
     fatal = [line for line in proc.stderr.splitlines() if "[FATAL]" in line]
     assert len(fatal) == 1 and message in fatal[0], proc.stderr[-2000:]

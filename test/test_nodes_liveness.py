@@ -69,12 +69,12 @@ def _advances(h, flt, by, timeout=30):
 
 def test_forged_belief_far_ahead_is_dropped_and_the_loop_goes_on(harness):
     """A single belief whose layout says epoch 10^15 must not become an action for that epoch
-    (which the simulator would jump to, and the filter then walk epoch by epoch)."""
+    (which the simulator would jump to, and the filter then walk epoch by epoch); sent through the
+    filter's own publisher, so that the writer rule does not drop it first."""
     h = harness
     sim, flt, planner, rec = _loop(h)
     assert h.wait_until(lambda: flt.loop.epoch > 20, timeout=30)
-    forger = _publisher(h, Float64MultiArray, "belief")
-    forger.publish(encode_belief(10**15, [0.2, 0.3, 0.5]))
+    flt.belief_pub.publish(encode_belief(10**15, [0.2, 0.3, 0.5]))
     assert _advances(h, flt, 100), f"loop stalled at epoch {flt.loop.epoch}"
     assert h.wait_until(lambda: planner.loop.health.counts.get("out_of_window", 0) == 1, timeout=10)
     with h.cond:
@@ -84,13 +84,13 @@ def test_forged_belief_far_ahead_is_dropped_and_the_loop_goes_on(harness):
 
 
 def test_observation_far_ahead_neither_stalls_nor_walks_the_filter(harness):
-    """A single observation 50 000 epochs ahead of the loop: dropped (out of the window), not
-    buffered, never walked; the filter keeps pace with the simulator."""
+    """A single observation 50 000 epochs ahead of the loop (from the simulator's own publisher):
+    dropped (out of the window), not buffered, never walked; the filter keeps pace with the simulator."""
     h = harness
     sim, flt, _planner, rec = _loop(h)
     assert h.wait_until(lambda: flt.loop.epoch > 20, timeout=30)
     ahead = flt.loop.epoch + 50_000
-    _publisher(h, Int64MultiArray, "observation").publish(encode_observation(ahead, 1, 0))
+    sim.obs_pubs[0].publish(encode_observation(ahead, 1, 0))
     assert _advances(h, flt, 100), f"filter stalled at epoch {flt.loop.epoch} (simulator at {sim.loop.epoch})"
     # two more diagnostics reports: longer than epoch_timeout, after which a buffered reading would be
     # reached by releasing every epoch in between as lost
@@ -121,8 +121,9 @@ ROUNDS = 10
 
 def test_malformed_messages_on_every_topic_are_counted_and_dropped(harness):
     """Wrong length, NaN, negative, huge and far-ahead epochs, a 5000-digit epoch label and huge
-    labels on action, observation and belief, many times over: counted, dropped; the loop goes on
-    and no node holds more than it did."""
+    labels on action, observation and belief, many times over, through the loop's own publishers
+    (the writers the nodes follow): counted, dropped (the huge labels unread, as oversized); the
+    loop goes on and no node holds more than it did."""
     h = harness
     _sim, flt, planner, rec = _loop(h)
     assert h.wait_until(lambda: flt.loop.epoch > 20, timeout=30)
@@ -137,18 +138,21 @@ def test_malformed_messages_on_every_topic_are_counted_and_dropped(harness):
     huge_label = encode_belief(1, [0.2, 0.3, 0.5])
     huge_label.layout.dim[1].label = "epoch=" + "9" * 5000  # int() of it would raise: more than 4300 digits
     beliefs.append(huge_label)
-    pubs = [(_publisher(h, Int64MultiArray, "action"), _malformed_ints(2, far)),
-            (_publisher(h, Int64MultiArray, "observation"), _malformed_ints(3, far)),
-            (_publisher(h, Float64MultiArray, "belief"), beliefs)]
+    pubs = [(planner.action_pub, _malformed_ints(2, far)), (_sim.obs_pubs[0], _malformed_ints(3, far)),
+            (flt.belief_pub, beliefs)]
     for _ in range(ROUNDS):  # within the readers' history depth (100): none is lost unread
         for pub, msgs in pubs:
             for msg in msgs:
                 pub.publish(msg)
     assert _advances(h, flt, 100), f"loop stalled at epoch {flt.loop.epoch}"
     # counted by each node (diagnostics), nothing acted on
-    assert h.wait_until(lambda: int(_latest(rec, "planner").get("bad_beliefs", 0)) >= ROUNDS * 5, timeout=10)
+    def counted(node, *keys):
+        return sum(int(_latest(rec, node).get(k, 0)) for k in keys)
+
+    assert h.wait_until(lambda: counted("planner", "bad_beliefs", "oversized_samples") >= ROUNDS * 5, timeout=10)
+    assert int(_latest(rec, "planner").get("oversized_samples", 0)) >= ROUNDS  # the 5000-digit label, unread
     assert int(_latest(rec, "planner").get("out_of_window", 0)) >= ROUNDS
-    assert h.wait_until(lambda: int(_latest(rec, "target_simulator").get("malformed_actions", 0)) >= ROUNDS * 6,
+    assert h.wait_until(lambda: counted("target_simulator", "malformed_actions", "oversized_samples") >= ROUNDS * 6,
                         timeout=10)
     fl = _latest(rec, "belief_filter")
     assert int(fl["malformed_messages"]) + int(fl["out_of_range_observations"]) >= ROUNDS * 5
@@ -193,9 +197,8 @@ def test_one_stale_belief_cannot_stop_the_loop(harness):
     valid, not-yet-planned one)."""
     h = harness
     _sim, flt, planner, rec = _loop(h)
-    stray = _publisher(h, Float64MultiArray, "belief")
     at = 30
-    hold = _HoldAfterPublish(planner.action_pub, at, rec, stray, h)
+    hold = _HoldAfterPublish(planner.action_pub, at, rec, flt.belief_pub, h)  # the filter's writer: not foreign
     planner.action_pub = hold
     assert hold.done.wait(timeout=60), "the loop never reached the held decision"
     assert _advances(h, flt, 50), f"loop stopped at epoch {flt.loop.epoch} after one stale belief"
@@ -204,9 +207,10 @@ def test_one_stale_belief_cannot_stop_the_loop(harness):
 
 def test_stray_publishers_on_every_topic_cannot_stop_the_loop(harness):
     """Stale beliefs, observations and actions from a second publisher on each topic at 20 Hz
-    (more than the issue's 1 Hz) while the loop runs free: it keeps going."""
+    while the loop runs free: it keeps going, every node drops the second writer's samples as
+    foreign and names it in its diagnostics."""
     h = harness
-    sim, flt, planner, _rec = _loop(h)
+    sim, flt, planner, rec = _loop(h)
     assert h.wait_until(lambda: flt.loop.epoch > 5, timeout=30)
     node = h.add(Node("stray", context=h.context))
     pubs = [(node.create_publisher(Float64MultiArray, "belief", STREAM_QOS), encode_belief(2, [0.2, 0.3, 0.5])),
@@ -215,8 +219,9 @@ def test_stray_publishers_on_every_topic_cannot_stop_the_loop(harness):
     node.create_timer(0.05, lambda: [p.publish(m) for p, m in pubs])
     for _ in range(3):  # keeps going, in three rounds of 100 epochs
         assert _advances(h, flt, 100), f"loop stalled at epoch {flt.loop.epoch}"
-    assert planner.loop.health.counts["stale_beliefs"] > 0 and sim.loop.health.counts["stale_actions"] > 0
-    assert flt.loop.health.counts["duplicates"] > 0
+    for n in (planner, sim, flt):
+        assert n.loop.health.counts["foreign_samples"] > 0 and n.loop.health.counts["writer_changes"] == 0
+    assert h.wait_until(lambda: "/stray [" in _latest(rec, "target_simulator").get("_message", ""), timeout=10)
 
 
 class _DropOnce:

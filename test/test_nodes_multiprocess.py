@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import REPO, Recorder, rclpy
+from nodes_support import REPO, Recorder, die_with_test, rclpy, remove_dead_shm, shm_entries
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
@@ -31,11 +31,6 @@ from pomdp_planner.core.simulate import simulate
 from pomdp_planner.nodes.processes import node_command, parameter_set_model, parameter_set_values, stop_nodes
 
 S3_MODEL = load_model(REPO / "config" / "models" / "tracking_s3_info.yaml")
-SHM = Path("/dev/shm")
-
-
-def _shm_entries() -> set[str]:
-    return {p.name for p in SHM.glob("fastrtps_*")} if SHM.is_dir() else set()
 
 
 @pytest.fixture
@@ -66,7 +61,7 @@ def _spin_until(executor, predicate, timeout):
 def _observer() -> tuple[Context, Recorder, SingleThreadedExecutor, set[str]]:
     """The test's own context, a recorder on it and its executor (spun by ``_spin_until``), and
     the shared-memory segments that existed before (a killed process leaves some behind)."""
-    shm_before = _shm_entries()
+    shm_before = shm_entries()
     ctx = Context()
     rclpy.init(context=ctx)
     rec = Recorder(ctx, threading.Condition())
@@ -90,12 +85,14 @@ def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
         for name in ("target_simulator", "belief_filter"):
             logs[name] = tmp_path / f"{name}.err"
             procs[name] = (subprocess.Popen([*node_command(name), "--ros-args", *args[name]], env=env,
-                                            stdout=subprocess.DEVNULL, stderr=_log(logs[name], handles)), logs[name])
+                                            stdout=subprocess.DEVNULL, stderr=_log(logs[name], handles),
+                                            preexec_fn=die_with_test), logs[name])
         # start the planner only once the test sees the prior and the initial state: no epoch is missed
         assert _spin_until(executor, lambda: rec.beliefs and rec.true_states, 30), "no prior / initial state"
         logs["planner"] = tmp_path / "planner.err"
         procs["planner"] = (subprocess.Popen([*node_command("planner"), "--ros-args", *args["planner"]], env=env,
-                                             stdout=subprocess.DEVNULL, stderr=_log(logs["planner"], handles)),
+                                             stdout=subprocess.DEVNULL, stderr=_log(logs["planner"], handles),
+                                             preexec_fn=die_with_test),
                             logs["planner"])
         # discovery between this process and the planner may take a while (the loop may run ahead)
         assert _spin_until(executor, lambda: len(rec.actions) >= 20 and len(rec.belief_epochs(S3_MODEL.S)) > 30,
@@ -115,9 +112,8 @@ def test_three_processes_closed_loop_and_clean_sigint(domain, tmp_path):
         ctx.try_shutdown()
         for fh in handles:
             fh.close()
-        if killed:  # only a killed process leaves segments behind; remove only those new since the start
-            for name in _shm_entries() - shm_before:
-                (SHM / name).unlink(missing_ok=True)
+        if killed:  # only a killed process leaves segments behind
+            remove_dead_shm(shm_before)
 
     for name, code in codes.items():
         err = logs[name].read_text(errors="replace")
@@ -164,7 +160,7 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
                            "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else []),
                            *([] if record is None else ["--record", str(record)])],
                           capture_output=True, text=True, timeout=90, cwd=REPO,
-                          env={**os.environ, "TMPDIR": str(tmp_path)})
+                          env={**os.environ, "TMPDIR": str(tmp_path)}, preexec_fn=die_with_test)
     logs = "".join(f"\n--- {log.name}\n{log.read_text(errors='replace')[-3000:]}"
                    for log in sorted(tmp_path.glob("pomdp_planner_demo_*/*.log")))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
@@ -232,7 +228,7 @@ def test_closed_loop_entry_point_one_process(domain, tmp_path):
     with open(err, "wb") as fh:
         proc = subprocess.Popen([*node_command("closed_loop"), "--ros-args", "--params-file",
                                  str(REPO / "config" / "closed_loop_s3.yaml"), "-p", "planner:time_budget:=0.02"],
-                                env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=fh)
+                                env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=fh, preexec_fn=die_with_test)
         try:
             ok = _spin_until(executor, lambda: len(rec.beliefs) >= 10 and rec.diag_values("planner"), 60)
         finally:
@@ -247,7 +243,7 @@ def test_closed_loop_entry_point_one_process(domain, tmp_path):
     assert epochs == sorted(epochs)
 
 
-# ----------------------------------------------------------------- restarts (issue 13)
+# ----------------------------------------------------------------- restarts
 
 RESTART_PARAMS = {  # a small epoch window, so that a restarted filter joins after ~100 epochs already
     "target_simulator": ["-p", "seed:=5", "-p", "epoch_window:=50"],
@@ -302,7 +298,8 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
     def start(name, tag=""):
         log = tmp_path / f"{name}{tag}.err"
         procs[name] = (subprocess.Popen([*node_command(name), "--ros-args", *args[name]], env=env,
-                                        stdout=subprocess.DEVNULL, stderr=_log(log, handles)), log)
+                                        stdout=subprocess.DEVNULL, stderr=_log(log, handles),
+                                        preexec_fn=die_with_test), log)
 
     try:
         for name in ("belief_filter", "planner", "target_simulator"):
@@ -353,8 +350,7 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
         ctx.try_shutdown()
         for fh in handles:
             fh.close()
-        for name in _shm_entries() - shm_before:  # the killed processes' segments (only those new since the start)
-            (SHM / name).unlink(missing_ok=True)
+        remove_dead_shm(shm_before)  # the killed processes' segments
     for name, code in codes.items():
         err = procs[name][1].read_text(errors="replace")
         assert code == 0 and "Traceback" not in err, f"{name}: exit code {code}\n{err[-2000:]}"

@@ -135,7 +135,7 @@ def test_bad_startup_parameters_refuse_to_start(harness):
 def test_shipped_yaml_files_exist_for_every_parameter_set():
     """Every parameter set (the demo's ``--model``) has a file per node and a closed-loop file, and
     all their sections name the same model, the one ``parameter_set_model`` (the demo's monitor)
-    reads; the perimeter sets (issue 12) run the perimeter models."""
+    reads; the perimeter sets run the perimeter models."""
     names = {p.name for p in PARAM_FILES}
     assert PARAMETER_SETS == ("s3", "s8", "perimeter_s3", "perimeter_s8")
     for key in PARAMETER_SETS:
@@ -207,7 +207,7 @@ def test_parameter_service_answers_during_a_search(harness):
 
 
 def test_shipped_files_step_the_simulator_at_a_sensor_rate():
-    """Realistic defaults (issue 13): the shipped files run the simulator as a 10 Hz sensor, not free
+    """Realistic defaults: the shipped files run the simulator as a 10 Hz sensor, not free
     (which used about 1.4 cores doing nothing a tracker needs), and give the planner a budget that
     fits in a sensor period."""
     for model in PARAMETER_SETS:
@@ -246,7 +246,7 @@ def test_an_integer_is_accepted_for_a_float_parameter(harness):
 
 
 def test_bound_constant_set_at_run_time_re_solves_the_bounds_for_the_next_decision(harness):
-    """``bound_constant`` (issue 10): declared with the core's choices and default; set at run time,
+    """``bound_constant``: declared with the core's choices and default; set at run time,
     the bounds are re-solved at the next decision, and that decision's diagnostics show it. On the
     natural S = 8 model, at a belief where the MLR-exact bounds agree and the FOSD ones do not, the
     decision is certified with ``mlr`` and not with ``fosd``; back to ``mlr``, certified again."""

@@ -20,7 +20,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnostic_msgs.msg import DiagnosticStatus
-from nodes_support import S3, make_harness
+from nodes_support import S3, die_with_test, make_harness
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
@@ -151,7 +151,8 @@ def _env() -> dict[str, str]:
 def test_a_file_it_cannot_write_is_one_fatal_line(tmp_path, file, expected):
     args = [] if file is None else ["-p", f"file:={file}"]
     proc = subprocess.run([*node_command("run_recorder"), "--ros-args", "-p", f"model_file:={S3}", *args],
-                          capture_output=True, text=True, timeout=60, cwd=tmp_path, env=_env())
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path, env=_env(),
+                          preexec_fn=die_with_test)
     lines = proc.stderr.splitlines()
     assert proc.returncode == 1 and len(lines) == 1, proc.stderr[-3000:]
     assert lines[0].startswith("[FATAL] [run_recorder]: " + expected), lines[0]
@@ -162,7 +163,8 @@ def test_sigint_ends_it_cleanly_with_the_record_readable_so_far(tmp_path):
     log = tmp_path / "recorder.log"
     with open(log, "wb") as fh:
         proc = subprocess.Popen([*node_command("run_recorder"), "--ros-args", "-p", f"model_file:={S3}",
-                                 "-p", "file:=run.csv"], cwd=tmp_path, env=_env(), stdout=fh, stderr=subprocess.STDOUT)
+                                 "-p", "file:=run.csv"], cwd=tmp_path, env=_env(), stdout=fh, stderr=subprocess.STDOUT,
+                                preexec_fn=die_with_test)
     try:
         deadline = time.monotonic() + 60
         while "recording tracking_s3_info" not in log.read_text(errors="replace") and time.monotonic() < deadline:

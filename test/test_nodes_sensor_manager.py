@@ -21,13 +21,13 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnostic_msgs.msg import DiagnosticArray
-from nodes_support import REPO, make_harness, rclpy
+from nodes_support import REPO, die_with_test, make_harness, rclpy, remove_dead_shm, shm_entries
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
-from test_nodes_multiprocess import SHM, _shm_entries, _spin_until, domain  # noqa: F401 (a fixture)
+from test_nodes_multiprocess import _spin_until, domain  # noqa: F401 (a fixture)
 
 from pomdp_planner.nodes.messages import decode_allocation, decode_belief, encode_belief
 from pomdp_planner.nodes.processes import node_command, stop_nodes
@@ -187,7 +187,7 @@ RESUMED_BY = 5  # action epochs every target must advance past its pre-kill newe
 
 
 @pytest.mark.usefixtures("domain")
-def test_three_targets_within_budget_paired_and_a_filter_restarted(tmp_path, monkeypatch):
+def test_three_targets_within_budget_paired_and_a_filter_restarted(tmp_path):
     """The loop of launch/multi_target.launch.xml, free running, as seven processes; the test
     records every action, belief, observation and joint record. Then target2's filter is killed
     (SIGKILL): the others go on, target2 is held, the diagnostics name its silent input; then the
@@ -195,15 +195,9 @@ def test_three_targets_within_budget_paired_and_a_filter_restarted(tmp_path, mon
     joint record costs at most B = 2; every action on a target's topic is that target's entry of a
     joint record; every action ``[t + 1, p]`` follows a belief of epoch ``t`` of its target; every
     observation was taken under an action the manager sent for its epoch; clean exits. The times
-    are printed (``-s``), not asserted.
-
-    The eight participants talk over UDP on localhost only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``,
-    for this test's processes): with Fast DDS's shared-memory transport, on the loaded shared
-    machine, 4 of 11 runs had a participant that matched its peers but received nothing from some
-    of them (twice before any kill: the loop never started; twice after the SIGKILL: the recorder
-    or the loop deaf from then on); over UDP 0 of 6 under the same load."""
-    monkeypatch.setenv("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")  # before rclpy.init: the recorder too
-    shm_before = _shm_entries()
+    are printed (``-s``), not asserted. The node processes die with the test; at the end only the
+    killed filter's shared memory is removed (files of dead owners that no process maps)."""
+    shm_before = shm_entries()
     ctx = Context()
     rclpy.init(context=ctx)
     rec = TargetsRecorder(ctx, TARGETS, threading.Condition())
@@ -217,7 +211,7 @@ def test_three_targets_within_budget_paired_and_a_filter_restarted(tmp_path, mon
         fh = open(log, "wb")
         handles.append(fh)
         procs[name] = (subprocess.Popen([*node_command(name.split(":")[0]), "--ros-args", *args], env=env,
-                                        stdout=subprocess.DEVNULL, stderr=fh), log)
+                                        stdout=subprocess.DEVNULL, stderr=fh, preexec_fn=die_with_test), log)
 
     manager = ["--params-file", str(REPO / "config" / "sensor_manager_mixed_s3.yaml"),
                "-p", "time_budget:=0.02", "-p", "max_depth:=2"]
@@ -279,8 +273,7 @@ def test_three_targets_within_budget_paired_and_a_filter_restarted(tmp_path, mon
         ctx.try_shutdown()
         for fh in handles:
             fh.close()
-        for name in _shm_entries() - shm_before:  # the killed process's segments (only those new since the start)
-            (SHM / name).unlink(missing_ok=True)
+        remove_dead_shm(shm_before)  # the killed filter's segments
     for name, code in codes.items():
         err = procs[name][1].read_text(errors="replace")
         assert code == 0 and "Traceback" not in err, f"{name}: exit code {code}\n{err[-2000:]}"

@@ -21,6 +21,8 @@ import time
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from nodes_support import die_with_test  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
@@ -53,7 +55,7 @@ NODE = textwrap.dedent("""
 def _start(startup_seconds: float) -> subprocess.Popen:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", PYTHONUNBUFFERED="1")
     return subprocess.Popen([sys.executable, "-c", NODE, str(startup_seconds)], env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=die_with_test)
 
 
 def _wait_for_line(proc: subprocess.Popen, prefix: str, timeout: float = 30.0) -> str:

@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import REPO, S3, make_harness, rclpy
+from nodes_support import REPO, S3, die_with_test, make_harness, rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
@@ -93,7 +93,8 @@ def bad_startup_runs(tmp_path_factory) -> list[subprocess.CompletedProcess]:
         cwd = tmp_path_factory.mktemp(exe)
         cmd = [*node_command(exe), "--ros-args", *args, *_params_file(cwd, params)]
         try:
-            return subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=cwd, env=_env())
+            return subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd=cwd, env=_env(),
+                                  preexec_fn=die_with_test)
         except subprocess.TimeoutExpired as exc:  # still running: a failure of its case only
             text = (exc.stderr or b"").decode(errors="replace") if isinstance(exc.stderr, bytes) else exc.stderr or ""
             return subprocess.CompletedProcess(cmd, None, "", text + "\n(still running after 60 s)")
@@ -138,7 +139,7 @@ def test_an_undeclared_parameter_is_a_warning_naming_the_closest_name(tmp_path):
     with open(log, "wb") as fh:
         proc = subprocess.Popen([*node_command("planner"), "--ros-args", "--params-file", str(params),
                                  "-p", "qos_overrides./belief.subscription.depth:=5"],
-                                stdout=fh, stderr=subprocess.STDOUT, cwd=tmp_path, env=_env())
+                                stdout=fh, stderr=subprocess.STDOUT, cwd=tmp_path, env=_env(), preexec_fn=die_with_test)
     try:
         text = _wait_for(log, "time_budgett", proc)
         running = proc.poll() is None

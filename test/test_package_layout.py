@@ -1,4 +1,4 @@
-"""The INSTALLED package layout, as ``ros2 run`` and launch files see it (issue 2).
+"""The INSTALLED package layout, as ``ros2 run`` and launch files see it.
 
 ``ros2 run pomdp_planner <exe>`` finds ``<prefix>/lib/pomdp_planner/<exe>``, with ``<prefix>``
 the entry of ``AMENT_PREFIX_PATH`` that holds the marker

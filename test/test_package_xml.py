@@ -1,4 +1,4 @@
-"""package.xml passes catkin_pkg (what colcon uses) and agrees with setup.py (issue 2).
+"""package.xml passes catkin_pkg (what colcon uses) and agrees with setup.py.
 
 A package.xml that catkin_pkg rejects (e.g. a malformed maintainer email) makes colcon build
 the package as plain Python, invisible to ``ros2 run`` (ROS_NOTES.md), so this is checked here.

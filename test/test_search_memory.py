@@ -1,4 +1,4 @@
-"""Memory guard of the search (issue 13): the estimate bounds what a search allocates, and a
+"""Memory guard of the search: the estimate bounds what a search allocates, and a
 search that would exceed the planner's budget is refused before it starts, with the figures.
 
 The estimate (``core.search.search_memory_estimate``) is checked against an independent

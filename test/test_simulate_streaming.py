@@ -1,4 +1,4 @@
-"""``simulate`` streams its steps (issue 13, item 2): constant memory for any ``--steps``.
+"""``simulate`` streams its steps: constant memory for any ``--steps``.
 
 The core's :class:`~pomdp_planner.core.simulate.Simulation` yields the steps one at a time and
 the command line prints each as it comes, keeping only running sums. Checked here:

@@ -187,3 +187,35 @@ def test_separable_bound_is_below_the_exact_ratio(seed, S, zero_share):
                   for m in range(S) for n in range(S) if up[m] * vp[n] + vp[m] * up[n] > 0]
         exact = min(ratios) if ratios else np.inf
         assert bound[j] <= exact * (1 + 1e-12) or bound[j] == exact == np.inf
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10**6), st.integers(2, 5), st.floats(0.1, 0.6))
+def test_subnormal_transitions_give_sound_ratio_bounds_and_no_warning(seed, S, tiny_share):
+    """Probabilities as small as the smallest subnormal make ``num / den`` overflow: the bound is
+    still below the exact ratio (computed in rationals), the check warns nothing and keeps its
+    verdicts."""
+    import warnings
+    from fractions import Fraction
+
+    rng = np.random.default_rng(seed)
+    P = rng.uniform(size=(2, S, S))
+    P = np.where(rng.uniform(size=P.shape) < tiny_share, 5e-324, P)
+    P[:, :, 0] += 1e-3
+    P /= P.sum(axis=-1, keepdims=True)
+    P = np.where(P < 1e-300, 5e-324, P)  # the division above may flush them; put them back
+    O = rng.uniform(size=(2, S, 2))
+    model = POMDP(P=P, O=O / O.sum(axis=-1, keepdims=True), r=np.zeros((S, 2)), gamma=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bound = separable_ratio_bound(model, 0)
+        assert_same_verdicts(model)
+    F = [[[Fraction(x) for x in row] for row in Pa] for Pa in P]
+    for j in range(S - 1):
+        ratios = [(F[0][m][j] * F[1][n][j + 1] + F[1][m][j + 1] * F[0][n][j])
+                  / (F[0][m][j + 1] * F[1][n][j] + F[1][m][j] * F[0][n][j + 1])
+                  for m in range(S) for n in range(S) if F[0][m][j + 1] * F[1][n][j] + F[1][m][j] * F[0][n][j + 1] > 0]
+        if ratios:
+            assert Fraction(bound[j]) <= min(ratios) * Fraction(1 + 1e-12)  # float rounding of the products
+        else:
+            assert bound[j] == np.inf

@@ -651,10 +651,22 @@ def _rank_factors(model: POMDP, a: int, js: np.ndarray) -> tuple[np.ndarray, ...
     return Oa[js] * Ob[js + 1], Oa[js + 1] * Ob[js], F1, F2
 
 
+#: The largest finite float: a ratio beyond it (a subnormal denominator) is counted as this, which
+#: is below its true value, so every ratio test that uses it stays a sound (if weaker) proof.
+_RATIO_CAP = float(np.finfo(float).max)
+#: Below the smallest normal float a ratio or product has lost its relative precision; it is
+#: counted as 0, a lower bound of every ratio.
+_RATIO_FLOOR = float(np.finfo(float).tiny)
+
+
 def _min_ratio(num: np.ndarray, den: np.ndarray, axis: int) -> np.ndarray:
-    """``min(num / den)`` over ``den > 0`` along ``axis`` (``inf`` where no entry of ``den`` is positive)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.inf).min(axis=axis)
+    """``min(num / den)`` over ``den > 0`` along ``axis``, each ratio capped at :data:`_RATIO_CAP`
+    and below :data:`_RATIO_FLOOR` counted as 0 (a lower bound of the true minimum); ``inf`` only
+    where no entry of ``den`` is positive."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ratio = np.minimum(num / np.where(den > 0, den, 1.0), _RATIO_CAP)
+    ratio = np.where(ratio < _RATIO_FLOOR, 0.0, ratio)
+    return np.where(den > 0, ratio, np.inf).min(axis=axis)
 
 
 def separable_ratio_bound(model: POMDP, a: int) -> np.ndarray:
@@ -673,8 +685,11 @@ def separable_ratio_bound(model: POMDP, a: int) -> np.ndarray:
     u, up = P[a, :, :-1], P[a, :, 1:]  # u = P[a, :, j], u' = P[a, :, j+1]
     v, vp = P[a + 1, :, 1:], P[a + 1, :, :-1]  # v = P[a+1, :, j+1], v' = P[a+1, :, j]
     ru, rv = _min_ratio(u, up, 0), _min_ratio(v, vp, 0)
-    empty = np.isinf(ru) | np.isinf(rv)
-    return np.where(empty, np.inf, np.where(empty, 0.0, ru) * np.where(empty, 0.0, rv))
+    empty = np.isinf(ru) | np.isinf(rv)  # no positive denominator (the ratios themselves are capped)
+    with np.errstate(over="ignore"):
+        product = np.minimum(np.where(empty, 0.0, ru) * np.where(empty, 0.0, rv), _RATIO_CAP)
+    product = np.where(product < _RATIO_FLOOR, 0.0, product)
+    return np.where(empty, np.inf, product)
 
 
 def _elementwise_clean(model: POMDP, a: int, js: np.ndarray, alpha: np.ndarray, beta: np.ndarray,

@@ -25,7 +25,7 @@ from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.loop import FilterLoop, FilterOutput
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief
+from .messages import MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief, wire_limits
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -72,13 +72,18 @@ class BeliefFilter(LoopNode):
                               likelihood_topics=soft_topics)
         self.belief_pub = self.create_publisher(Float64MultiArray, "belief", STREAM_QOS)
         self.entropy_pub = self.create_publisher(Float64, "belief_entropy", LATCHED_QOS)
+        limits = wire_limits(self.model.S)
         for k, topic in enumerate(self.topics):
-            self.create_subscription(Int64MultiArray, topic, lambda msg, k=k: self._on_observation(k, msg),
-                                     STREAM_QOS)
+            self.subscribe_input(topic, Int64MultiArray, topic, STREAM_QOS,
+                                 lambda msg, k=k: self._on_observation(k, msg), max_bytes=limits["observation"],
+                                 layout="[epoch, action_priority, observation]",
+                                 on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
         for k, topic in enumerate(soft_topics, start=len(self.topics)):
-            self.create_subscription(Float64MultiArray, topic, lambda msg, k=k: self._on_likelihood(k, msg),
-                                     STREAM_QOS)
-        self.create_subscription(Int64MultiArray, "action", self._on_action, STREAM_QOS)
+            self.subscribe_input(topic, Float64MultiArray, topic, STREAM_QOS,
+                                 lambda msg, k=k: self._on_likelihood(k, msg), max_bytes=limits["likelihood"],
+                                 layout=f"a likelihood of {self.model.S} states",
+                                 on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
+        self.subscribe_actions(STREAM_QOS)
         self._release = OneShot(self, self._on_release)  # armed only while an epoch waits for its time-out
         self.run(loop)
 

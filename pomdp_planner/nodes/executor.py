@@ -22,6 +22,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, ShutdownException
 
+from .take import TakeWithWriter
+
 
 class _StartReportingPool(ThreadPoolExecutor):
     """A thread pool that reports each submitted callable when a worker starts it."""
@@ -38,7 +40,7 @@ class _StartReportingPool(ThreadPoolExecutor):
         return super().submit(run)
 
 
-class NodeExecutor(MultiThreadedExecutor):
+class NodeExecutor(TakeWithWriter, MultiThreadedExecutor):
     """``MultiThreadedExecutor`` without the re-submission busy loop of rclpy 7.1 (Jazzy).
 
     Jazzy's ``Executor._wait_for_ready_callbacks`` yields again every task that is "not executing
@@ -56,7 +58,8 @@ class NodeExecutor(MultiThreadedExecutor):
     still queued (submitted, not yet started), it waits, without the GIL, until a worker starts
     it and then asks for the next ready work. A task that has run and is suspended (a coroutine
     awaiting a future) is submitted again as before. Everything else (callback groups, wait sets,
-    number of threads) is rclpy's.
+    number of threads) is rclpy's, except that samples of the nodes' inputs are taken with their
+    writer (:class:`~.take.TakeWithWriter`).
     """
 
     def __init__(self, num_threads: int | None = None, *, context=None):

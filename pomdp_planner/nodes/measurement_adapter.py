@@ -27,13 +27,16 @@ from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import load_model_file, load_observation_model
 from ..core.loop import INPUT_TYPES, POINT_FIELDS, AdapterLoop, AdapterOutput, point_value
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, encode_likelihood, encode_observation, sensor_likelihood_values
+from .messages import MessageError, encode_likelihood, encode_observation, max_wire_bytes, sensor_likelihood_values
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import SENSOR_QOS, STREAM_QOS
 from .runtime import callback, config_errors, main_for
 
 #: The message type of each ``input_type``.
 INPUT_MESSAGES = {"float64": Float64, "range": Range, "point": PointStamped, "likelihood": Float64MultiArray}
+#: The largest scalar reading accepted (bytes, serialized): a ``Range`` or ``PointStamped`` with a
+#: ``frame_id`` of up to 256 characters (rule "Bounded samples"); a likelihood: ``S`` values.
+MAX_SENSOR_BYTES = 4 + 8 + 4 + 256 + 1 + 3 + 32
 
 
 def _stamp(header) -> float:
@@ -79,9 +82,12 @@ class MeasurementAdapter(LoopNode):
             self.out_pub = self.create_publisher(Float64MultiArray, "likelihood", STREAM_QOS)
         else:
             self.out_pub = self.create_publisher(Int64MultiArray, "observation", STREAM_QOS)
-        self.input_sub = self.create_subscription(INPUT_MESSAGES[loop.input_type], "measurement",
-                                                  self._on_measurement, SENSOR_QOS)
-        self.create_subscription(Int64MultiArray, "action", self._on_action, STREAM_QOS)
+        limit = max_wire_bytes(self.model.S, 1) if loop.soft else MAX_SENSOR_BYTES
+        self.input_sub = self.subscribe_input(
+            "measurement", INPUT_MESSAGES[loop.input_type], "measurement", SENSOR_QOS, self._on_measurement,
+            max_bytes=limit, layout=f"a {loop.input_type} reading", on_bad=lambda problem: self.call(
+                self.loop.rejected_measurement, problem)).sub
+        self.subscribe_actions(STREAM_QOS)
         self._join = OneShot(self, self._on_join)
         self.run(loop)
 

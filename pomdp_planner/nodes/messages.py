@@ -44,12 +44,15 @@ decision epoch it belongs to, and every observation carries the action it was ta
   guaranteed bounds (``use_bounds`` false, or the model fails the assumptions). The record is
   ``core.loop.PlanInfo``.
 
-Decoders raise :class:`MessageError` with a message that names the field and the problem. They
-bound what they accept before converting anything: epochs are ``0..MAX_EPOCH`` (so that
-``epoch + 1`` always fits the ``int64`` of the next message, and an epoch label is at most 18
-digits), and the length is checked before the data are copied. They return the loops' sample
-types (``core/loop/samples.py``); whether an epoch is *plausible* is the loops' epoch window
-(``core/loop``), not the decoder's business.
+A sample larger than its layout allows (:func:`max_wire_bytes`: the model's ``S`` values for a
+belief, 2 or 3 integers for an action or an observation, labels of at most
+:data:`MAX_LABEL_CHARS` characters) is dropped before it is copied or decoded
+(``nodes/take.py``; :func:`oversized`). Decoders raise :class:`MessageError` with a message that
+names the field and the problem. They bound what they accept before converting anything: epochs
+are ``0..MAX_EPOCH`` (so that ``epoch + 1`` always fits the ``int64`` of the next message, and an
+epoch label is at most 18 digits), and the length is checked before the data are copied. They
+return the loops' sample types (``core/loop/samples.py``); whether an epoch is *plausible* is the
+loops' business (the epoch window and the rule "Explained epochs", ``core/loop``).
 """
 
 from __future__ import annotations
@@ -74,6 +77,30 @@ PLAN_INFO_LABEL = ",".join(PLAN_INFO_FIELDS)
 MAX_EPOCH = 10**18 - 1
 _EPOCH_LABEL_RE = re.compile(r"^epoch=(\d{1,18})$")
 _PRIORITY_LABEL_RE = re.compile(r"^action_priority=(\d{1,18})$")
+#: Longest dimension label a sample may carry (ours: at most 33 characters).
+MAX_LABEL_CHARS = 64
+
+
+def max_wire_bytes(values: int, dims: int, value_bytes: int = 8) -> int:
+    """The most bytes a serialized ``*MultiArray`` sample with ``values`` numbers of ``value_bytes``
+    each and ``dims`` dimensions (labels of at most :data:`MAX_LABEL_CHARS`) takes in CDR: the
+    encapsulation, each dimension (label length, label, padding, size, stride), the data offset,
+    the data's length and alignment, the data."""
+    per_dim = 4 + MAX_LABEL_CHARS + 1 + 3 + 4 + 4
+    return 4 + 4 + dims * per_dim + 4 + 4 + 4 + value_bytes * values
+
+
+def wire_limits(num_states: int) -> dict[str, int]:
+    """The size bound of each input sample of the loop (bytes): ``belief`` (``S`` doubles, two
+    dimensions), ``likelihood`` (``S`` doubles, three), ``action`` and ``observation`` (2 and 3
+    integers, one dimension)."""
+    return {"belief": max_wire_bytes(num_states, 2), "likelihood": max_wire_bytes(num_states, 3),
+            "action": max_wire_bytes(2, 1), "observation": max_wire_bytes(3, 1)}
+
+
+def oversized(what: str, size: int, limit: int, layout: str) -> str:
+    """The one line for a sample of ``size`` bytes over ``limit`` (``layout``: what it should hold)."""
+    return f"{what}: a sample of {size} bytes, more than the {limit} that {layout} takes: dropped unread"
 
 
 class MessageError(ValueError):

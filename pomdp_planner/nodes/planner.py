@@ -27,10 +27,11 @@ from ..core.io.sensors import load_model_file
 from ..core.loop import TUNABLE, PlannerLoop, PlannerOutput, check_params
 from ..core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, decode_belief, encode_action, encode_plan_info
+from .messages import MessageError, decode_belief, encode_action, encode_plan_info, wire_limits
 from .params import declare_double, descriptor
 from .qos import STREAM_QOS
 from .runtime import callback, config_errors, main_for
+from .take import subscribe
 
 
 class PlannerNode(LoopNode):
@@ -74,15 +75,19 @@ class PlannerNode(LoopNode):
         self.action_pub = self.create_publisher(Int64MultiArray, "action", STREAM_QOS)
         self.info_pub = self.create_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         plan_group = MutuallyExclusiveCallbackGroup()
-        # Two readers of ``belief``, each taking every sample: in the default group ``_on_belief``
-        # decodes, checks and counts each one into the loop's mailbox (during a search too); in
-        # plan_group ``_on_belief_planning`` plans what the mailbox holds, right when a belief comes.
-        # The guard condition wakes plan_group when the loop says so (a re-sync, a belief that came
-        # after the planning reader had taken its sample, the join).
-        self._received = self._planning_received = 0  # samples taken by each reader
-        self.create_subscription(Float64MultiArray, "belief", self._on_belief, STREAM_QOS)
-        self.create_subscription(Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS,
-                                 callback_group=plan_group)
+        # Two readers of ``belief``: in the default group ``_on_belief`` decodes, checks and counts
+        # each sample into the loop's mailbox (during a search too); in plan_group
+        # ``_on_belief_planning`` plans what the mailbox holds, right when a belief comes. The two
+        # readers need not see the same samples (one may match a writer later, or lose a large
+        # sample whose writer left during its delivery), so the default group wakes plan_group
+        # (the guard condition) whenever the mailbox holds a belief; a wake-up that finds the
+        # mailbox taken plans nothing. The guard also serves the join.
+        limit = wire_limits(self.model.S)["belief"]
+        self.subscribe_input("belief", Float64MultiArray, "belief", STREAM_QOS, self._on_belief, max_bytes=limit,
+                             layout=f"a belief of {self.model.S} states",
+                             on_bad=lambda problem: self.call(self.loop.rejected_belief, problem))
+        subscribe(self, Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS, limit,
+                  callback_group=plan_group)
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=plan_group)
         self._join = OneShot(self, self._plan_trigger.trigger)
         self.run(loop)
@@ -95,17 +100,16 @@ class PlannerNode(LoopNode):
         except MessageError as exc:
             bel, problem = None, str(exc)
         with self.lock:
-            self._received += 1
             if bel is None:
                 out = self.loop.rejected_belief(problem, now)
             else:
-                out = self.loop.belief(bel, now, planner_ahead=self._planning_received >= self._received)
+                out = self.loop.belief(bel, now, planner_ahead=True)
         self.emit(out)
 
     @callback
-    def _on_belief_planning(self, msg: Float64MultiArray) -> None:
-        with self.lock:
-            self._planning_received += 1
+    def _on_belief_planning(self, raw: bytes | None, info: dict) -> None:
+        """The planning reader: wakes the planning side as a belief comes (its content is the other
+        reader's business)."""
         self._plan_next()
 
     @callback

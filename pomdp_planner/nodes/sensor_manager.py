@@ -4,7 +4,8 @@ priority for every target, the actions in force never costing more than ``effort
 Topics (relative names, remappable; layouts: :mod:`.messages`, QoS: :mod:`.qos`), for every
 namespace ``<ns>`` of ``targets``:
 
-* subscribes ``<ns>/belief`` (``Float64MultiArray``, the target's belief filter, ``STREAM_QOS``);
+* subscribes ``<ns>/belief`` (``Float64MultiArray``, the target's belief filter, ``STREAM_QOS``;
+  every sample checked for its size and its writer before it is decoded, as every loop node's);
 * publishes ``<ns>/action`` (``Int64MultiArray [t + 1, action_priority]``: computed from that
   target's belief of epoch ``t``, ``STREAM_QOS``), and once per decision ``allocation`` (every
   target's action in force, one record) and ``/diagnostics`` (``sensor_manager: allocation``:
@@ -30,9 +31,8 @@ from ..core.loop import ManagerLoop, ManagerOutput
 from ..core.loop.manager_params import RANGES, TUNABLE, check_params, check_targets, manager_problem
 from ..core.multitarget.planner import DEFAULT_EVALUATIONS, MAX_EVALUATIONS_RANGE, SEARCH_MODES
 from ..core.multitarget.problem import MAX_CAPACITY_UNITS
-from .diagnostics import array, status
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, decode_belief, encode_action, encode_allocation
+from .messages import MessageError, decode_belief, encode_action, encode_allocation, wire_limits
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import STREAM_QOS
 from .runtime import callback, config_errors, main_for
@@ -105,9 +105,11 @@ class SensorManager(LoopNode):
                                max_evaluations=value("max_evaluations").value)
         self.action_pubs = [self.create_publisher(Int64MultiArray, f"{t}/action", STREAM_QOS) for t in targets]
         self.allocation_pub = self.create_publisher(Int64MultiArray, "allocation", STREAM_QOS)
-        for k, t in enumerate(targets):
-            self.create_subscription(Float64MultiArray, f"{t}/belief", lambda msg, k=k: self._on_belief(k, msg),
-                                     STREAM_QOS)
+        for k, (t, m) in enumerate(zip(targets, models, strict=True)):
+            self.subscribe_input(f"{t}/belief", Float64MultiArray, f"{t}/belief", STREAM_QOS,
+                                 lambda msg, k=k: self._on_belief(k, msg), max_bytes=wire_limits(m.S)["belief"],
+                                 layout=f"a belief of {m.S} states",
+                                 on_bad=lambda problem, k=k: self.call(self.loop.rejected_belief, k, problem))
         # decisions in their own group: beliefs are counted, parameters and diagnostics answered meanwhile
         group = MutuallyExclusiveCallbackGroup()
         self._decide_trigger = self.create_guard_condition(self._decide, callback_group=group)
@@ -142,12 +144,9 @@ class SensorManager(LoopNode):
         if out.decide_now:
             self._decide_trigger.trigger()
 
-    @callback
-    def _publish_diagnostics(self) -> None:
-        with self.lock:
-            r = self.loop.report(self.now())
-        self.diag_pub.publish(array(self, status(f"{self.get_name()}: {self.task}", self.loop.hardware_id,
-                                                 r.level, r.message, r.values)))
+    def hardware_id(self) -> str:
+        """The targets' models joined by ``+``."""
+        return self.loop.hardware_id
 
 
 def main(args=None) -> None:

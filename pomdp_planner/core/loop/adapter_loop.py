@@ -1,5 +1,5 @@
 """The measurement adapter's loop: a real sensor's readings in, the loop's observations out
-(package docstring; node: ``nodes/measurement_adapter.py``).
+(rules: docs/ros.md, "The loop's rules"; node: ``nodes/measurement_adapter.py``).
 
 A sensor knows nothing of the loop's epochs, of the action in force or of the model's observation
 bins; the adapter adds them, so that the filter gets exactly what a simulated target would send:
@@ -45,7 +45,7 @@ Before the first       No reading is forwarded before the first action is heard:
 action                 counted (``before_first_action``) and dropped. The planner's first action
                        (epoch 1, planned from the filter's prior) is answered by the first reading
                        after it.
-Join, window, re-sync  As the simulator's (package docstring): a (re)started adapter answers the
+Join, window, re-sync  As the simulator's (the rule "Join"): a (re)started adapter answers the
                        newest action received within :data:`~.epochs.JOIN_DELAY` of the first
                        (the planner's history arrives as one burst); actions beyond the epoch
                        window are dropped (``out_of_window``), repeated or older ones are

@@ -1,5 +1,6 @@
-"""Which epochs from the wire a loop acts on: the epoch window, the verdicts, the re-sync and join
-evidence, and at-least-once delivery of a loop's last output (rules: the package docstring).
+"""Which epochs from the wire a loop acts on: the epoch window, the verdicts, the re-sync, jump and
+join evidence, and at-least-once delivery of a loop's last output (rules: docs/ros.md, "The loop's
+rules").
 
 Every rule here is a function of epochs, counts and the time the caller passes in (``now``,
 seconds on any monotonic clock); nothing reads a clock of its own.
@@ -53,7 +54,7 @@ class Liveness:
 
 
 def classify(epoch: int, position: int | None, window: int) -> Verdict:
-    """Where ``epoch`` stands relative to a node at ``position`` (package docstring, "Verdicts").
+    """Where ``epoch`` stands relative to a node at ``position`` (rule "Verdicts").
 
     ``position is None``: the node has not joined the loop yet (``"join"``)."""
     if window < 1:
@@ -82,7 +83,7 @@ class EpochLine:
     """A node's position on the loop's epoch line and the evidence for re-syncing it.
 
     ``position``: the last epoch the node acted on (``None``: not joined). ``counting``: the
-    stricter evidence of a line whose source counts (package docstring, "Re-sync"). A line is
+    stricter evidence of a line whose source counts (rule "Re-sync"). A line is
     *fresh* until it first advances. ``now``: the time the line is made.
     """
 
@@ -130,13 +131,28 @@ class EpochLine:
         """Seconds since the node last advanced (or since the line was made)."""
         return now - self.last_advance
 
-    def resync_due(self, stall_after: float, now: float) -> OffLine | None:
-        """The off-line input to re-sync to now, or ``None`` (package docstring, "Re-sync")."""
+    def clear_evidence(self) -> None:
+        """The node accepted an input it can explain (it is not stalled): the evidence starts again."""
+        self._reset_evidence()
+
+    def jump(self, due: OffLine) -> bool:
+        """Whether re-syncing to ``due`` is a jump ahead within the window (rule "Explained epochs")."""
+        return self.position is not None and 0 < due.epoch - self.position <= self.window
+
+    def resync_due(self, stall_after: float, now: float, *, jump_after: float | None = None) -> OffLine | None:
+        """The off-line input to re-sync to now, or ``None`` (rules "Re-sync" and "Explained epochs").
+
+        ``jump_after``: the node follows a jump ahead within the window as soon as two consecutive
+        epochs beyond what it can explain came with nothing acted on in between, once it has not
+        advanced for ``jump_after`` seconds (``None``: never, only the re-sync rule)."""
         new = self._newest
         if new is None or new.epoch == self.position:
             return None
         if self.counting and self.fresh:
             return new if self._run >= JOIN_MIN_INPUTS else None
+        if (jump_after is not None and self._run >= JOIN_MIN_INPUTS and self.jump(new)
+                and now - self.last_advance >= jump_after):
+            return new
         if now - self._first_off_line < stall_after:
             return None
         if self.counting:
@@ -157,7 +173,7 @@ class EpochLine:
 
 
 class JoinWait:
-    """The join rule of a (re)started node (package docstring, "Join"): it collects evidence of the
+    """The join rule of a (re)started node (rule "Join"): it collects evidence of the
     loop's epoch for :data:`JOIN_DELAY` after the first and then joins at the newest."""
 
     def __init__(self, delay: float = JOIN_DELAY):
@@ -184,7 +200,7 @@ class JoinWait:
 
 
 class Resender:
-    """At-least-once delivery of a node's last output (package docstring, "Re-send").
+    """At-least-once delivery of a node's last output (rule "Re-send").
 
     ``period <= 0`` disables re-sending. The node calls :meth:`published` when it publishes a
     new output, :meth:`answered` when the input it expects next arrives, and asks :meth:`due`

@@ -1,4 +1,5 @@
-"""The belief filter's loop: readings in, beliefs out (package docstring; node: ``nodes/belief_filter.py``).
+"""The belief filter's loop: readings in, beliefs out (rules: docs/ros.md, "The loop's rules";
+node: ``nodes/belief_filter.py``).
 
 A reading is classified against the filter's epoch (:mod:`.epochs`), buffered in epoch order
 (:class:`~.epoch_buffer.EpochBuffer`), and each released epoch goes to the core's epoch filter
@@ -8,10 +9,13 @@ Soft-evidence topics (``likelihood_topics``: a likelihood per state instead of a
 index, :class:`~.samples.LikelihoodSample`) are sensors like the others, after the observation
 topics: the same buffer and rules, and the update ``b'(s) ∝ l(s) b^a(s)``.
 The belief of epoch ``t`` is published after epoch ``t`` is applied; the prior is epoch 0. A run
-of lost epochs is one log line and one belief (its last epoch's). A fresh filter joins a running
-loop on two consecutive readings beyond its window; a stalled one re-syncs to readings counting
-on another numbering (a restarted simulator); the last belief is re-sent while no reading of the
-next epoch comes.
+of lost epochs is one log line and one belief (its last epoch's); epochs are declared lost only
+when the readings after them count on (never on the word of one reading ahead). A fresh filter
+joins a running loop on two consecutive readings beyond its reach; a running one follows a jump
+of the readings far ahead only on two consecutive epochs with nothing applied for
+``epoch_timeout``; a stalled one re-syncs to readings counting on another numbering (a restarted
+simulator); the last belief is re-sent while no reading of the next epoch comes (rules:
+docs/ros.md, "The loop's rules").
 """
 
 from __future__ import annotations
@@ -95,8 +99,8 @@ class FilterLoop:
 
     def observation(self, sensor: int, obs: ObservationSample | LikelihoodSample, now: float) -> FilterOutput:
         """One decoded reading of sensor ``sensor`` (a likelihood for a soft-evidence sensor):
-        buffered if it is within the window ahead, else counted (and kept as evidence for the join
-        / re-sync rule); ready epochs applied."""
+        buffered if it is within the filter's reach ahead, else counted (and kept as evidence for
+        the join, jump and re-sync rules); ready epochs applied."""
         soft = isinstance(obs, LikelihoodSample)
         if soft != self.filter.soft(sensor):
             raise ValueError(f"sensor {sensor} ({self.topics[sensor]}) does not take a {type(obs).__name__}")
@@ -107,22 +111,38 @@ class FilterLoop:
         watch, topic = self.watches[sensor], self.topics[sensor]
         if verdict in ("next", "ahead"):
             result = self.buffer.add(sensor, obs.epoch, action, reading, now)
-            watch.arrived(now, result == "buffered", obs.epoch)
-            if result == "buffered":
+            if result != "far":
+                watch.arrived(now, result in ("buffered", "replaced"), obs.epoch)
+            if result in ("buffered", "replaced"):
                 self.resender.answered()
-            elif result == "duplicate":
+            if result == "duplicate":
                 self.health.count("duplicates")
             elif result == "conflict":
                 self.health.warn("conflicts", f"{topic}: reading of epoch {obs.epoch} conflicts with an earlier one "
                                  "(different action or observation); dropped", now)
-            return self._release(now)
+            elif result == "replaced":
+                self.health.warn("conflicts", f"{topic}: reading of epoch {obs.epoch} conflicts with one that came "
+                                 "ahead of the loop; the one that came in order replaced it", now)
+            if result != "far":
+                return self._release(now)
+            verdict = "far"
         watch.arrived(now, False)
         if verdict in ("repeat", "behind"):  # an epoch already applied: a re-send, or stale
             self.health.count("duplicates")
+        elif verdict == "far":
+            self.line.off_line(obs.epoch, (sensor, action, reading), now)
+            due = self.line.resync_due(self.live.stall.warn_after, now, jump_after=self.buffer.timeout)
+            # before joining, the running loop's readings are expected to be far ahead; one that
+            # completes a jump (below) is acted on
+            if not self.line.fresh and (due is None or not self.line.jump(due)):
+                self.health.warn("unexplained_epochs", f"{topic}: reading of epoch {obs.epoch} is more than "
+                                 f"{self.buffer.reach} epochs ahead of epoch {self.epoch}: not buffered, no epoch "
+                                 "declared lost on its word (a stray, forged or replayed message?)", now)
         else:
             self._out_of_window(topic, obs.epoch, now)
-        if verdict != "repeat":
+        if verdict not in ("repeat", "far"):
             self.line.off_line(obs.epoch, (sensor, action, reading), now)
+        if verdict != "repeat":
             self._resync_if_due(now)
         return self._release(now)
 
@@ -134,14 +154,21 @@ class FilterLoop:
         return self._result()
 
     def action(self, act: ActionSample, now: float) -> FilterOutput:
-        """A commanded action: remembered to predict through a lost epoch and to cross-check."""
+        """A commanded action: remembered to predict through a lost epoch and to cross-check (up
+        to the next epoch: no planner of the loop commands further ahead)."""
         new = act.epoch > self._newest_command
         if self.buffer.command(act.epoch, action_of_priority(act.priority, self.model.A)):
             self._newest_command = max(self._newest_command, act.epoch)
             self.action_watch.arrived(now, new, act.epoch)
         else:
             self.action_watch.arrived(now, False)
-            if not self.line.fresh:  # before joining, the planner's history is expected to be out of the window
+            if self.line.fresh:
+                pass  # before joining, the planner's history is expected to be out of the window
+            elif act.epoch > self.buffer.next_epoch and act.epoch - self.epoch <= self.live.epoch_window:
+                self.health.warn("unexplained_epochs", f"action of epoch {act.epoch} is beyond epoch "
+                                 f"{self.buffer.next_epoch}, the one the filter applies next: ignored (a stray, "
+                                 "forged or replayed message?)", now)
+            elif act.epoch > self.buffer.next_epoch:
                 self._out_of_window("action", act.epoch, now)
         return self._result()
 
@@ -175,24 +202,31 @@ class FilterLoop:
                          "message)", now)
 
     def _resync_if_due(self, now: float) -> bool:
-        """The join / re-sync rule (:class:`~.epochs.EpochLine`): act on the reading that completed
-        the evidence as the next epoch; the belief is kept (joining: it is still the prior)."""
-        due = self.line.resync_due(self.live.stall.warn_after, now)
+        """The join, jump and re-sync rules (:class:`~.epochs.EpochLine`): act on the reading that
+        completed the evidence as the next epoch; the belief is kept (joining: it is still the prior)."""
+        due = self.line.resync_due(self.live.stall.warn_after, now, jump_after=self.buffer.timeout)
         if due is None:
             return False
         sensor, action, z = due.payload
-        old, fresh, stalled = self.epoch, self.line.fresh, self.line.stalled_for(now)
-        self.line.resync(due.epoch - 1, now)
-        self.epoch = due.epoch - 1
-        self.buffer.reset(due.epoch)
+        old, fresh, jump, stalled = self.epoch, self.line.fresh, self.line.jump(due), self.line.stalled_for(now)
         if fresh:
+            self.line.resync(due.epoch - 1, now)
             self.started_from = f"prior at epoch {due.epoch - 1} (joined a running loop)"
             self.health.warn(None, f"joined a running loop at epoch {due.epoch}: its readings are beyond the epoch "
                              f"window of epoch {old}; the belief before epoch {due.epoch} is the prior", now)
+        elif jump:
+            self.line.advance(due.epoch - 1, now)
+            lost = due.epoch - 1 - old
+            self.health.warn("gaps", f"epochs {old + 1}..{due.epoch - 1} lost ({lost}, no reading applied for "
+                             f"{stalled:.1f} s while the readings went on from epoch {due.epoch - 1}): belief held",
+                             now, n=lost)
         else:
+            self.line.resync(due.epoch - 1, now)
             self.health.warn("resyncs", f"re-synced from epoch {old} to epoch {due.epoch}: nothing applied for "
                              f"{stalled:.1f} s while readings counted up to epoch {due.epoch} on another numbering "
                              "(a restarted simulator?); belief kept", now)
+        self.epoch = due.epoch - 1
+        self.buffer.reset(due.epoch)
         self.buffer.add(sensor, due.epoch, action, z, now)
         return True
 

@@ -1,5 +1,6 @@
-"""A loop's health: its counters, the stall watch of each input, throttled warnings, and the report
-rule every node's diagnostics follow (package docstring, "Stall levels" and "Report").
+"""A loop's health: its counters, the stall watch of each input, the writers of each input stream,
+the node's ROS time, throttled warnings, and the report rule every node's diagnostics follow
+(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report").
 
 Times are passed in (``now``, seconds on a monotonic clock); nothing here reads a clock.
 """
@@ -11,11 +12,19 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Literal
 
+from .clock import ClockWatch
+from .writers import WriterWatch
+
 #: Default seconds without progress before an input is WARN / ERROR.
 DEFAULT_STALL_WARN = 2.0
 DEFAULT_STALL_ERROR = 10.0
 #: A recurring warning is logged at most once per this many seconds (per counter).
 LOG_INTERVAL = 10.0
+#: Counters every loop keeps, all of them problems (the report WARNs while they grow): epochs the
+#: loop cannot explain, samples of a second writer, replaced writers, samples larger than the model
+#: implies, refused run-time changes of ``use_sim_time``.
+COMMON_COUNTERS = ("unexplained_epochs", "foreign_samples", "writer_changes", "oversized_samples",
+                   "use_sim_time_refused")
 
 
 class Level(IntEnum):
@@ -57,7 +66,7 @@ class StallLimits:
 
 
 class InputWatch:
-    """Arrivals and progress of one input of a node (package docstring, "Stall levels").
+    """Arrivals and progress of one input of a node (rule "Stall levels").
 
     ``what``: how a new input is called in messages ("action", "reading", "belief").
     ``required=False``: an input the node can do without (the filter's ``action``, only a
@@ -143,29 +152,35 @@ class LogThrottle:
 
 
 class LoopHealth:
-    """Counters, input watches, warnings and the report of one loop (package docstring, "Report").
+    """Counters, input watches, writers, warnings and the report of one loop (docs/ros.md, "Report").
 
     ``counters``: every count the loop keeps, in the order diagnostics show them; ``problems``:
-    those that make the report WARN when they grew since the previous report. A warning is
-    counted, kept as the last warning, and logged at most once per ``log_interval`` seconds per
-    counter (the occurrences in between are counted and their number given with the next line).
-    Log lines wait in :attr:`logs` until the loop hands them to its caller (:meth:`drain_logs`).
+    those that make the report WARN when they grew since the previous report (both followed by
+    :data:`COMMON_COUNTERS`). A warning is counted, kept as the last warning, and logged at most
+    once per ``log_interval`` seconds per counter (the occurrences in between are counted and their
+    number given with the next line). Log lines wait in :attr:`logs` until the loop hands them to
+    its caller (:meth:`drain_logs`). Every input watch has a :class:`~.writers.WriterWatch` of the
+    same name in :attr:`writers`, and so has every name in ``streams`` (inputs without a stall
+    watch); ``clock`` watches the node's ROS time once the node has said which it uses
+    (:meth:`set_clock`).
     """
 
     def __init__(self, counters: Sequence[str], problems: Sequence[str], watches: Sequence[InputWatch],
-                 stall: StallLimits, *, log_interval: float = LOG_INTERVAL):
+                 stall: StallLimits, *, log_interval: float = LOG_INTERVAL, streams: Sequence[str] = ()):
         unknown = set(problems) - set(counters)
         if unknown:
             raise ValueError(f"problems: not counters: {sorted(unknown)}")
-        self.counts: dict[str, int] = dict.fromkeys(counters, 0)
-        self.problems = tuple(problems)
+        self.counts: dict[str, int] = dict.fromkeys([*counters, *COMMON_COUNTERS], 0)
+        self.problems = (*problems, *COMMON_COUNTERS)
         self.watches = list(watches)
+        self.writers = {name: WriterWatch(name, stall.warn_after) for name in [*(w.name for w in watches), *streams]}
+        self.clock: ClockWatch | None = None
         self.stall = stall
         self.log_interval = log_interval
         self.last_warning = ""
         self.logs: list[Log] = []
         self._throttles: dict[str, LogThrottle] = {}
-        self._reported = dict.fromkeys(problems, 0)
+        self._reported = dict.fromkeys(self.problems, 0)
 
     def count(self, counter: str, n: int = 1) -> None:
         self.counts[counter] += n
@@ -185,10 +200,50 @@ class LoopHealth:
         if ready:
             self.log("warning", text + (f" (and {suppressed} similar since the last such line)" if suppressed else ""))
 
-    def reject(self, watch: InputWatch, counter: str, text: str, now: float) -> None:
+    def reject(self, watch: InputWatch | None, counter: str, text: str, now: float) -> None:
         """An input that could not be decoded: received (not progress), counted, warned."""
-        watch.arrived(now, False)
+        if watch is not None:
+            watch.arrived(now, False)
         self.warn(counter, text, now)
+
+    def watch(self, name: str) -> InputWatch | None:
+        """The stall watch of input ``name`` (``None``: a stream without one)."""
+        return next((w for w in self.watches if w.name == name), None)
+
+    # ----------------------------------------------------------- what every sample passes first
+    def admit(self, name: str, writer: str | None, now: float) -> bool:
+        """The rule "One writer" for a sample of ``writer`` on input ``name``: whether the loop may
+        act on it (a foreign sample is counted and dropped, its writer's first one logged)."""
+        verdict, text = self.writers[name].admit(writer, now)
+        if verdict == "foreign":
+            watch = self.watch(name)
+            if watch is not None:
+                watch.arrived(now, False)
+            self.count("foreign_samples")
+            if text:
+                self.last_warning = text
+                self.log("warning", text)
+            return False
+        if verdict == "replaced":
+            self.warn("writer_changes", text, now)
+        return True
+
+    def oversized(self, name: str, text: str, now: float) -> None:
+        """A sample of input ``name`` larger than the model implies, dropped unread (``text``: why)."""
+        self.reject(self.watch(name), "oversized_samples", text, now)
+
+    def set_clock(self, sim_time: bool, now: float) -> None:
+        """The node's ROS time: ``use_sim_time`` as it started (rule "Time")."""
+        self.clock = ClockWatch(sim_time, self.stall.warn_after, now)
+        if sim_time:
+            self.log("info", "use_sim_time is true: the simulator's steps follow /clock; liveness, re-sends and "
+                     "diagnostics run on the steady clock")
+
+    def refuse_sim_time(self, wanted: object, now: float) -> str:
+        """A run-time change of ``use_sim_time``, refused (rule "Time"): counted, warned; the reason."""
+        reason = (self.clock or ClockWatch(False, self.stall.warn_after, now)).refuse(wanted)
+        self.warn("use_sim_time_refused", f"refused a parameter set: {reason}", now)
+        return reason
 
     def drain_logs(self) -> list[Log]:
         logs, self.logs = self.logs, []
@@ -209,14 +264,22 @@ class LoopHealth:
         recent = {k: self.counts[k] - n for k, n in self._reported.items() if self.counts[k] > n}
         self._reported = {k: self.counts[k] for k in self.problems}
         stall, stall_text = self.stalled(now)
-        texts = list(head)
+        clock_text = "" if self.clock is None else self.clock.status(now)
+        writers = [t for t in (w.status() for w in self.writers.values()) if t]
+        texts = [*head, *([clock_text] if clock_text else [])]
         if stall_text:
             texts.append(stall_text + stall_note)
+        texts += writers
         if recent:
             items = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in recent.items())
             texts.append(f"since the last report: {items}; last: {self.last_warning}")
-        level = max(level, stall, Level.WARN if recent else Level.OK)
+        level = max(level, stall, Level.WARN if recent or writers else Level.OK,
+                    Level.ERROR if clock_text else Level.OK)
         all_values = {**values, **self.counts}
         for w in self.watches:
             all_values.update(w.values(now))
+        for ww in self.writers.values():
+            all_values.update(ww.values())
+        if self.clock is not None:
+            all_values.update(self.clock.values(now))
         return Report(level, "; ".join(texts) or idle, all_values)

@@ -5,9 +5,11 @@ docs/multitarget.md).
 
 Each target is a loop of its own (its simulator or sensor and its belief filter, in its namespace)
 that numbers its own epochs. Per target the manager keeps what the planner keeps for its one
-target (:class:`TargetInbox`; the rules of the package docstring: the epoch window and verdicts,
-the join, a one-slot mailbox of the newest valid, not-yet-decided belief, re-sync, the re-send of
-the last action, the stall watch, the decision cache). On top of those, the rules of the joint
+target (:class:`TargetInbox`; rules of docs/ros.md, "The loop's rules": the epoch window and
+verdicts, explained epochs and the jump, the join, a one-slot mailbox of the newest valid,
+not-yet-decided belief, re-sync, the re-send of the last action, the stall watch, the decision
+cache; the node checks every belief sample's size and writer first, rules "Bounded samples" and
+"One writer"). On top of those, the rules of the joint
 decision:
 
 =====================  ====================================================================
@@ -140,6 +142,7 @@ class TargetInbox:
         self.name = name
         self.model = model
         self.line = EpochLine(live.epoch_window, now=now)  # position: the last belief epoch decided for
+        self.stream = -1  # the newest belief epoch accepted (the beliefs so far lead up to it)
         self.join = JoinWait()
         self.watch = InputWatch(f"{name}/belief", "belief", started=now)
         self.resender = Resender(live.resend_period)
@@ -265,6 +268,8 @@ class ManagerLoop:
         goes to its mailbox; every other one is counted (and kept as evidence for the re-sync rule)."""
         ib = self.inboxes[k]
         verdict = ib.line.classify(bel.epoch)
+        if verdict in ("next", "ahead") and bel.epoch > max(ib.stream, ib.line.position) + 1:
+            verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
         new = verdict in ("join", "next", "ahead")
         ib.watch.arrived(now, new, bel.epoch)
         if new:
@@ -272,6 +277,16 @@ class ManagerLoop:
             ib.offer(bel, now)
             if verdict == "join":  # the newest of what comes within JOIN_DELAY (a filter's history is one burst)
                 ib.join.note(bel.epoch, now)
+            else:
+                ib.stream = max(ib.stream, bel.epoch)
+                ib.line.clear_evidence()
+        elif verdict == "unexplained":
+            ib.line.off_line(bel.epoch, bel, now)
+            due = ib.line.resync_due(self.live.stall.warn_after, now, jump_after=0.0)
+            if due is None or not ib.line.jump(due):  # else it completes a jump (below): acted on
+                self.health.warn("unexplained_epochs", f"{ib.name}: belief of epoch {bel.epoch} does not follow the "
+                                 f"beliefs so far (newest: epoch {ib.stream}): not decided unless the next belief "
+                                 "follows it (a jump of the filter); a stray, forged or replayed message?", now)
         elif verdict == "out_of_window":
             ib.line.off_line(bel.epoch, bel, now)
             self.health.warn("out_of_window", f"{ib.name}: belief of epoch {bel.epoch} is beyond the epoch window "
@@ -290,15 +305,21 @@ class ManagerLoop:
         return self._result(now)
 
     def _resync_if_due(self, ib: TargetInbox, now: float) -> None:
-        """The re-sync rule (:class:`~.epochs.EpochLine`): the newest off-line belief goes to the mailbox."""
-        due = ib.line.resync_due(self.live.stall.warn_after, now)
+        """The jump and re-sync rules (:class:`~.epochs.EpochLine`): the newest off-line belief goes to
+        the mailbox."""
+        due = ib.line.resync_due(self.live.stall.warn_after, now, jump_after=0.0)
         if due is None:
             return
-        self.health.warn("resyncs", f"{ib.name}: " + ib.line.resync_reason(due, "beliefs", "filter", now), now)
+        if ib.line.jump(due):
+            self.health.warn(None, f"{ib.name}: followed the beliefs from epoch {ib.stream} to epoch {due.epoch}: two "
+                             "consecutive beliefs beyond the newest (a jump of the filter)", now)
+        else:
+            self.health.warn("resyncs", f"{ib.name}: " + ib.line.resync_reason(due, "beliefs", "filter", now), now)
+            self._reset_price = True  # the warm start came from another numbering of that target
         ib.line.resync(due.epoch - 1, now)  # so that the belief of due.epoch is the next one
+        ib.stream = due.epoch
         ib.mailbox, ib.since = None, None
         ib.offer(due.payload, now)
-        self._reset_price = True  # the warm start came from another numbering of that target
 
     # ----------------------------------------------------------- deciding
     def due(self, now: float) -> bool:
@@ -350,6 +371,7 @@ class ManagerLoop:
             bel, ib.mailbox, ib.since = ib.mailbox, None, None
             taken[k] = (ib.line.position, bel)
             ib.line.advance(bel.epoch, now)
+            ib.stream = max(ib.stream, bel.epoch)
             hit = ib.decisions.get(bel.epoch + 1)
             if hit is None:
                 beliefs[k] = bel

@@ -1,7 +1,8 @@
-"""The planner's loop: beliefs in, actions out (package docstring; node: ``nodes/planner.py``).
+"""The planner's loop: beliefs in, actions out (rules: docs/ros.md, "The loop's rules"; node: ``nodes/planner.py``).
 
-Each new belief of epoch ``t`` (within the window of the last epoch planned for) goes to a
-one-slot *mailbox* that keeps the newest valid, not-yet-planned belief; the planning side takes it
+Each new belief of epoch ``t`` that follows the beliefs so far (``t`` at most one beyond the
+newest accepted; a jump of the filter is followed on two consecutive beliefs) goes to a one-slot
+*mailbox* that keeps the newest valid, not-yet-planned belief; the planning side takes it
 (:meth:`PlannerLoop.take`), runs the anytime branch-and-bound with the myopic policy bounds
 (paper Sec. V; :meth:`~pomdp_planner.core.search.Planner.plan`) and answers with the action of
 epoch ``t + 1``. Decisions are cached by epoch: an epoch decided once is answered with the same
@@ -182,6 +183,7 @@ class PlannerLoop:
                         f"bounds {self.bounds_message}; time_budget {self.params['time_budget']:g} s, "
                         f"max_depth {self.params['max_depth']}")
         self.line = EpochLine(live.epoch_window, now=now)  # position: the last belief epoch planned for
+        self._stream = -1  # the newest belief epoch accepted (the beliefs so far lead up to it)
         self.planning: int | None = None  # the belief epoch being searched for (None when idle)
         self._mailbox: tuple[BeliefSample, float] | None = None  # newest belief to plan, its arrival time
         self._join = JoinWait()
@@ -236,6 +238,8 @@ class PlannerLoop:
         node whose planning side reads the topic too), so it is woken if the mailbox got a belief
         since; it is woken anyway after a re-sync."""
         verdict = self.line.classify(bel.epoch)
+        if verdict in ("next", "ahead") and bel.epoch > max(self._stream, self.line.position) + 1:
+            verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
         new = verdict in ("join", "next", "ahead")
         self.health.watches[0].arrived(now, new, bel.epoch)
         if new:
@@ -246,6 +250,16 @@ class PlannerLoop:
                 # the newest of what comes within JOIN_DELAY (a restarted filter's history starts with
                 # its prior at epoch 0; a running filter's history ends at its epoch)
                 self._join.note(bel.epoch, now)
+            else:
+                self._stream = max(self._stream, bel.epoch)
+                self.line.clear_evidence()
+        elif verdict == "unexplained":
+            self.line.off_line(bel.epoch, (bel, now), now)
+            due = self.line.resync_due(self.live.stall.warn_after, now, jump_after=0.0)
+            if due is None or not self.line.jump(due):  # else it completes a jump (below): acted on
+                self.health.warn("unexplained_epochs", f"belief of epoch {bel.epoch} does not follow the beliefs so "
+                                 f"far (newest: epoch {self._stream}): not planned unless the next belief follows it "
+                                 "(a jump of the filter); a stray, forged or replayed message?", now)
         elif verdict == "out_of_window":
             self.line.off_line(bel.epoch, (bel, now), now)
             self.health.warn("out_of_window", f"belief of epoch {bel.epoch} is beyond the epoch window "
@@ -263,12 +277,18 @@ class PlannerLoop:
         return self._result(now)
 
     def _resync_if_due(self, now: float) -> bool:
-        """The re-sync rule (:class:`~.epochs.EpochLine`): put the newest off-line belief in the mailbox."""
-        due = self.line.resync_due(self.live.stall.warn_after, now)
+        """The jump and re-sync rules (:class:`~.epochs.EpochLine`): put the newest off-line belief in
+        the mailbox."""
+        due = self.line.resync_due(self.live.stall.warn_after, now, jump_after=0.0)
         if due is None:
             return False
-        self.health.warn("resyncs", self.line.resync_reason(due, "beliefs", "filter", now), now)
+        if self.line.jump(due):
+            self.health.warn(None, f"followed the beliefs from epoch {self._stream} to epoch {due.epoch}: two "
+                             "consecutive beliefs beyond the newest (a jump of the filter)", now)
+        else:
+            self.health.warn("resyncs", self.line.resync_reason(due, "beliefs", "filter", now), now)
         self.line.resync(due.epoch - 1, now)  # so that the belief of due.epoch is the next one
+        self._stream = due.epoch
         self._mailbox = due.payload
         return True
 
@@ -286,6 +306,7 @@ class PlannerLoop:
         elif bel.epoch <= self.line.position:
             return None  # a newer one was planned meanwhile
         self.line.advance(bel.epoch, now)
+        self._stream = max(self._stream, bel.epoch)
         if self.refusing:
             return None
         cached = self._decisions.get(bel.epoch + 1)
@@ -358,7 +379,7 @@ class PlannerLoop:
 
     # ----------------------------------------------------------- diagnostics
     def report(self, now: float) -> Report:
-        """The diagnostics (package docstring, "Report"). A certificate is claimed only where the
+        """The diagnostics (rule "Report"). A certificate is claimed only where the
         gate guarantees the bounds: ``certified`` (the count) only while the planner in force has
         guaranteed bounds, ``last.certified`` only for a decision pruned with guaranteed bounds;
         ``guaranteed`` and ``guarantee`` say what the gate decided and why."""

@@ -1,13 +1,14 @@
 """The simulated target's loop: the hidden state of a model, stepped by the planner's actions
-(package docstring; node: ``nodes/target_simulator.py``).
+(rules: docs/ros.md, "The loop's rules"; node: ``nodes/target_simulator.py``).
 
 Each step of epoch ``t`` under priority ``p`` (action ``a = p - 1``) moves the state
 ``s ~ P[a, s, :]`` and draws one reading per sensor ``z_k ~ O_k[a, s, :]``; the readings carry the
 epoch and the priority actually applied, so the filter pairs them without relying on timing.
-Stepping on actions, each action of a *new* epoch within the window is stepped (a jump is one
-step, counted as a gap); timer-driven, the node calls :meth:`TargetLoop.tick` every period and an
-action only sets the priority of the next ticks. A (re)started target joins the loop's numbering
-first (package docstring, "Join").
+Stepping on actions, the target steps the action of the epoch it steps next, and no other: an
+action further ahead is one no planner of this loop can have sent (rule "Explained epochs");
+timer-driven, the node calls :meth:`TargetLoop.tick` every period and an action of an epoch up to
+the next one only sets the priority of the next ticks. A (re)started target joins the loop's
+numbering first (rule "Join"; rules: docs/ros.md, "The loop's rules").
 """
 
 from __future__ import annotations
@@ -23,8 +24,7 @@ from .epochs import DEFAULT_JOIN_TIMEOUT, EpochLine, JoinWait, Liveness, Resende
 from .health import InputWatch, Log, LoopHealth, Report
 from .samples import ActionSample
 
-COUNTERS = ("steps", "stale_actions", "malformed_actions", "epoch_gaps", "out_of_window", "resyncs",
-            "resent_observations")
+COUNTERS = ("steps", "stale_actions", "malformed_actions", "out_of_window", "resyncs", "resent_observations")
 #: Counts that make the report WARN when they grew since the previous one.
 PROBLEMS = ("malformed_actions", "out_of_window", "resyncs")
 
@@ -88,7 +88,8 @@ class TargetLoop:
         self._newest_action = -1
         self.line = EpochLine(live.epoch_window, now=now)
         self.watch = InputWatch("action", "action", started=now)
-        self.health = LoopHealth(COUNTERS, PROBLEMS, [self.watch], live.stall)
+        self.health = LoopHealth(COUNTERS, PROBLEMS, [self.watch], live.stall,
+                                 streams=("belief",) if self.timer_mode else ())
         self.resender = Resender(0.0 if self.timer_mode else live.resend_period)
         self._last: Readings | None = None
         self._out = TargetOutput()
@@ -102,7 +103,7 @@ class TargetLoop:
         return self._result(now)
 
     def action(self, act: ActionSample, now: float) -> TargetOutput:
-        """One decoded action (package docstring, "Join" and "Epoch window")."""
+        """One decoded action (rules "Join" and "Epoch window")."""
         if not self.joined:
             if self.held is None or act.epoch > self.held.epoch:
                 self.held = act
@@ -114,6 +115,9 @@ class TargetLoop:
             if verdict == "out_of_window":
                 self.watch.arrived(now, False)
                 self._out_of_window(act.epoch, now)
+            elif act.epoch > self.epoch + 1:
+                self.watch.arrived(now, False)
+                self._unexplained(act.epoch, now)
             else:
                 new = act.epoch > self._newest_action
                 self.watch.arrived(now, new, act.epoch)
@@ -121,17 +125,16 @@ class TargetLoop:
                     self._newest_action = act.epoch
                     self.last_priority = act.priority
             return self._result(now)
-        if verdict in ("next", "ahead"):
+        if verdict == "next":
             self.watch.arrived(now, True, act.epoch)
             self.resender.answered()
-            if act.epoch > self.epoch + 1:
-                self.health.warn("epoch_gaps", f"action jumps from epoch {self.epoch} to {act.epoch} (actions lost?)",
-                                 now)
             self._step(act.epoch, act.priority, now)
             return self._result(now)
         self.watch.arrived(now, False)
         if verdict == "out_of_window":
             self._out_of_window(act.epoch, now)
+        elif verdict == "ahead":
+            self._unexplained(act.epoch, now)
         else:
             self.health.count("stale_actions")
             self.health.log("debug", f"ignored action of epoch {act.epoch} (already at epoch {self.epoch})")
@@ -157,7 +160,7 @@ class TargetLoop:
         return self.join_due(now)
 
     def join_due(self, now: float) -> TargetOutput:
-        """Join once the evidence has settled and the outputs are ready (package docstring, "Join")."""
+        """Join once the evidence has settled and the outputs are ready (rule "Join")."""
         self._try_join(now)
         return self._result(now)
 
@@ -211,6 +214,12 @@ class TargetLoop:
         if held is not None and not self.timer_mode and held.epoch == position + 1:
             self.watch.arrived(now, True, held.epoch)
             self._step(held.epoch, held.priority, now)
+
+    def _unexplained(self, epoch: int, now: float) -> None:
+        """An action beyond the epoch the target steps next: no planner of this loop can have sent it
+        (its actions answer beliefs of epochs the target has stepped)."""
+        self.health.warn("unexplained_epochs", f"action of epoch {epoch} is beyond epoch {self.epoch + 1}, the one "
+                         "the simulator steps next: dropped (a stray, forged or replayed message?)", now)
 
     def _out_of_window(self, epoch: int, now: float) -> None:
         self.health.warn("out_of_window", f"action of epoch {epoch} is beyond the epoch window "
