@@ -121,6 +121,22 @@ def test_each_targets_belief_is_answered_on_its_action_topic_with_one_joint_reco
     assert {"last.lambda", "input.a/belief.last_new_epoch", "input.b/belief.seconds_since_new"} <= set(d)
 
 
+def test_a_belief_larger_than_the_targets_model_implies_is_dropped_unread(harness):
+    h = harness
+    h.add(SensorManager(context=h.context, parameter_overrides=[
+        Parameter("targets", value=["a", "b"]), Parameter("model_file", value=PERIMETER),
+        Parameter("effort_budget", value=1.0), Parameter("max_depth", value=1)]))
+    rec = h.add(TargetsRecorder(h.context, ("a", "b"), h.cond))
+    node = h.add(Node("test_beliefs", context=h.context))
+    pub = node.create_publisher(Float64MultiArray, "a/belief", STREAM_QOS)
+    h.start()
+    assert h.wait_matched(pub, 2)
+    pub.publish(encode_belief(3, np.full(10_000, 1e-4)))
+    assert h.wait_until(lambda: any(d.get("oversized_samples") == "1" for d in rec.diagnostics), timeout=15)
+    d = next(d for d in rec.diagnostics if d.get("oversized_samples") == "1")
+    assert d["bad_beliefs"] == "0" and d["target.a.belief_epoch"] == "none" and not rec.actions["a"]
+
+
 @pytest.mark.parametrize("overrides, text", [
     ({}, "targets: give at least one target namespace"),
     ({"targets": ["a", "a"]}, r"targets\[1\]: 'a' is given twice"),
