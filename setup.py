@@ -32,6 +32,7 @@ NODE_EXECUTABLES = {
     "planner": "pomdp_planner.nodes.planner:main",
     "closed_loop": "pomdp_planner.nodes.closed_loop:main",
     "measurement_adapter": "pomdp_planner.nodes.measurement_adapter:main",
+    "sensor_manager": "pomdp_planner.nodes.sensor_manager:main",
     "run_recorder": "pomdp_planner.nodes.run_recorder:main",
 }
 

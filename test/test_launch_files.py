@@ -9,11 +9,13 @@ For each ``launch/*.launch.xml`` of the source tree:
   ``$(find-pkg-share pomdp_planner)``; an argument's default may use the arguments declared before
   it), and every ``if``/``unless`` names a declared argument;
 * every ``<node>`` names an executable of this package that is installed under
-  ``lib/pomdp_planner`` and executable, with a unique name;
+  ``lib/pomdp_planner`` and executable, with a unique fully qualified name (its namespace, from
+  the ``<push-ros-namespace>`` of its groups, and its name);
 * for every value of ``model_set`` (the shipped parameter sets, :data:`PARAMETER_SETS`; the
   argument's description lists exactly them) every ``<param from=...>`` is an installed file
-  whose section applies to that node in any namespace, and the model it names is installed; all
-  the nodes of one launch run the same model.
+  whose section applies to that node in any namespace, and the models it names are installed;
+  the nodes of one namespace run the same model; nodes in several namespaces only under a sensor
+  manager, which names each of them in ``targets`` with that namespace's model in ``model_files``.
 """
 
 from __future__ import annotations
@@ -80,6 +82,22 @@ def arguments(root: ET.Element) -> dict[str, ET.Element]:
     return {a.get("name"): a for a in root.iter("arg")}
 
 
+def namespaced_nodes(el: ET.Element, namespace: str = "") -> list[tuple[str, ET.Element]]:
+    """``(namespace, node)`` of every ``<node>`` under ``el``, in file order: a ``<push-ros-namespace>``
+    applies to what follows it in its group, a ``<group>`` scopes it, a node's own ``namespace``
+    attribute comes last (namespaces as written, substitutions left as they are)."""
+    found = []
+    for child in el:
+        if child.tag == "push-ros-namespace":
+            namespace = f"{namespace}/{child.get('namespace')}"
+        elif child.tag == "group":
+            found += namespaced_nodes(child, namespace)
+        elif child.tag == "node":
+            own = child.get("namespace")
+            found.append((namespace if own is None else f"{namespace}/{own}", child))
+    return found
+
+
 def substitute(text: str, values: dict[str, str], share: Path) -> str:
     """``text`` with its substitutions done; an argument's value may hold substitutions itself."""
     def one(m: re.Match) -> str:
@@ -91,8 +109,18 @@ def substitute(text: str, values: dict[str, str], share: Path) -> str:
     return SUBSTITUTION.sub(one, text)
 
 
-def test_there_are_the_closed_loop_and_tracker_launch_files():
-    assert {p.name for p in LAUNCH_FILES} >= {"closed_loop.launch.xml", "tracker.launch.xml"}
+def test_there_are_the_closed_loop_tracker_and_multi_target_launch_files():
+    assert {p.name for p in LAUNCH_FILES} >= {"closed_loop.launch.xml", "tracker.launch.xml",
+                                              "multi_target.launch.xml"}
+
+
+def test_the_multi_target_launch_runs_three_targets_and_one_manager():
+    root = ET.parse(REPO / "launch" / "multi_target.launch.xml").getroot()
+    nodes = [(ns, n.get("exec")) for ns, n in namespaced_nodes(root)]
+    base = "/$(var namespace)"
+    targets = [f"{base}/target{k}" for k in (1, 2, 3)]
+    assert sorted(nodes) == sorted([(t, e) for t in targets for e in ("target_simulator", "belief_filter")]
+                                   + [(base, "sensor_manager")])
 
 
 def test_the_tracker_runs_the_adapter_with_the_filter_and_the_planner():
@@ -153,8 +181,8 @@ def test_nodes_are_installed_executables_of_this_package(path, prefix):
     root = ET.parse(path).getroot()
     nodes = list(root.iter("node"))
     assert nodes, f"{path.name}: no nodes"
-    names = [n.get("name") for n in nodes]
-    assert len(set(names)) == len(names), f"{path.name}: node names repeat: {names}"
+    names = [f"{ns}/{n.get('name')}" for ns, n in namespaced_nodes(root)]
+    assert len(names) == len(nodes) and len(set(names)) == len(names), f"{path.name}: node names repeat: {names}"
     for node in nodes:
         assert node.get("pkg") == PACKAGE, f"{path.name}: node of another package {node.get('pkg')!r}"
         exe = node.get("exec")
@@ -177,8 +205,9 @@ def test_parameter_files_and_models_exist_for_every_model_set(path, prefix):
     checked = 0
     for combo in itertools.product(*choices.values()):
         values = dict(zip(choices, combo, strict=True))
-        models = set()
-        for node in root.iter("node"):
+        models: dict[str, set[str]] = {}  # namespace -> the models its nodes run
+        managers = []  # (namespace, targets, model_files) of each sensor manager
+        for ns, node in namespaced_nodes(root):
             for param in node.iter("param"):
                 if param.get("from") is None:
                     continue
@@ -187,9 +216,22 @@ def test_parameter_files_and_models_exist_for_every_model_set(path, prefix):
                 section = node_parameters(yaml.safe_load(file.read_text()), node.get("name"))
                 assert f"/**/{node.get('name')}" in yaml.safe_load(file.read_text()), \
                     f"{file.name}: its section would not apply to {node.get('name')} in a namespace"
-                model = share / section["model_file"]
-                assert model.is_file(), f"{file.name}: model {section['model_file']} is not installed"
-                models.add(section["model_file"])
+                files = section["model_files"] if "model_files" in section else [section["model_file"]]
+                for f in files:
+                    assert (share / f).is_file(), f"{file.name}: model {f} is not installed"
+                if "targets" in section:
+                    assert len(section["targets"]) == len(files), f"{file.name}: one model file per target"
+                    managers.append((ns, section["targets"], files))
+                else:
+                    models.setdefault(ns, set()).update(files)
                 checked += 1
-        assert len(models) == 1, f"{path.name} ({values}): the nodes run different models {sorted(models)}"
+        for ns, group in models.items():
+            assert len(group) == 1, f"{path.name} ({values}): the nodes of {ns or '/'} run different models {group}"
+        targets = {f"{ns}/{t}": f for ns, names, files in managers for t, f in zip(names, files, strict=True)}
+        for ns, f in targets.items():
+            assert models.get(ns) == {f}, f"{path.name} ({values}): the manager's {ns} runs {f}, " \
+                                          f"its nodes {models.get(ns)}"
+        managed = set(targets) | {ns for ns, _, _ in managers}
+        assert len(models) == 1 or set(models) <= managed, \
+            f"{path.name} ({values}): nodes in several namespaces {sorted(models)} without a sensor manager"
     assert checked >= len(PARAMETER_SETS)

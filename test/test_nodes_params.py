@@ -29,11 +29,15 @@ from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.processes import PARAMETER_SETS, node_parameters, parameter_set_model
 from pomdp_planner.nodes.qos import LATCHED_QOS
 from pomdp_planner.nodes.runtime import NodeConfigError
+from pomdp_planner.nodes.sensor_manager import SensorManager
 from pomdp_planner.nodes.target_simulator import TargetSimulator
 
 harness = pytest.fixture(make_harness)
-NODE_CLASSES = {"target_simulator": TargetSimulator, "belief_filter": BeliefFilter, "planner": PlannerNode,
-                "measurement_adapter": MeasurementAdapter}
+#: The nodes every parameter set has a file for.
+SET_NODE_CLASSES = {"target_simulator": TargetSimulator, "belief_filter": BeliefFilter, "planner": PlannerNode,
+                    "measurement_adapter": MeasurementAdapter}
+#: Every node a shipped parameter file may configure (the sensor manager's files name several models).
+NODE_CLASSES = {**SET_NODE_CLASSES, "sensor_manager": SensorManager}
 PARAM_FILES = sorted((REPO / "config").glob("*.yaml"))
 
 
@@ -135,7 +139,7 @@ def test_shipped_yaml_files_exist_for_every_parameter_set():
     names = {p.name for p in PARAM_FILES}
     assert PARAMETER_SETS == ("s3", "s8", "perimeter_s3", "perimeter_s8")
     for key in PARAMETER_SETS:
-        files = [f"{node}_{key}.yaml" for node in NODE_CLASSES] + [f"closed_loop_{key}.yaml"]
+        files = [f"{node}_{key}.yaml" for node in SET_NODE_CLASSES] + [f"closed_loop_{key}.yaml"]
         assert set(files) <= names, key
         models = {section["ros__parameters"]["model_file"] for f in files
                   for section in yaml.safe_load((REPO / "config" / f).read_text()).values()}

@@ -21,8 +21,9 @@ from __future__ import annotations
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
@@ -245,6 +246,22 @@ class LoopNode(ParameterNode):
     def emit(self, out) -> None:
         raise NotImplementedError
 
+    def accept_changes(self, check: Callable[[Mapping[str, Any]], str]) -> None:
+        """Run-time parameter changes: refused with the reason the core's ``check`` gives (after the
+        descriptors' ranges, which rclpy enforces first), else handed to the loop's ``set_params``
+        with the lock held, its lines logged."""
+        def validate(params: list[Parameter]) -> SetParametersResult:
+            reason = check({p.name: p.value for p in params})
+            return SetParametersResult(successful=not reason, reason=reason)
+
+        def apply(params: list[Parameter]) -> None:
+            with self.lock:  # a managed node without a loop (unconfigured): the next configure reads them
+                logs = [] if self.loop is None else self.loop.set_params({p.name: p.value for p in params})
+            self.log(logs)
+
+        self.add_on_set_parameters_callback(validate)
+        self.add_post_set_parameters_callback(apply)
+
     def log(self, logs: Iterable[Log]) -> None:
         logger = self.get_logger()
         for line in logs:  # one call site per severity: rclpy refuses two severities at one site
@@ -280,7 +297,11 @@ class LoopNode(ParameterNode):
     def report(self) -> tuple[str, Report]:
         """``(hardware_id, report)`` for the diagnostics: the loop's report."""
         with self.lock:
-            return self.loop.model.name, self.loop.report(self.now())
+            return self.hardware_id(), self.loop.report(self.now())
+
+    def hardware_id(self) -> str:
+        """The diagnostics' ``hardware_id``: the model's name."""
+        return self.loop.model.name
 
     def _look_at_graphs_and_clock(self) -> None:
         """Before a report: the graph's writers of every input, and the ROS time (rule "Time")."""

@@ -26,6 +26,11 @@ decision epoch it belongs to, and every observation carries the action it was ta
   epoch ``t``; ``t = 0`` is the prior). The data stay a plain probability vector for generic
   tools; the epoch rides in the layout so that belief and epoch arrive in one message.
 
+* **allocation** (``std_msgs/Int64MultiArray``), the sensor manager's joint record, one per
+  decision: data ``[decision, epoch_1, action_priority_1, ..., epoch_K, action_priority_K]``, the
+  action in force of every target after that decision (``0, 0``: none yet), one dimension labelled
+  ``"decision,<target_1>.epoch,<target_1>.action_priority,..."`` with the targets' namespaces.
+
 * **plan_info** (``std_msgs/Float64MultiArray``), one record per decision, published right after
   the action: data ``[epoch, action_priority, depth, nodes_expanded, pruned_percent, certified,
   time_used, latency, deadline_hit, deadline_miss, bound_lower, bound_upper]`` with one dimension
@@ -157,6 +162,25 @@ def decode_observation(msg: Int64MultiArray, num_actions: int, num_observations:
     if not 0 <= z < num_observations:
         raise OutOfRangeError(f"observation: observation {z} out of range 0..{num_observations - 1}")
     return ObservationSample(epoch, priority, z)
+
+
+def allocation_label(targets: Sequence[str]) -> str:
+    """The label of the sensor manager's ``allocation`` record for ``targets`` (module docstring)."""
+    return ",".join(["decision", *(f"{t}.{f}" for t in targets for f in ("epoch", "action_priority"))])
+
+
+def encode_allocation(decision: int, actions: Sequence[ActionSample | None], targets: Sequence[str]) -> Int64MultiArray:
+    values = [decision]
+    for a in actions:
+        values += [0, 0] if a is None else [a.epoch, a.priority]
+    return _record(allocation_label(targets), values)
+
+
+def decode_allocation(msg: Int64MultiArray, targets: Sequence[str]) -> tuple[int, list[ActionSample | None]]:
+    """``(decision, the action in force of every target or None)`` of an ``allocation`` record."""
+    data = _decode_record(msg, allocation_label(targets), "allocation")
+    pairs = zip(data[1::2], data[2::2], strict=True)
+    return data[0], [None if p == 0 else ActionSample(t, p) for t, p in pairs]
 
 
 def encode_true_state(epoch: int, state: int) -> Int64MultiArray:

@@ -19,9 +19,7 @@ topics and diagnostics: docs/ros.md.
 
 from __future__ import annotations
 
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
@@ -64,10 +62,9 @@ class PlannerNode(ManagedLoopNode):
             float_range=(0.0, 10.0)))
         self.declare_parameter("chunk_kib", 1024, d(
             "Memory per search chunk (KiB); the deadline is checked between chunks, so smaller = tighter "
-            "deadlines (32 MiB chunks overshot a 0.2 s budget by up to 0.7 s on S = 8)",
+            "deadlines",
             read_only=True, int_range=(16, 1 << 20)))
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
+        self.accept_changes(check_params)
         self.bring_up()
 
     def configure_loop(self) -> PlannerLoop:
@@ -97,15 +94,6 @@ class PlannerNode(ManagedLoopNode):
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=plan_group)
         self._join = OneShot(self, self._plan_trigger.trigger)
         return loop
-
-    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        reason = check_params({p.name: p.value for p in params})
-        return SetParametersResult(successful=not reason, reason=reason)
-
-    def _apply_parameters(self, params: list[Parameter]) -> None:
-        with self.lock:  # unconfigured: the next configure reads them
-            logs = [] if self.loop is None else self.loop.set_params({p.name: p.value for p in params})
-        self.log(logs)
 
     @callback
     def _on_belief(self, msg: Float64MultiArray) -> None:

@@ -1,8 +1,9 @@
 """The rules of the node loop, without ROS: simulator -> observation -> filter -> belief -> planner
 -> action -> simulator.
 
-Each loop (:class:`TargetLoop`, :class:`FilterLoop`, :class:`PlannerLoop`, and :class:`AdapterLoop`
-between a real sensor and the filter) takes decoded inputs
+Each loop (:class:`TargetLoop`, :class:`FilterLoop`, :class:`PlannerLoop`, :class:`AdapterLoop`
+between a real sensor and the filter, and :class:`ManagerLoop`, the planner of K targets under one
+effort budget) takes decoded inputs
 (:mod:`.samples`) and the current time (``now``, seconds on a monotonic clock, passed in by the
 caller) and returns what to publish, what to log and, on request, what to report (small result
 dataclasses). No loop imports rclpy, starts a thread or reads a clock: the nodes (``nodes/``)
@@ -12,7 +13,8 @@ evidence, re-send), :mod:`.health` (counters, stall watch, throttled warnings, t
 :mod:`.writers` (one writer per stream), :mod:`.clock` (ROS time), :mod:`.epoch_buffer` (readings
 in epoch order), :mod:`.managed` (what a managed node reports without a loop), one module per loop
 (:mod:`.adapter_loop` adds its own rules for a sensor's readings: values, limits, staleness,
-ordering, binning, numbering).
+ordering, binning, numbering; :mod:`.manager_loop` its own for the joint decision: pairing, the
+actions in force, the budget, when to decide, silent targets).
 
 The rules themselves (the epoch window, explained epochs, gaps, jumps, re-sync, joining, one
 writer per stream, bounded samples, time, the mailbox, the decision cache, the epoch buffer,
@@ -27,15 +29,52 @@ from .epochs import DEFAULT_JOIN_TIMEOUT, JOIN_DELAY, EpochLine, JoinWait, Liven
 from .filter_loop import BeliefOut, FilterLoop, FilterOutput
 from .health import Level, Log, LoopHealth, Report, StallLimits
 from .managed import LOOP_STATES, state_report
+from .manager_loop import Allocation, JointJob, ManagerLoop, ManagerOutput
 from .planner_loop import TUNABLE, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
 from .samples import ActionSample, BeliefSample, LikelihoodSample, ObservationSample
 from .target_loop import Readings, TargetLoop, TargetOutput
 
 __all__ = [
-    "DEFAULT_JOIN_TIMEOUT", "INPUT_TYPES", "JOIN_DELAY", "LOOP_STATES", "POINT_FIELDS", "TUNABLE", "ActionSample",
-    "AdapterLoop", "AdapterOutput", "BeliefOut", "BeliefSample", "EpochBuffer", "EpochLine", "EpochReadings",
-    "FilterLoop", "FilterOutput", "JoinWait", "Level", "LikelihoodSample", "Liveness", "Log", "LoopHealth",
-    "ObservationBins", "ObservationSample", "PlanInfo", "PlanJob", "PlannerLoop", "PlannerOutput", "Readings",
-    "Report", "Resender", "StallLimits", "TargetLoop", "TargetOutput", "check_params", "classify", "point_value",
+    "DEFAULT_JOIN_TIMEOUT",
+    "INPUT_TYPES",
+    "JOIN_DELAY",
+    "LOOP_STATES",
+    "POINT_FIELDS",
+    "TUNABLE",
+    "ActionSample",
+    "AdapterLoop",
+    "AdapterOutput",
+    "Allocation",
+    "BeliefOut",
+    "BeliefSample",
+    "EpochBuffer",
+    "EpochLine",
+    "EpochReadings",
+    "FilterLoop",
+    "FilterOutput",
+    "JoinWait",
+    "JointJob",
+    "Level",
+    "LikelihoodSample",
+    "Liveness",
+    "Log",
+    "LoopHealth",
+    "ManagerLoop",
+    "ManagerOutput",
+    "ObservationBins",
+    "ObservationSample",
+    "PlanInfo",
+    "PlanJob",
+    "PlannerLoop",
+    "PlannerOutput",
+    "Readings",
+    "Report",
+    "Resender",
+    "StallLimits",
+    "TargetLoop",
+    "TargetOutput",
+    "check_params",
+    "classify",
+    "point_value",
     "state_report",
 ]

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -110,6 +110,29 @@ class PlannerOutput:
     join_at: float | None = None
 
 
+def checked_params(params: Mapping[str, Any], tunable: Sequence[str],
+                   check: Callable[[Mapping[str, Any]], str]) -> dict[str, Any]:
+    """The ``tunable`` parameters of ``params``, every one given (else ``ValueError``: a caller's
+    bug) and accepted by ``check`` (else its reason as an :class:`~..errors.OptionError`)."""
+    missing = [k for k in tunable if k not in params]
+    if missing:
+        raise ValueError(f"params: missing {missing}")
+    bad = check(params)
+    if bad:
+        raise OptionError(bad)
+    return {k: params[k] for k in tunable}
+
+
+def apply_changes(params: Mapping[str, Any], changed: Mapping[str, Any],
+                  tunable: Sequence[str]) -> tuple[dict[str, Any], list[Log]]:
+    """``params`` with the ``tunable`` ones of ``changed`` (already checked) in force from the next
+    decision, and the line that says so (none if nothing tunable changed)."""
+    changed = {k: v for k, v in changed.items() if k in tunable}
+    if not changed:
+        return dict(params), []
+    return {**params, **changed}, [Log("info", f"parameters changed {changed}; in force from the next decision")]
+
+
 def check_params(values: Mapping[str, Any]) -> str:
     """Why ``values`` (some of :data:`TUNABLE`) cannot be used, or ``""``: the bound variant and
     constant must be the core's (:func:`~pomdp_planner.core.bounds.check_variant`,
@@ -138,15 +161,9 @@ class PlannerLoop:
     def __init__(self, model: POMDP, params: Mapping[str, Any], live: Liveness, *, now: float,
                  refuse: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
                  progress: Callable[[str], None] | None = None, active: bool = True):
-        missing = [k for k in TUNABLE if k not in params]
-        if missing:
-            raise ValueError(f"params: missing {missing}")
-        bad = check_params(params)
-        if bad:
-            raise OptionError(bad)
+        self.params = checked_params(params, TUNABLE, check_params)
         self.model = model
         self.live = live
-        self.params = {k: params[k] for k in TUNABLE}
         self._on_failure = "refuse" if refuse else "exhaustive"
         self._chunk_bytes = chunk_bytes
         self._progress = progress
@@ -189,11 +206,8 @@ class PlannerLoop:
     # ----------------------------------------------------------- parameters
     def set_params(self, changed: Mapping[str, Any]) -> list[Log]:
         """Parameters changed at run time (checked with :func:`check_params`); in force from the next decision."""
-        changed = {k: v for k, v in changed.items() if k in TUNABLE}
-        if not changed:
-            return []
-        self.params = {**self.params, **changed}
-        return [Log("info", f"parameters changed {changed}; in force from the next decision")]
+        self.params, logs = apply_changes(self.params, changed, TUNABLE)
+        return logs
 
     def _ensure_planner(self, variant: str, constant: str) -> Log | None:
         """(Re)build the core planner for ``variant`` and ``constant`` through the assumption gate:
