@@ -234,6 +234,42 @@ def test_parameters_are_checked_and_in_force_from_the_next_job():
     assert job.params["max_depth"] == 1 and loop.search(job).result.depth == 1
 
 
+def test_a_set_up_refused_at_run_time_is_one_warning_and_the_planner_in_force_stays(monkeypatch):
+    """A run-time bound choice whose set-up the gate refuses (its cost): one warning naming it and
+    the reason, the decisions go on with the bounds in force, no retry at every decision."""
+    from pomdp_planner.core import gate
+    from pomdp_planner.core.loop import planner_loop
+
+    calls = []
+
+    def build(model, **kw):
+        calls.append(kw["variant"])
+        if kw["variant"] == "feasible":
+            raise gate.SetupCostError("model: the planner's set-up needs about 9 TiB, more than the 1 GiB available")
+        return gate.build_planner(model, **kw)
+
+    loop = make()
+    monkeypatch.setattr(planner_loop, "build_planner", build)
+    joined(loop)
+    loop.set_params({"bound_variant": "feasible"})
+    for epoch in (1, 2):
+        loop.belief(bel(epoch), T0 + epoch)
+        job = loop.take(T0 + epoch)
+        searched = loop.search(job)
+        out = loop.decided(job, searched, T0 + epoch)
+        assert out.actions and out.actions[-1].epoch == epoch + 1
+        warnings = [x.text for x in searched.logs if x.level == "warning"]
+        if epoch == 1:
+            assert warnings == ["bounds feasible, constant mlr refused: model: the planner's set-up needs about 9 TiB, "
+                                "more than the 1 GiB available; planning on with bounds tight, constant mlr"]
+        else:
+            assert warnings == []
+        assert searched.use_bounds and searched.guaranteed  # the tight bounds still in force
+    assert calls == ["feasible"]
+    with pytest.raises(gate.SetupCostError):  # at start-up the refusal is the node's error
+        PlannerLoop(S3, {**PARAMS, "bound_variant": "feasible"}, LIVE, now=T0)
+
+
 def test_refusing_plans_nothing_and_reports_error():
     loop = PlannerLoop(FAILING, PARAMS, LIVE, now=T0, refuse=True)
     assert loop.refusing and loop.setup.planner is None

@@ -168,6 +168,7 @@ class PlannerLoop:
         self._chunk_bytes = chunk_bytes
         self._progress = progress
         self._planner_key: tuple[str, str] | None = None
+        self._refused_setups: set[tuple[str, str]] = set()  # run-time choices the gate refused
         self.health = LoopHealth(COUNTERS, PROBLEMS, [InputWatch("belief", "belief", started=now)], live.stall)
         bounds_warning = self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
         self.assumptions = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
@@ -212,12 +213,22 @@ class PlannerLoop:
     def _ensure_planner(self, variant: str, constant: str) -> Log | None:
         """(Re)build the core planner for ``variant`` and ``constant`` through the assumption gate:
         the bounds are solved when the pair changes (can take a while), Assumption 1 is checked once
-        per model. Returns the warning to log, if any."""
-        if self._planner_key == (variant, constant):
+        per model. A pair whose set-up the gate refuses at run time (its cost) is said once, as the
+        warning, and the planner in force stays. Returns the warning to log, if any."""
+        if self._planner_key == (variant, constant) or (variant, constant) in self._refused_setups:
             return None
-        setup = build_planner(self.model, variant=variant, constant=constant, on_assumption_failure=self._on_failure,
-                              chunk_bytes=self._chunk_bytes, progress=self._progress)
         bounds, warning = f"{variant}, constant {constant}", None
+        try:
+            setup = build_planner(self.model, variant=variant, constant=constant,
+                                  on_assumption_failure=self._on_failure, chunk_bytes=self._chunk_bytes,
+                                  progress=self._progress)
+        except OptionError as exc:  # a set-up the gate refuses (its cost): at start-up, the node's error
+            if self._planner_key is None:
+                raise
+            self._refused_setups.add((variant, constant))  # said once; the planner in force stays
+            old_variant, old_constant = self._planner_key
+            return Log("warning", f"bounds {bounds} refused: {exc}; planning on with bounds {old_variant}, "
+                       f"constant {old_constant}")
         if setup.pruning:
             message = f"{bounds}: feasible"
         elif setup.report is not None and setup.report.holds:  # the LP, not the model, is the problem
