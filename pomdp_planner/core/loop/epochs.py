@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from .health import StallLimits
+from .health import LoopHealth, StallLimits
 
 #: Default epoch window: the farthest jump a node acts on (a gap up to it is walked, as one
 #: prediction per epoch, and logged as one line).
@@ -230,3 +230,29 @@ class Resender:
         """The node re-sends now (counted in ``resent``; the period starts again)."""
         self.resent += 1
         self.published(now)
+
+
+def off_stream_belief(line: EpochLine, health: LoopHealth, verdict: Verdict, epoch: int, item: Any, *,
+                      stream: int, window: int, stall_warn: float, now: float, who: str = "",
+                      acted: str = "planned") -> None:
+    """A belief the planner side does not act on (docs/ros.md, "The loop's rules": explained
+    epochs, epoch window, stale): an ``unexplained`` one is off-line evidence and, unless it
+    completes a jump of the filter (two consecutive beliefs), warned about; one ``out_of_window``
+    is dropped and warned about; a ``behind`` or ``repeat`` one is counted as stale (``behind``
+    also as off-line evidence). ``stream``: the newest epoch of the stream followed; ``who``: a
+    prefix naming the input (the sensor manager's target); ``acted``: what is not done to it."""
+    if verdict == "unexplained":
+        line.off_line(epoch, item, now)
+        due = line.resync_due(stall_warn, now, jump_after=0.0)
+        if due is None or not line.jump(due):  # else it completes a jump: the caller acts on it
+            health.warn("unexplained_epochs", f"{who}belief of epoch {epoch} does not follow the beliefs so far "
+                        f"(newest: epoch {stream}): not {acted} unless the next belief follows it (a jump of the "
+                        "filter); a stray, forged or replayed message?", now)
+    elif verdict == "out_of_window":
+        line.off_line(epoch, item, now)
+        health.warn("out_of_window", f"{who}belief of epoch {epoch} is beyond the epoch window ({window}) of epoch "
+                    f"{line.position}: dropped (a restarted filter or a forged message)", now)
+    else:
+        health.count("stale_beliefs")
+        if verdict == "behind":
+            line.off_line(epoch, item, now)

@@ -67,7 +67,7 @@ from ..errors import InputError
 from ..model import POMDP
 from ..multitarget.planner import DEFAULT_EVALUATIONS, SEARCH_MODES, JointDecision, MultiTargetPlanner
 from ..multitarget.problem import MultiTargetProblem, format_effort, make_problem
-from .epochs import EpochLine, JoinWait, Liveness, Resender
+from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
 from .health import InputWatch, Log, LoopHealth, Report
 from .manager_params import TUNABLE, check_params
 from .planner_loop import DECISION_CACHE, apply_changes, checked_params
@@ -280,22 +280,10 @@ class ManagerLoop:
             else:
                 ib.stream = max(ib.stream, bel.epoch)
                 ib.line.clear_evidence()
-        elif verdict == "unexplained":
-            ib.line.off_line(bel.epoch, bel, now)
-            due = ib.line.resync_due(self.live.stall.warn_after, now, jump_after=0.0)
-            if due is None or not ib.line.jump(due):  # else it completes a jump (below): acted on
-                self.health.warn("unexplained_epochs", f"{ib.name}: belief of epoch {bel.epoch} does not follow the "
-                                 f"beliefs so far (newest: epoch {ib.stream}): not decided unless the next belief "
-                                 "follows it (a jump of the filter); a stray, forged or replayed message?", now)
-        elif verdict == "out_of_window":
-            ib.line.off_line(bel.epoch, bel, now)
-            self.health.warn("out_of_window", f"{ib.name}: belief of epoch {bel.epoch} is beyond the epoch window "
-                             f"({self.live.epoch_window}) of epoch {ib.line.position}: dropped (a restarted filter or "
-                             "a forged message)", now)
         else:
-            self.health.count("stale_beliefs")
-            if verdict == "behind":
-                ib.line.off_line(bel.epoch, bel, now)
+            off_stream_belief(ib.line, self.health, verdict, bel.epoch, bel, stream=ib.stream,
+                              window=self.live.epoch_window, stall_warn=self.live.stall.warn_after, now=now,
+                              who=f"{ib.name}: ", acted="decided")
         self._resync_if_due(ib, now)
         return self._result(now)
 

@@ -29,7 +29,7 @@ from ..errors import OptionError
 from ..gate import PlannerSetup, build_planner
 from ..model import POMDP, format_bytes, priority_of
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
-from .epochs import EpochLine, JoinWait, Liveness, Resender
+from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
 from .health import InputWatch, Level, Log, LoopHealth, Report
 from .samples import ActionSample, BeliefSample
 
@@ -300,22 +300,9 @@ class PlannerLoop:
                 self.line.clear_evidence()
                 if not self.active:  # the epochs skipped while inactive are never planned for ("Inactive")
                     self.line.advance(self._mailbox[0].epoch - 1, now)
-        elif verdict == "unexplained":
-            self.line.off_line(bel.epoch, (bel, now), now)
-            due = self.line.resync_due(self.live.stall.warn_after, now, jump_after=0.0)
-            if due is None or not self.line.jump(due):  # else it completes a jump (below): acted on
-                self.health.warn("unexplained_epochs", f"belief of epoch {bel.epoch} does not follow the beliefs so "
-                                 f"far (newest: epoch {self._stream}): not planned unless the next belief follows it "
-                                 "(a jump of the filter); a stray, forged or replayed message?", now)
-        elif verdict == "out_of_window":
-            self.line.off_line(bel.epoch, (bel, now), now)
-            self.health.warn("out_of_window", f"belief of epoch {bel.epoch} is beyond the epoch window "
-                             f"({self.live.epoch_window}) of epoch {self.line.position}: dropped (a restarted filter "
-                             "or a forged message)", now)
         else:
-            self.health.count("stale_beliefs")
-            if verdict == "behind":
-                self.line.off_line(bel.epoch, (bel, now), now)
+            off_stream_belief(self.line, self.health, verdict, bel.epoch, (bel, now), stream=self._stream,
+                              window=self.live.epoch_window, stall_warn=self.live.stall.warn_after, now=now)
         resynced = self._resync_if_due(now)
         return self._result(now, plan_now=self.active and self._mailbox is not None and (resynced or planner_ahead))
 
