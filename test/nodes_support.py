@@ -44,6 +44,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray  # noqa: E402
 
 from pomdp_planner.nodes.executor import NodeExecutor, shutdown_executor  # noqa: E402
 from pomdp_planner.nodes.messages import decode_belief  # noqa: E402
+from pomdp_planner.nodes.processes import stop_nodes  # noqa: E402
 from pomdp_planner.nodes.qos import RECORDER_QOS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -116,6 +117,21 @@ def remove_dead_shm(before: set[str], shm: Path = SHM) -> list[str]:
         if _locked_while(shm / lock, lambda files=files: [(shm / f).unlink(missing_ok=True) for f in files]):
             removed += files
     return removed
+
+
+def stop_after_kills(procs: dict, executor, node: Node, ctx: Context, handles: list, shm_before: set[str]
+                     ) -> dict[str, int]:
+    """The teardown of a test that killed node processes: stop the rest (SIGINT), shut the test's
+    executor, node and context down, close the log handles, and remove the shared memory the
+    killed processes left (:func:`remove_dead_shm`); returns the exit codes."""
+    codes = stop_nodes(procs, timeout=15.0)
+    executor.shutdown(timeout_sec=1.0)
+    node.destroy_node()
+    ctx.try_shutdown()
+    for fh in handles:
+        fh.close()
+    remove_dead_shm(shm_before)
+    return codes
 
 
 def _locked_while(lock: Path, action: Callable[[], object]) -> bool:

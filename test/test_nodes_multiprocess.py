@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import REPO, Recorder, die_with_test, rclpy, remove_dead_shm, shm_entries
+from nodes_support import REPO, Recorder, die_with_test, rclpy, remove_dead_shm, shm_entries, stop_after_kills
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
@@ -344,13 +344,7 @@ def test_kill_9_and_restart_each_node_one_at_a_time(domain, tmp_path, mode):
         print(f"\n{mode}: seconds from kill -9 to the loop resumed ({RESUMED_BY} epochs on every output): "
               + ", ".join(f"{n} {t:.1f}" for n, t in recovery.items()))
     finally:
-        codes = stop_nodes(procs, timeout=15.0)
-        executor.shutdown(timeout_sec=1.0)
-        rec.destroy_node()
-        ctx.try_shutdown()
-        for fh in handles:
-            fh.close()
-        remove_dead_shm(shm_before)  # the killed processes' segments
+        codes = stop_after_kills(procs, executor, rec, ctx, handles, shm_before)
     for name, code in codes.items():
         err = procs[name][1].read_text(errors="replace")
         assert code == 0 and "Traceback" not in err, f"{name}: exit code {code}\n{err[-2000:]}"

@@ -21,7 +21,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnostic_msgs.msg import DiagnosticArray
-from nodes_support import REPO, die_with_test, make_harness, rclpy, remove_dead_shm, shm_entries
+from nodes_support import REPO, die_with_test, make_harness, rclpy, shm_entries, stop_after_kills
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -30,7 +30,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 from test_nodes_multiprocess import _spin_until, domain  # noqa: F401 (a fixture)
 
 from pomdp_planner.nodes.messages import decode_allocation, decode_belief, encode_belief
-from pomdp_planner.nodes.processes import node_command, stop_nodes
+from pomdp_planner.nodes.processes import node_command
 from pomdp_planner.nodes.qos import RECORDER_QOS, STREAM_QOS
 from pomdp_planner.nodes.runtime import NodeConfigError
 from pomdp_planner.nodes.sensor_manager import SensorManager
@@ -283,13 +283,7 @@ def test_three_targets_within_budget_paired_and_a_filter_restarted(tmp_path):
         print(f"\nsensor manager, K = 3: target2's filter killed (-9), restarted {t_restart - t_kill:.1f} s later; "
               f"{now - t_restart:.1f} s from the restart to every target's action {RESUMED_BY} epochs on")
     finally:
-        codes = stop_nodes(procs, timeout=15.0)
-        executor.shutdown(timeout_sec=1.0)
-        rec.destroy_node()
-        ctx.try_shutdown()
-        for fh in handles:
-            fh.close()
-        remove_dead_shm(shm_before)  # the killed filter's segments
+        codes = stop_after_kills(procs, executor, rec, ctx, handles, shm_before)
     for name, code in codes.items():
         err = procs[name][1].read_text(errors="replace")
         assert code == 0 and "Traceback" not in err, f"{name}: exit code {code}\n{err[-2000:]}"

@@ -33,7 +33,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnostic_msgs.msg import DiagnosticArray
-from nodes_support import REPO, rclpy
+from nodes_support import REPO, die_with_test, rclpy, remove_dead_shm, shm_entries
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
@@ -55,11 +55,6 @@ WATCH, RECOVERY = 40, 10
 #: A lagging planner's decision may reach the simulator this many epochs late (a loaded machine).
 LAG = 8
 NODES = ("target_simulator", "belief_filter", "planner")
-SHM = Path("/dev/shm")
-
-
-def _shm() -> set[str]:
-    return {p.name for p in SHM.glob("fastrtps_*")} if SHM.is_dir() else set()
 
 
 class Observer(Node):
@@ -231,7 +226,7 @@ def loop(tmp_path_factory):
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env, ROS_PYTHON_CHECK_FIELDS="1")
     log_dir = tmp_path_factory.mktemp("stray")
-    shm_before = _shm()
+    shm_before = shm_entries()
     ctx = Context()
     rclpy.init(context=ctx)
     observer = Observer(ctx)
@@ -239,7 +234,7 @@ def loop(tmp_path_factory):
     executor.add_node(observer)
     spin = threading.Thread(target=executor.spin, daemon=True)
     spin.start()
-    procs = start_nodes("s3", domain, log_dir)
+    procs = start_nodes("s3", domain, log_dir, preexec_fn=die_with_test)
     lp = Loop(procs, observer, executor, log_dir)
     try:
         lp.wait(lambda: observer.newest() > 30 and len(observer.decisions) > 20
@@ -256,8 +251,7 @@ def loop(tmp_path_factory):
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
-        for name in _shm() - shm_before:
-            (SHM / name).unlink(missing_ok=True)
+        remove_dead_shm(shm_before)  # only what no live process uses (other runs share /dev/shm)
     for name, code in codes.items():
         text = procs[name][1].read_text(errors="replace")
         assert code == 0 and "Traceback" not in text, f"{name}: exit code {code}\n{text[-2000:]}"

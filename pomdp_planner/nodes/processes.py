@@ -65,8 +65,9 @@ def ros_env(domain_id: int) -> dict[str, str]:
 
 
 def start_nodes(model: str, domain_id: int, log_dir: Path, extra: dict[str, list[str]] | None = None,
-                names=NODES) -> dict[str, tuple[subprocess.Popen, Path]]:
-    """Start node processes with ``config/<name>_<model>.yaml``; output goes to ``log_dir/<name>.log``."""
+                names=NODES, preexec_fn=None) -> dict[str, tuple[subprocess.Popen, Path]]:
+    """Start node processes with ``config/<name>_<model>.yaml``; output goes to ``log_dir/<name>.log``;
+    ``preexec_fn`` runs in each child before it starts (``subprocess.Popen``'s)."""
     procs = {}
     env = ros_env(domain_id)
     for name in names:
@@ -74,7 +75,8 @@ def start_nodes(model: str, domain_id: int, log_dir: Path, extra: dict[str, list
         cmd = [*node_command(name), "--ros-args", "--params-file", str(params), *(extra or {}).get(name, [])]
         log = log_dir / f"{name}.log"
         with open(log, "wb") as fh:
-            procs[name] = (subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT), log)
+            procs[name] = (subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT,
+                                              preexec_fn=preexec_fn), log)
     return procs
 
 
