@@ -204,6 +204,12 @@ class PlannerLoop:
         """The belief waiting to be planned, if any."""
         return None if self._mailbox is None else self._mailbox[0]
 
+    @property
+    def last_action(self) -> ActionSample | None:
+        """The newest action decided (kept unpublished while inactive; :meth:`activate` sends it if
+        no belief has answered it)."""
+        return self._last_action
+
     # ----------------------------------------------------------- parameters
     def set_params(self, changed: Mapping[str, Any]) -> list[Log]:
         """Parameters changed at run time (checked with :func:`check_params`); in force from the next decision."""
