@@ -268,3 +268,30 @@ def test_plan_info_carries_the_deadline_miss_flag():
     msg.data = list(msg.data)[:-1]
     with pytest.raises(MessageError, match="plan_info"):
         decode_plan_info(msg)
+
+
+@pytest.mark.parametrize("S", [1, 3, 256])
+def test_the_size_bound_of_each_topic_admits_every_message_the_loop_sends(S):
+    """The bound a node drops samples by (``wire_limits``) against rclpy's own CDR serialization:
+    every message the loop's encoders make fits (epochs at ``MAX_EPOCH``, the longest labels), and
+    the bound leaves room for fewer than 20 values more (the labels' slack)."""
+    from rclpy.serialization import serialize_message
+
+    from pomdp_planner.nodes.messages import (
+        MAX_EPOCH,
+        encode_action,
+        encode_likelihood,
+        encode_true_state,
+        wire_limits,
+    )
+
+    limits = wire_limits(S)
+    largest = {"belief": encode_belief(MAX_EPOCH, np.full(S, 1.0 / S)),
+               "likelihood": encode_likelihood(MAX_EPOCH, 1, np.ones(S)),
+               "action": encode_action(MAX_EPOCH, 1), "observation": encode_observation(MAX_EPOCH, 1, 0),
+               "true_state": encode_true_state(MAX_EPOCH, S - 1),
+               "plan_info": encode_plan_info(**dict.fromkeys(PLAN_INFO_FIELDS, 1.0))}
+    assert set(largest) == set(limits)
+    for topic, msg in largest.items():
+        size = len(serialize_message(msg))
+        assert size <= limits[topic] < size + 8 * 20, (topic, size, limits[topic])

@@ -29,7 +29,7 @@ from test_run_record import png_size
 from pomdp_planner.cli import main as cli_main
 from pomdp_planner.core.io.run_record import read_run_record
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.messages import decode_plan_info, encode_true_state
+from pomdp_planner.nodes.messages import decode_plan_info, encode_action, encode_true_state
 from pomdp_planner.nodes.planner import PlannerNode
 from pomdp_planner.nodes.processes import node_command
 from pomdp_planner.nodes.qos import RECORDER_QOS, STREAM_QOS
@@ -137,6 +137,42 @@ def test_bad_messages_are_counted_in_the_diagnostics(harness, tmp_path):
     assert st["file"] == str(tmp_path / "run.csv") and st["rows_written"] == "0"
     assert st["_level"] == DiagnosticStatus.WARN and "since the last report: 2 malformed messages" in st["_message"]
     assert recorder.loop.health.counts["malformed_messages"] == 2
+
+
+def test_a_second_writer_and_an_oversized_sample_are_dropped_before_they_reach_the_record(harness, tmp_path):
+    """The recorder follows one writer per topic: a stranger's action for an epoch the established
+    writer has answered is foreign (not a conflict), named in the diagnostics; a belief of 10^6
+    values is dropped unread (``oversized_samples``), not decoded (no malformed message)."""
+    import array
+
+    h = harness
+    recorder = h.add(RunRecorderNode(context=h.context, parameter_overrides=_params(
+        model_file=S3, file=str(tmp_path / "run.csv"))))
+    rec = h.recorder()
+    planner = h.add(Node("planner_like", context=h.context))
+    stranger = h.add(Node("stranger", context=h.context))
+    own, forged = (n.create_publisher(Int64MultiArray, "action", STREAM_QOS) for n in (planner, stranger))
+    belief_pub = stranger.create_publisher(Float64MultiArray, "belief", STREAM_QOS)
+    h.start()
+    assert all(h.wait_matched(p, 2) for p in (own, forged, belief_pub))
+    own.publish(encode_action(1, 1))
+    watch = recorder.loop.health.writers["action"]
+    assert h.wait_until(lambda: watch.established is not None, timeout=10)
+    forged.publish(encode_action(1, 3))  # a different decision for the same epoch
+    big = Float64MultiArray()
+    big.data = array.array("d", bytes(8 * 10**6))
+    belief_pub.publish(big)
+
+    def status():
+        found = rec.diag_values("run_recorder: recording")
+        return next((st for st in reversed(found) if st.get("foreign_samples") == "1"
+                     and st.get("oversized_samples") == "1"), None)
+
+    assert h.wait_until(lambda: status() is not None, timeout=15), rec.diag_values("run_recorder")[-1:]
+    st = status()
+    assert st["input.action.writer"].startswith("/planner_like [") and st["input.action.foreign_samples"] == "1"
+    assert st["conflicts"] == "0" and st["malformed_messages"] == "0"
+    assert st["_level"] == DiagnosticStatus.WARN and "/stranger" in st["_message"]
 
 
 def _env() -> dict[str, str]:

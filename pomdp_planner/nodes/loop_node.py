@@ -22,7 +22,6 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -33,7 +32,6 @@ from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallba
 from rclpy.lifecycle.publisher import LifecyclePublisher
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message
 from std_msgs.msg import Int64MultiArray
 
 from ..core.gate import SetupStages
@@ -41,7 +39,8 @@ from ..core.io.sensors import load_model_file
 from ..core.loop import LOOP_STATES, Log, Report, state_report
 from ..core.model import POMDP
 from .diagnostics import array, status
-from .messages import MessageError, decode_action, oversized, wire_limits
+from .inputs import CheckedInputs, Input
+from .messages import MessageError, decode_action, wire_limits
 from .params import (
     CONFIGURE_TIME,
     NodeConfigError,
@@ -53,30 +52,9 @@ from .params import (
     liveness,
 )
 from .runtime import callback, config_errors
-from .take import subscribe
 
 #: The parameters a managed node reads as it is made: read-only, refused at once.
 START_UP_PARAMETERS = frozenset({"autostart", "strict_parameters"})
-
-#: Writers per input for which the node looked at the graph on their first sample (the oldest forgotten).
-GRAPH_ASKED = 64
-
-
-@dataclass
-class Input:
-    """An input stream of a loop node (:meth:`LoopNode.subscribe_input`)."""
-
-    name: str
-    msg_type: type
-    max_bytes: int
-    layout: str
-    on_msg: Callable[[object], None]
-    on_bad: Callable[[str], None]
-    topic: str = ""
-    sub: object = None                      # the subscription
-    held: tuple[bytes, dict] | None = None  # the newest foreign sample: handed in again at a takeover
-    asked: dict[str, None] = field(default_factory=dict)  # writers the graph was looked at for
-
 
 class OneShot:
     """A timer of ``node`` (on the steady clock) that calls ``fire`` once at the time it was last
@@ -131,7 +109,8 @@ class LoopNode(ParameterNode):
             self.model_file = self.get_parameter("model_file").value
             self.live = liveness(self)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.inputs: dict[str, Input] = {}
+        self.checked = CheckedInputs(self, self.lock, lambda: None if self.loop is None else self.loop.health,
+                                     self.log, self.now)
         self.add_on_set_parameters_callback(self._refuse_sim_time)
 
     @staticmethod
@@ -149,75 +128,18 @@ class LoopNode(ParameterNode):
         self.call(loop.start)
 
     # ----------------------------------------------------------- inputs
+    @property
+    def inputs(self) -> dict[str, Input]:
+        """The loop's input streams (:class:`~.inputs.CheckedInputs`), by name."""
+        return self.checked.streams
+
     def subscribe_input(self, name: str, msg_type: type, topic: str, qos, on_msg: Callable[[object], None], *,
                         max_bytes: int, layout: str, on_bad: Callable[[str], None],
                         **kwargs) -> Input:
-        """Subscribe to ``topic`` as the loop's input ``name``: a sample larger than ``max_bytes``
-        (``layout``: what it should hold) is dropped unread, one of a writer other than the one the
-        loop follows is dropped before it is decoded (``loop.health.admit``), the rest is
-        deserialized and handed to ``on_msg`` (one that does not deserialize to ``on_bad``)."""
-        spec = Input(name, msg_type, max_bytes, layout, on_msg, on_bad)
-        sub = subscribe(self, msg_type, topic, lambda raw, info: self._on_sample(spec, raw, info), qos, max_bytes,
-                        **kwargs)
-        spec.topic, spec.sub = sub.topic_name, sub
-        self.inputs[name] = spec
-        return spec
-
-    @callback
-    def _on_sample(self, spec: Input, raw: bytes | None, info: dict) -> None:
-        if self.loop is None:  # taken before a cleanup released the subscription
-            return
-        now = self.now()
-        size = info.get("size", 0 if raw is None else len(raw))
-        if raw is None or size > spec.max_bytes:
-            self._tell(self.loop.health.oversized, spec.name, oversized(spec.name, size, spec.max_bytes, spec.layout))
-            return
-        writer = info.get("publisher_gid")
-        if writer is not None and writer not in spec.asked and not self.loop.health.writers[spec.name].known(writer):
-            spec.asked[writer] = None  # its first sample: who is it? (once per writer)
-            while len(spec.asked) > GRAPH_ASKED:
-                del spec.asked[next(iter(spec.asked))]
-            self._look_at_graph(spec)
-        with self.lock:
-            admitted = self.loop.health.admit(spec.name, writer, now)
-            if not admitted:
-                spec.held = (raw, info)
-            logs = self.loop.health.drain_logs()
-        self.log(logs)
-        if not admitted:
-            return
-        try:
-            msg = deserialize_message(raw, spec.msg_type)
-        except Exception as exc:  # not a sample of the topic's type (a raw publisher's bytes)
-            spec.on_bad(f"{spec.name}: not a {spec.msg_type.__name__} ({type(exc).__name__})")
-            return
-        spec.on_msg(msg)
-
-    def _tell(self, method: Callable, *args) -> None:
-        """``method(*args, now)`` of the loop's health with the lock held; its log lines logged."""
-        with self.lock:
-            method(*args, self.now())
-            logs = self.loop.health.drain_logs()
-        self.log(logs)
-
-    def _look_at_graph(self, spec: Input) -> None:
-        """The graph's facts about the writers of ``spec``'s topic: ``{GID (hex): node name}``."""
-        writers = {bytes(i.endpoint_gid).hex(): (i.node_namespace.rstrip("/") + "/" + i.node_name)
-                   for i in self.get_publishers_info_by_topic(spec.topic)}
-        with self.lock:
-            if self.loop is not None:  # None: released by a cleanup meanwhile
-                self.loop.health.writers[spec.name].graph(writers)
-
-    def _takeovers(self) -> None:
-        """Hand in again the waiting sample of a writer whose predecessor is gone (rule "One writer")."""
-        now = self.now()
-        for spec in self.inputs.values():
-            with self.lock:
-                held = spec.held if self.loop.health.writers[spec.name].takeover_due(now) else None
-                if held is not None:
-                    spec.held = None
-            if held is not None:
-                self._on_sample(spec, *held)
+        """Subscribe to ``topic`` as the loop's input ``name``, its samples checked for size and
+        writer before they are decoded (:meth:`.inputs.CheckedInputs.subscribe`)."""
+        return self.checked.subscribe(name, msg_type, topic, qos, on_msg, max_bytes=max_bytes, layout=layout,
+                                      on_bad=on_bad, **kwargs)
 
     # ----------------------------------------------------------- time
     def _refuse_sim_time(self, params: list[Parameter]) -> SetParametersResult:
@@ -291,7 +213,7 @@ class LoopNode(ParameterNode):
 
     @callback
     def _watchdog(self) -> None:
-        self._takeovers()
+        self.checked.takeovers()
         self.call(self.loop.watchdog)
 
     def report(self) -> tuple[str, Report]:
@@ -305,8 +227,7 @@ class LoopNode(ParameterNode):
 
     def _look_at_graphs_and_clock(self) -> None:
         """Before a report: the graph's writers of every input, and the ROS time (rule "Time")."""
-        for spec in list(self.inputs.values()):
-            self._look_at_graph(spec)
+        self.checked.look_at_graphs()
         ros_now = self.get_clock().now().nanoseconds
         with self.lock:
             if self.loop is not None and self.loop.health.clock is not None:
@@ -519,7 +440,7 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
         with self.lock:
             self.loop = None
             self.model = None
-            self.inputs = {}
+            self.checked.clear()
         for e in self._configured:
             if isinstance(e, LifecyclePublisher):
                 self.destroy_lifecycle_publisher(e)

@@ -44,9 +44,10 @@ decision epoch it belongs to, and every observation carries the action it was ta
   guaranteed bounds (``use_bounds`` false, or the model fails the assumptions). The record is
   ``core.loop.PlanInfo``.
 
-A sample larger than its layout allows (:func:`max_wire_bytes`: the model's ``S`` values for a
-belief, 2 or 3 integers for an action or an observation, labels of at most
-:data:`MAX_LABEL_CHARS` characters) is dropped before it is copied or decoded
+A sample larger than its layout allows (:func:`wire_limits`: the model's ``S`` values for a
+belief, 2 or 3 integers for an action, an observation or a true state, labels of at most
+:data:`MAX_LABEL_CHARS` characters; ``plan_info``: its fields and their names) is dropped before
+it is copied or decoded
 (``nodes/take.py``; :func:`oversized`). Decoders raise :class:`MessageError` with a message that
 names the field and the problem. They bound what they accept before converting anything: epochs
 are ``0..MAX_EPOCH`` (so that ``epoch + 1`` always fits the ``int64`` of the next message, and an
@@ -81,21 +82,23 @@ _PRIORITY_LABEL_RE = re.compile(r"^action_priority=(\d{1,18})$")
 MAX_LABEL_CHARS = 64
 
 
-def max_wire_bytes(values: int, dims: int, value_bytes: int = 8) -> int:
+def max_wire_bytes(values: int, dims: int, value_bytes: int = 8, label_chars: int = MAX_LABEL_CHARS) -> int:
     """The most bytes a serialized ``*MultiArray`` sample with ``values`` numbers of ``value_bytes``
-    each and ``dims`` dimensions (labels of at most :data:`MAX_LABEL_CHARS`) takes in CDR: the
+    each and ``dims`` dimensions (labels of at most ``label_chars``) takes in CDR: the
     encapsulation, each dimension (label length, label, padding, size, stride), the data offset,
     the data's length and alignment, the data."""
-    per_dim = 4 + MAX_LABEL_CHARS + 1 + 3 + 4 + 4
+    per_dim = 4 + label_chars + 1 + 3 + 4 + 4
     return 4 + 4 + dims * per_dim + 4 + 4 + 4 + value_bytes * values
 
 
 def wire_limits(num_states: int) -> dict[str, int]:
-    """The size bound of each input sample of the loop (bytes): ``belief`` (``S`` doubles, two
-    dimensions), ``likelihood`` (``S`` doubles, three), ``action`` and ``observation`` (2 and 3
-    integers, one dimension)."""
+    """The size bound of each sample of the loop's topics (bytes): ``belief`` (``S`` doubles, two
+    dimensions), ``likelihood`` (``S`` doubles, three), ``action``, ``observation`` and
+    ``true_state`` (2, 3 and 2 integers, one dimension), ``plan_info`` (its fields, one dimension
+    labelled with their names)."""
     return {"belief": max_wire_bytes(num_states, 2), "likelihood": max_wire_bytes(num_states, 3),
-            "action": max_wire_bytes(2, 1), "observation": max_wire_bytes(3, 1)}
+            "action": max_wire_bytes(2, 1), "observation": max_wire_bytes(3, 1), "true_state": max_wire_bytes(2, 1),
+            "plan_info": max_wire_bytes(len(PLAN_INFO_FIELDS), 1, label_chars=len(PLAN_INFO_LABEL))}
 
 
 def oversized(what: str, size: int, limit: int, layout: str) -> str:

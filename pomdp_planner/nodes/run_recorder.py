@@ -3,7 +3,8 @@
 Topics (relative names, remappable; layouts: :mod:`.messages`):
 
 * subscribes ``belief``, ``action``, ``plan_info`` and ``true_state`` (``RECORDER_QOS``: reliable,
-  transient-local like the writers, so it matches them and gets their history when it starts late);
+  transient-local like the writers, so it matches them and gets their history when it starts late),
+  each sample checked for its size and its writer before it is decoded, as the loop nodes' inputs;
 * publishes ``/diagnostics`` (``run_recorder: recording``).
 
 Row ``t`` of the record is the decision made from the belief of epoch ``t``: that belief, the true
@@ -24,6 +25,7 @@ import time
 from collections.abc import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
@@ -36,8 +38,17 @@ from ..core.loop.epochs import DEFAULT_EPOCH_WINDOW
 from ..core.loop.recorder_loop import DEFAULT_MAX_PENDING_ROWS, DEFAULT_ROW_TIMEOUT, RecorderLoop, RecorderOutput
 from ..core.options import TIME_BUDGET_RANGE
 from .diagnostics import array, status
+from .inputs import CheckedInputs
 from .loop_node import OneShot
-from .messages import MessageError, decode_action, decode_belief, decode_plan_info, decode_true_state
+from .messages import (
+    PLAN_INFO_LABEL,
+    MessageError,
+    decode_action,
+    decode_belief,
+    decode_plan_info,
+    decode_true_state,
+    wire_limits,
+)
 from .params import ParameterNode, declare_double, declare_model_file, descriptor
 from .qos import RECORDER_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -45,23 +56,31 @@ from .runtime import NodeConfigError, callback, config_errors, main_for
 
 class RunInputs:
     """``node``'s subscriptions to ``belief``, ``action``, ``plan_info`` and ``true_state`` feeding
-    ``loop`` (each message decoded, then passed with ``time.monotonic()``), and the one-shot timer
-    of the loop's time-outs; every output of the loop goes to ``emit``, under one lock."""
+    ``loop``: each sample checked for size and writer before it is decoded (:class:`~.inputs.CheckedInputs`:
+    the rules "Bounded samples" and "One writer", counted in the loop's health), then decoded and
+    passed with ``time.monotonic()``; the one-shot timer of the loop's time-outs, and once a second
+    the graph's writers and the takeovers. Every output of the loop goes to ``emit``, under one lock."""
 
     def __init__(self, node: Node, loop: RecorderLoop, emit: Callable[[RecorderOutput], None]):
         self.context = node.context  # for @callback
         self.loop, self.emit = loop, emit
         self.lock = threading.Lock()
         S, A = loop.S, loop.A
-        inputs = {"belief": (Float64MultiArray, lambda m: decode_belief(m, S), loop.belief),
-                  "action": (Int64MultiArray, lambda m: decode_action(m, A), loop.action),
-                  "plan_info": (Float64MultiArray, decode_plan_info, loop.plan_info),
-                  "true_state": (Int64MultiArray, decode_true_state, lambda s, now: loop.true_state(*s, now))}
+        limits = wire_limits(S)
+        inputs = {"belief": (Float64MultiArray, lambda m: decode_belief(m, S), loop.belief, f"a belief of {S} states"),
+                  "action": (Int64MultiArray, lambda m: decode_action(m, A), loop.action, "[epoch, action_priority]"),
+                  "plan_info": (Float64MultiArray, decode_plan_info, loop.plan_info, f"[{PLAN_INFO_LABEL}]"),
+                  "true_state": (Int64MultiArray, decode_true_state, lambda s, now: loop.true_state(*s, now),
+                                 "[epoch, state]")}
+        self.checked = CheckedInputs(node, self.lock, lambda: loop.health, lambda logs: emit(RecorderOutput(logs=logs)))
         self.subscriptions = {
-            topic: node.create_subscription(kind, topic, functools.partial(self._on_message, topic, decode, apply),
-                                            RECORDER_QOS)
-            for topic, (kind, decode, apply) in inputs.items()}
+            topic: self.checked.subscribe(topic, kind, topic, RECORDER_QOS,
+                                          functools.partial(self._on_message, topic, decode, apply),
+                                          max_bytes=limits[topic], layout=layout,
+                                          on_bad=functools.partial(self.call, loop.rejected, topic)).sub
+            for topic, (kind, decode, apply, layout) in inputs.items()}
         self._timer = OneShot(node, lambda: self.call(loop.poll))
+        node.create_timer(1.0, self._writers, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     @callback
     def _on_message(self, topic: str, decode: Callable, apply: Callable, msg) -> None:
@@ -71,6 +90,11 @@ class RunInputs:
             self.call(self.loop.rejected, topic, str(exc))
             return
         self.call(apply, sample)
+
+    @callback
+    def _writers(self) -> None:
+        self.checked.look_at_graphs()
+        self.checked.takeovers()
 
     def call(self, method: Callable, *args) -> RecorderOutput:
         """``method(*args, now)`` of the loop with the lock held; its output emitted, its timer armed."""

@@ -48,7 +48,8 @@ its priority the row's action, ``depth`` an integer >= 0, ``latency`` finite and
 both ``NaN`` or integers with ``1 <= lower <= upper <= A``, ``certified`` only with agreeing
 bounds; a ``plan_info`` that fails is dropped (``bad_plan_info``) and the row has none. So the
 record shows root bounds only where the planner published guaranteed ones and claims no
-certificate the planner did not.
+certificate the planner did not. Each topic follows one writer (``health.writers``, the rule "One
+writer" of the other nodes): the node drops a second writer's samples before they reach the loop.
 
 Times are passed in (``now``, seconds on a monotonic clock); nothing here reads a clock or a file.
 """
@@ -197,7 +198,8 @@ class RecorderLoop:
         self.last_written: int | None = None
         #: The window and the re-sync evidence, positioned at ``done_upto``.
         self.line = EpochLine(self.epoch_window, now=now)
-        self.health = LoopHealth(COUNTERS, PROBLEMS, [], StallLimits())  # no input watches: it only observes
+        # no stall watches (it only observes); one writer per topic, as for every loop input
+        self.health = LoopHealth(COUNTERS, PROBLEMS, [], StallLimits(), streams=TOPICS)
 
     # ----------------------------------------------------------- inputs
     def belief(self, sample: BeliefSample, now: float) -> RecorderOutput:

@@ -1,0 +1,136 @@
+"""What every input sample of a node passes before it is decoded: its size, then its writer
+(rules "Bounded samples" and "One writer" of docs/ros.md, "The loop's rules"), with the graph's
+facts about the writers of each input.
+
+:class:`CheckedInputs` subscribes raw (:func:`.take.subscribe`: the sample's size and its
+publisher's GID come before any copy into Python), counts an oversized sample in the loop's
+health and drops it unread, asks the loop's health (:meth:`~pomdp_planner.core.loop.health.LoopHealth.admit`)
+whether the writer is the one the loop follows, keeps the newest foreign sample for a takeover,
+and only then deserializes the sample and hands it on. The loop nodes (:mod:`.loop_node`) and the
+run recorder's inputs (:mod:`.run_recorder`) use it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from rclpy.node import Node
+from rclpy.serialization import deserialize_message
+
+from ..core.loop import Log
+from ..core.loop.health import LoopHealth
+from .messages import oversized
+from .runtime import callback
+from .take import subscribe
+
+#: Writers per input for which the node looked at the graph on their first sample (the oldest forgotten).
+GRAPH_ASKED = 64
+
+
+@dataclass
+class Input:
+    """An input stream (:meth:`CheckedInputs.subscribe`)."""
+
+    name: str
+    msg_type: type
+    max_bytes: int
+    layout: str
+    on_msg: Callable[[object], None]
+    on_bad: Callable[[str], None]
+    topic: str = ""
+    sub: object = None                      # the subscription
+    held: tuple[bytes, dict] | None = None  # the newest foreign sample: handed in again at a takeover
+    asked: dict[str, None] = field(default_factory=dict)  # writers the graph was looked at for
+
+
+class CheckedInputs:
+    """The checked input streams of ``node`` (module docstring). ``health()`` is the health of the
+    loop the samples go to (``None``: no loop now, a sample is ignored), read and changed with
+    ``lock`` held; ``log`` gets the health's log lines; ``now`` is the loop's clock."""
+
+    def __init__(self, node: Node, lock: threading.Lock, health: Callable[[], LoopHealth | None],
+                 log: Callable[[Iterable[Log]], None], now: Callable[[], float] = time.monotonic):
+        self.node = node
+        self.context = node.context  # for @callback
+        self.lock, self.health, self.log, self.now = lock, health, log, now
+        self.streams: dict[str, Input] = {}
+
+    def subscribe(self, name: str, msg_type: type, topic: str, qos, on_msg: Callable[[object], None], *,
+                  max_bytes: int, layout: str, on_bad: Callable[[str], None], **kwargs) -> Input:
+        """Subscribe to ``topic`` as the input ``name``: a sample larger than ``max_bytes``
+        (``layout``: what it should hold) is dropped unread, one of a writer other than the one the
+        loop follows is dropped before it is decoded, the rest is deserialized and handed to
+        ``on_msg`` (one that does not deserialize to ``on_bad``)."""
+        spec = Input(name, msg_type, max_bytes, layout, on_msg, on_bad)
+        sub = subscribe(self.node, msg_type, topic, lambda raw, info: self.on_sample(spec, raw, info), qos,
+                        max_bytes, **kwargs)
+        spec.topic, spec.sub = sub.topic_name, sub
+        self.streams[name] = spec
+        return spec
+
+    def clear(self) -> None:
+        """Forget every stream (their subscriptions are destroyed by the node)."""
+        self.streams = {}
+
+    @callback
+    def on_sample(self, spec: Input, raw: bytes | None, info: dict) -> None:
+        health = self.health()
+        if health is None:  # taken before a cleanup released the subscription
+            return
+        now = self.now()
+        size = info.get("size", 0 if raw is None else len(raw))
+        if raw is None or size > spec.max_bytes:
+            with self.lock:
+                health.oversized(spec.name, oversized(spec.name, size, spec.max_bytes, spec.layout), now)
+                logs = health.drain_logs()
+            self.log(logs)
+            return
+        writer = info.get("publisher_gid")
+        if writer is not None and writer not in spec.asked and not health.writers[spec.name].known(writer):
+            spec.asked[writer] = None  # its first sample: who is it? (once per writer)
+            while len(spec.asked) > GRAPH_ASKED:
+                del spec.asked[next(iter(spec.asked))]
+            self.look_at_graph(spec)
+        with self.lock:
+            admitted = health.admit(spec.name, writer, now)
+            if not admitted:
+                spec.held = (raw, info)
+            logs = health.drain_logs()
+        self.log(logs)
+        if not admitted:
+            return
+        try:
+            msg = deserialize_message(raw, spec.msg_type)
+        except Exception as exc:  # not a sample of the topic's type (a raw publisher's bytes)
+            spec.on_bad(f"{spec.name}: not a {spec.msg_type.__name__} ({type(exc).__name__})")
+            return
+        spec.on_msg(msg)
+
+    def look_at_graph(self, spec: Input) -> None:
+        """The graph's facts about the writers of ``spec``'s topic: ``{GID (hex): node name}``."""
+        writers = {bytes(i.endpoint_gid).hex(): (i.node_namespace.rstrip("/") + "/" + i.node_name)
+                   for i in self.node.get_publishers_info_by_topic(spec.topic)}
+        with self.lock:
+            health = self.health()
+            if health is not None:  # None: released by a cleanup meanwhile
+                health.writers[spec.name].graph(writers)
+
+    def look_at_graphs(self) -> None:
+        """The graph's writers of every input (before a report)."""
+        for spec in list(self.streams.values()):
+            self.look_at_graph(spec)
+
+    def takeovers(self) -> None:
+        """Hand in again the waiting sample of a writer whose predecessor is gone (rule "One writer")."""
+        now = self.now()
+        for spec in list(self.streams.values()):
+            with self.lock:
+                health = self.health()
+                held = spec.held if health is not None and health.writers[spec.name].takeover_due(now) else None
+                if held is not None:
+                    spec.held = None
+            if held is not None:
+                self.on_sample(spec, *held)
