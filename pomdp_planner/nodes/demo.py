@@ -18,7 +18,8 @@ per decision epoch: step, true state, belief mode and Shannon entropy (nats), th
 from that belief, the root bound interval ``[lower, upper]`` of that decision (the myopic policy
 bounds, Theorem 2, from ``plan_info``), the greedy action ``argmax_a rho(b, a)`` at the same
 belief (the core's ``myopic`` policy), depth reached, certified (the bounds agree: Proposition 1),
-decision latency. After ``--steps`` epochs it sends SIGINT to the three processes, waits for them,
+decision latency (what a row shows and the sums below: the core's ``core/loop/run_summary.py``).
+After ``--steps`` epochs it sends SIGINT to the three processes, waits for them,
 and prints the mean reward ``r(s_t, a_t) - w_a f(b_t)`` (true state, the model's uncertainty
 function), the mean entropy, on how many steps the planner chose other than greedy, the deadline
 misses among the decisions shown (each decision's ``plan_info.deadline_miss``: the planner's rule,
@@ -66,10 +67,10 @@ from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file
 from ..core.io.run_record import open_run_record
 from ..core.loop.recorder_loop import RecorderLoop, RecordRow
+from ..core.loop.run_summary import RowFacts, RunSummary
 from ..core.model import POMDP
-from ..core.policies import MyopicPolicy, make_policy
+from ..core.policies import make_policy
 from ..core.simulate import simulate
-from ..core.uncertainty import SHANNON
 from .processes import PARAMETER_SETS, parameter_set_model, parameter_set_values, ros_env, start_nodes, stop_nodes
 from .qos import RECORDER_QOS
 from .run_recorder import RunInputs
@@ -139,6 +140,31 @@ def legend(model: POMDP, time_budget: float, max_depth: int) -> list[str]:
     ]
 
 
+def table_row(f: RowFacts) -> str:
+    """One line of the table (``f``: what the core says of the row)."""
+    bounds = "-" if f.bounds is None else f"[{f.bounds[0]}, {f.bounds[1]}]"
+    if f.info is None:  # plan_info not received (the monitor discovered the planner late)
+        extra_cols = f"{'-':>5} {'-':>9} {'-':>10}"
+    else:
+        extra_cols = f"{f.info.depth:>5} {'yes' if f.info.certified else 'no':>9} {1e3 * f.info.latency:>10.1f}"
+    return (f"{f.epoch:>4} {'-' if f.true_state is None else f.true_state:>4} {f.mode:>4} {f.p_mode:>7.3f} "
+            f"{f.entropy:>7.3f} {f.priority:>6} {bounds:>8} {f.greedy:>6} {extra_cols}")
+
+
+def summary_lines(s: RunSummary, codes: dict) -> list[str]:
+    """The summary after the table (``codes``: the processes' exit codes)."""
+    widths = sorted(s.open_widths)
+    open_ = (f"; where not, the bounds left {' or '.join(map(str, widths))} of the {s.model.A} priorities open"
+             if widths else "")
+    known = "" if len(s.rewards) == s.shown else f" (over the {len(s.rewards)} steps with the true state)"
+    mean_reward = "-" if s.mean_reward is None else f"{s.mean_reward:.4f}"
+    return [f"\nsummary over {s.shown} steps: mean reward {mean_reward}{known}, mean entropy {s.mean_entropy:.4f} "
+            f"nats, action other than greedy's on {s.not_greedy} of {s.shown} steps, deadline misses {s.misses} of "
+            f"{s.decisions} decisions shown (the planner's rule: latency > time_budget + deadline_slack); exit codes "
+            f"{codes}",
+            f"certified {s.certified} of {s.decisions} decisions shown (the bounds agreed){open_}"]
+
+
 def compare_with_greedy(model: POMDP, planner: dict, steps: int, seed: int) -> str:
     """The discounted return of the planner (the core's policy with the planner node's settings)
     beside greedy's, both simulated by the core (``core.simulate``) from ``seed``: the same random
@@ -191,15 +217,11 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
     if record is not None:
         writer = open_run_record(record, "--record", model.name, model.S, model.A, planner_params["time_budget"])
         written.append(0)
-    greedy = MyopicPolicy(model)
+    summary = RunSummary(model)
     print(f"pomdp_planner demo: {model.describe()}; three processes on ROS_DOMAIN_ID={domain_id} "
           f"(localhost only){f'; node logs in {log_dir}' if keep_logs else ''}", file=out)
     header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'bounds':>8} " \
              f"{'greedy':>6} {'depth':>5} {'certified':>9} {'latency ms':>10}"
-    rewards, entropies = [], []
-    not_greedy = certified = shown = 0
-    widths: list[int] = []
-    misses = decisions = 0
     code = 0
     procs: dict = {}
     try:
@@ -216,37 +238,16 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
         print(header, file=out)
         print("-" * len(header), file=out)
         last_progress = time.monotonic()
-        while shown < steps:
+        while summary.shown < steps:
             monitor.spin_once()
-            while shown < steps and monitor.rows:
+            while summary.shown < steps and monitor.rows:
                 row = monitor.rows.popleft()
-                if shown == 0 and row.epoch > 0:  # epochs before the monitor matched a writer never come
+                if summary.shown == 0 and row.epoch > 0:  # epochs before the monitor matched a writer never come
                     print(f"(the monitor matched the nodes late; the table starts at epoch {row.epoch})", file=out)
-                t, b, s, a, info = row.epoch, row.belief, row.true_state, row.priority - 1, row.info
-                mode = int(b.argmax())
-                h = float(SHANNON.value(b))
-                if s is not None:
-                    rewards.append(float(model.r[s, a] - model.w[a] * model.uncertainty.value(b)))
-                entropies.append(h)
-                bounds = "-" if row.bounds is None else f"[{row.bounds[0]}, {row.bounds[1]}]"
-                if row.bounds is not None:
-                    widths.append(row.bounds[1] - row.bounds[0] + 1)
-                if info is None:  # plan_info not received (the monitor discovered the planner late)
-                    extra_cols = f"{'-':>5} {'-':>9} {'-':>10}"
-                else:
-                    extra_cols = (f"{info.depth:>5} {'yes' if info.certified else 'no':>9} "
-                                  f"{1e3 * info.latency:>10.1f}")
-                    decisions += 1
-                    misses += info.deadline_miss
-                    certified += info.certified
-                g = greedy.act(b)
-                not_greedy += g != a
-                print(f"{t:>4} {'-' if s is None else s:>4} {mode:>4} {b[mode]:>7.3f} {h:>7.3f} {a + 1:>6} "
-                      f"{bounds:>8} {g + 1:>6} {extra_cols}", file=out, flush=True)
+                print(table_row(summary.add(row)), file=out, flush=True)
                 if writer is not None:
-                    writer.write(t, b, row.priority, **row.record_fields())
+                    writer.write(row.epoch, row.belief, row.priority, **row.record_fields())
                     written[0] += 1
-                shown += 1
                 last_progress = time.monotonic()
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
             if dead or time.monotonic() - last_progress > 60.0:
@@ -267,22 +268,12 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
             code = code or 1
             print(f"demo: {name} exited with code {c}; last lines of its log:", file=sys.stderr)
             print("\n".join(text.splitlines()[-15:]), file=sys.stderr)
-    if shown:
-        open_ = sorted({w for w in widths if w > 1})
-        open_ = (f"; where not, the bounds left {' or '.join(map(str, open_))} of the {model.A} priorities open"
-                 if open_ else "")
-        known = "" if len(rewards) == shown else f" (over the {len(rewards)} steps with the true state)"
-        mean_reward = f"{sum(rewards) / len(rewards):.4f}" if rewards else "-"
-        print(f"\nsummary over {shown} steps: mean reward {mean_reward}{known}, "
-              f"mean entropy {sum(entropies) / len(entropies):.4f} nats, action other than greedy's on "
-              f"{not_greedy} of {shown} steps, deadline misses "
-              f"{misses} of {decisions} decisions shown (the planner's rule: latency > time_budget + "
-              f"deadline_slack); "
-              f"exit codes {codes}", file=out)
-        print(f"certified {certified} of {decisions} decisions shown (the bounds agreed){open_}", file=out)
+    if summary.shown:
+        for line in summary_lines(summary, codes):
+            print(line, file=out)
         if code == 0:
             seed = parameter_set_values(model_key, "target_simulator")["seed"]
-            print(compare_with_greedy(model, planner_params, shown, seed), file=out)
+            print(compare_with_greedy(model, planner_params, summary.shown, seed), file=out)
     return code
 
 
