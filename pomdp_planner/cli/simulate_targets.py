@@ -60,6 +60,10 @@ def _efforts(text: str | None, K: int) -> list | None:
     return [None if not r else [x.strip() for x in r.split(",")] for r in rows]
 
 
+#: The options that give :func:`make_problem`'s fields (its errors name them).
+CLI_FIELDS = {"targets": "--targets", "efforts": "--efforts", "budget": "--budget", "discount": "--discount"}
+
+
 def load_problem(args: argparse.Namespace) -> MultiTargetProblem:
     """The problem of ``--targets``, ``--budget``, ``--efforts`` and ``--discount``."""
     if args.model is not None:
@@ -81,7 +85,7 @@ def load_problem(args: argparse.Namespace) -> MultiTargetProblem:
         models.append(loaded[name])
     discount = None if args.discount is None else check_number(option_value(args.discount), "--discount", 0.0, 1.0)
     return make_problem(models, budget=args.budget, efforts=_efforts(args.efforts, len(models)),
-                        discount=discount)
+                        discount=discount, fields=CLI_FIELDS)
 
 
 def run(args: argparse.Namespace) -> int:

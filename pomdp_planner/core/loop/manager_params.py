@@ -76,13 +76,8 @@ def manager_problem(targets: Sequence[str], models: Sequence[POMDP], budget: Any
     if len(models) != len(targets):
         raise OptionError(f"model_files: {len(models)} model files for {len(targets)} targets (one per target)")
     rows = split_efforts(efforts, models)
-    try:
-        return make_problem(models, budget=budget, efforts=rows, discount=discount, names=targets)
-    except OptionError as exc:
-        text = str(exc)
-        if text.startswith("budget:"):
-            text = "effort_budget:" + text[len("budget:"):]
-        raise OptionError(text) from None
+    return make_problem(models, budget=budget, efforts=rows, discount=discount, names=targets,
+                        fields={"budget": "effort_budget"})
 
 
 def check_params(values: Mapping[str, Any]) -> str:

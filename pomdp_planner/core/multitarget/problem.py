@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
 
@@ -200,46 +200,52 @@ def format_effort(q: Fraction) -> str:
 
 
 def make_problem(models: Sequence[POMDP], budget: object, efforts: Sequence[object] | None = None,
-                 discount: float | None = None, names: Sequence[str] | None = None) -> MultiTargetProblem:
+                 discount: float | None = None, names: Sequence[str] | None = None, *,
+                 fields: Mapping[str, str] | None = None) -> MultiTargetProblem:
     """Check and build a :class:`MultiTargetProblem`; errors are one-line
     :class:`~pomdp_planner.core.errors.OptionError` s naming the field (``targets``, ``efforts[k]``,
-    ``budget``, ``discount``).
+    ``budget``, ``discount``, or what ``fields`` calls them where the user gave them: the command
+    line's ``--budget``, the sensor manager's ``effort_budget``).
 
     ``efforts``: ``None`` (every target the default), or one entry per target, each ``None`` (that
     target's default) or ``A_k`` numbers in priority order. ``discount``: ``None`` (the models'
     common discount; refused if they differ) or a number in ``[0, 1]`` that replaces every model's.
     """
+    f = {"targets": "targets", "efforts": "efforts", "budget": "budget", "discount": "discount", **(fields or {})}
     models = list(models)
     if not models:
-        raise OptionError("targets: at least one target model is needed")
+        raise OptionError(f"{f['targets']}: at least one target model is needed")
     if len(models) > MAX_TARGETS:
-        raise OptionError(f"targets: {len(models)} targets, more than the limit of {MAX_TARGETS} (MAX_TARGETS)")
+        raise OptionError(f"{f['targets']}: {len(models)} targets, more than the limit of {MAX_TARGETS} (MAX_TARGETS)")
     names = tuple(m.name for m in models) if names is None else tuple(str(n) for n in names)
     if len(names) != len(models):
-        raise OptionError(f"targets: {len(names)} names for {len(models)} targets")
+        raise OptionError(f"{f['targets']}: {len(names)} names for {len(models)} targets")
     if discount is None:
         gammas = sorted({m.gamma for m in models})
         if len(gammas) > 1:
             shown = ", ".join(f"{m.name} {m.gamma:g}" for m in {m.gamma: m for m in models}.values())
-            raise OptionError(f"discount: the targets' models have different discounts ({shown}); one price per epoch "
+            raise OptionError(f"{f['discount']}: the targets' models have different discounts ({shown}); one price "
+                              "per epoch "
                              "needs one discount: give the joint discount explicitly")
     else:
-        gamma = check_number(discount, "discount", 0.0, 1.0)
+        gamma = check_number(discount, f["discount"], 0.0, 1.0)
         cache: dict[int, POMDP] = {}
         models = [m if m.gamma == gamma else cache.setdefault(id(m), replace(m, gamma=gamma)) for m in models]
     if efforts is None:
         efforts = [None] * len(models)
     elif isinstance(efforts, (str, bytes)) or not isinstance(efforts, Sequence):
-        raise OptionError(f"efforts: must be a list with one entry per target, got {kind_of(efforts)}")
+        raise OptionError(f"{f['efforts']}: must be a list with one entry per target, got {kind_of(efforts)}")
     if len(efforts) != len(models):
-        raise OptionError(f"efforts: {len(efforts)} entries for {len(models)} targets")
-    rows = tuple(parse_efforts(e, m, f"efforts[{k}]") for k, (e, m) in enumerate(zip(efforts, models, strict=True)))
-    B = as_rational(budget, "budget")
+        raise OptionError(f"{f['efforts']}: {len(efforts)} entries for {len(models)} targets")
+    rows = tuple(parse_efforts(e, m, f"{f['efforts']}[{k}]")
+                 for k, (e, m) in enumerate(zip(efforts, models, strict=True)))
+    B = as_rational(budget, f["budget"])
     problem = MultiTargetProblem(tuple(models), rows, B, names)
     if B < problem.least_effort:
-        raise OptionError(f"budget: {format_effort(B)} is below the least effort of any joint action "
+        raise OptionError(f"{f['budget']}: {format_effort(B)} is below the least effort of any joint action "
                          f"({format_effort(problem.least_effort)} = the sum of every target's smallest effort)")
     if problem.knapsack_capacity > MAX_CAPACITY_UNITS:
-        raise OptionError(f"budget: {format_effort(B)} is {problem.capacity} units of 1/{problem.scale} (the efforts' "
+        raise OptionError(f"{f['budget']}: {format_effort(B)} is {problem.capacity} units of 1/{problem.scale} "
+                          "(the efforts' "
                          f"common denominator), more than the limit of {MAX_CAPACITY_UNITS} (MAX_CAPACITY_UNITS)")
     return problem
