@@ -272,7 +272,7 @@ def test_plan_info_carries_the_deadline_miss_flag():
 
 @pytest.mark.parametrize("S", [1, 3, 256])
 def test_the_size_bound_of_each_topic_admits_every_message_the_loop_sends(S):
-    """The bound a node drops samples by (``wire_limits``) against rclpy's own CDR serialization:
+    """The bound a node drops samples by (``wire_bounds``) against rclpy's own CDR serialization:
     every message the loop's encoders make fits (epochs at ``MAX_EPOCH``, the longest labels), and
     the bound leaves room for fewer than 20 values more (the labels' slack)."""
     from rclpy.serialization import serialize_message
@@ -282,10 +282,10 @@ def test_the_size_bound_of_each_topic_admits_every_message_the_loop_sends(S):
         encode_action,
         encode_likelihood,
         encode_true_state,
-        wire_limits,
+        wire_bounds,
     )
 
-    limits = wire_limits(S)
+    limits = {topic: b.max_bytes for topic, b in wire_bounds(S).items()}
     largest = {"belief": encode_belief(MAX_EPOCH, np.full(S, 1.0 / S)),
                "likelihood": encode_likelihood(MAX_EPOCH, 1, np.ones(S)),
                "action": encode_action(MAX_EPOCH, 1), "observation": encode_observation(MAX_EPOCH, 1, 0),

@@ -26,7 +26,7 @@ from ..core.gate import SetupStages
 from ..core.io.sensors import initial_distribution, load_observation_models
 from ..core.loop import FilterLoop, FilterOutput
 from .loop_node import ManagedLoopNode, OneShot
-from .messages import MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief, wire_limits
+from .messages import MessageError, OutOfRangeError, decode_likelihood, decode_observation, encode_belief, wire_bounds
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, main_for
@@ -74,16 +74,14 @@ class BeliefFilter(ManagedLoopNode):
                           active=False)
         self.belief_pub = self.create_lifecycle_publisher(Float64MultiArray, "belief", STREAM_QOS)
         self.entropy_pub = self.create_lifecycle_publisher(Float64, "belief_entropy", LATCHED_QOS)
-        limits = wire_limits(model.S)
+        bounds = wire_bounds(model.S)
         for k, topic in enumerate(self.topics):
             self.subscribe_input(topic, Int64MultiArray, topic, STREAM_QOS,
-                                 lambda msg, k=k: self._on_observation(k, msg), max_bytes=limits["observation"],
-                                 layout="[epoch, action_priority, observation]",
+                                 lambda msg, k=k: self._on_observation(k, msg), bound=bounds["observation"],
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
         for k, topic in enumerate(soft_topics, start=len(self.topics)):
             self.subscribe_input(topic, Float64MultiArray, topic, STREAM_QOS,
-                                 lambda msg, k=k: self._on_likelihood(k, msg), max_bytes=limits["likelihood"],
-                                 layout=f"a likelihood of {self.model.S} states",
+                                 lambda msg, k=k: self._on_likelihood(k, msg), bound=bounds["likelihood"],
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
         self.subscribe_actions(STREAM_QOS)
         self._release = OneShot(self, self._on_release)  # armed only while an epoch waits for its time-out

@@ -22,7 +22,7 @@ from rclpy.serialization import deserialize_message
 
 from ..core.loop import Log
 from ..core.loop.health import LoopHealth
-from .messages import oversized
+from .messages import WireBound, oversized
 from .runtime import callback
 from .take import subscribe
 
@@ -36,8 +36,7 @@ class Input:
 
     name: str
     msg_type: type
-    max_bytes: int
-    layout: str
+    bound: WireBound
     on_msg: Callable[[object], None]
     on_bad: Callable[[str], None]
     topic: str = ""
@@ -59,14 +58,14 @@ class CheckedInputs:
         self.streams: dict[str, Input] = {}
 
     def subscribe(self, name: str, msg_type: type, topic: str, qos, on_msg: Callable[[object], None], *,
-                  max_bytes: int, layout: str, on_bad: Callable[[str], None], **kwargs) -> Input:
-        """Subscribe to ``topic`` as the input ``name``: a sample larger than ``max_bytes``
-        (``layout``: what it should hold) is dropped unread, one of a writer other than the one the
-        loop follows is dropped before it is decoded, the rest is deserialized and handed to
-        ``on_msg`` (one that does not deserialize to ``on_bad``)."""
-        spec = Input(name, msg_type, max_bytes, layout, on_msg, on_bad)
+                  bound: WireBound, on_bad: Callable[[str], None], **kwargs) -> Input:
+        """Subscribe to ``topic`` as the input ``name``: a sample larger than ``bound`` is dropped
+        unread, one of a writer other than the one the loop follows is dropped before it is
+        decoded, the rest is deserialized and handed to ``on_msg`` (one that does not deserialize
+        to ``on_bad``)."""
+        spec = Input(name, msg_type, bound, on_msg, on_bad)
         sub = subscribe(self.node, msg_type, topic, lambda raw, info: self.on_sample(spec, raw, info), qos,
-                        max_bytes, **kwargs)
+                        bound.max_bytes, **kwargs)
         spec.topic, spec.sub = sub.topic_name, sub
         self.streams[name] = spec
         return spec
@@ -82,9 +81,9 @@ class CheckedInputs:
             return
         now = self.now()
         size = info.get("size", 0 if raw is None else len(raw))
-        if raw is None or size > spec.max_bytes:
+        if raw is None or size > spec.bound.max_bytes:
             with self.lock:
-                health.oversized(spec.name, oversized(spec.name, size, spec.max_bytes, spec.layout), now)
+                health.oversized(spec.name, oversized(spec.name, size, spec.bound), now)
                 logs = health.drain_logs()
             self.log(logs)
             return

@@ -40,7 +40,7 @@ from ..core.loop import LOOP_STATES, Log, Report, state_report
 from ..core.model import POMDP
 from .diagnostics import array, status
 from .inputs import CheckedInputs, Input
-from .messages import MessageError, decode_action, wire_limits
+from .messages import MessageError, WireBound, decode_action, wire_bounds
 from .params import (
     CONFIGURE_TIME,
     NodeConfigError,
@@ -134,12 +134,10 @@ class LoopNode(ParameterNode):
         return self.checked.streams
 
     def subscribe_input(self, name: str, msg_type: type, topic: str, qos, on_msg: Callable[[object], None], *,
-                        max_bytes: int, layout: str, on_bad: Callable[[str], None],
-                        **kwargs) -> Input:
+                        bound: WireBound, on_bad: Callable[[str], None], **kwargs) -> Input:
         """Subscribe to ``topic`` as the loop's input ``name``, its samples checked for size and
         writer before they are decoded (:meth:`.inputs.CheckedInputs.subscribe`)."""
-        return self.checked.subscribe(name, msg_type, topic, qos, on_msg, max_bytes=max_bytes, layout=layout,
-                                      on_bad=on_bad, **kwargs)
+        return self.checked.subscribe(name, msg_type, topic, qos, on_msg, bound=bound, on_bad=on_bad, **kwargs)
 
     # ----------------------------------------------------------- time
     def _refuse_sim_time(self, params: list[Parameter]) -> SetParametersResult:
@@ -199,7 +197,7 @@ class LoopNode(ParameterNode):
     def subscribe_actions(self, qos) -> Input:
         """The ``action`` input of a loop that takes actions (the filter's and the target's)."""
         return self.subscribe_input("action", Int64MultiArray, "action", qos, self._on_action,
-                                    max_bytes=wire_limits(self.model.S)["action"], layout="[epoch, action_priority]",
+                                    bound=wire_bounds(self.model.S)["action"],
                                     on_bad=lambda problem: self.call(self.loop.rejected_action, problem))
 
     @callback

@@ -27,7 +27,14 @@ from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import load_model_file, load_observation_model
 from ..core.loop import INPUT_TYPES, POINT_FIELDS, AdapterLoop, AdapterOutput, point_value
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, encode_likelihood, encode_observation, max_wire_bytes, sensor_likelihood_values
+from .messages import (
+    MessageError,
+    WireBound,
+    encode_likelihood,
+    encode_observation,
+    max_wire_bytes,
+    sensor_likelihood_values,
+)
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import SENSOR_QOS, STREAM_QOS
 from .runtime import callback, config_errors, main_for
@@ -85,7 +92,7 @@ class MeasurementAdapter(LoopNode):
         limit = max_wire_bytes(self.model.S, 1) if loop.soft else MAX_SENSOR_BYTES
         self.input_sub = self.subscribe_input(
             "measurement", INPUT_MESSAGES[loop.input_type], "measurement", SENSOR_QOS, self._on_measurement,
-            max_bytes=limit, layout=f"a {loop.input_type} reading", on_bad=lambda problem: self.call(
+            bound=WireBound(limit, f"a {loop.input_type} reading"), on_bad=lambda problem: self.call(
                 self.loop.rejected_measurement, problem)).sub
         self.subscribe_actions(STREAM_QOS)
         self._join = OneShot(self, self._on_join)

@@ -44,11 +44,11 @@ decision epoch it belongs to, and every observation carries the action it was ta
   guaranteed bounds (``use_bounds`` false, or the model fails the assumptions). The record is
   ``core.loop.PlanInfo``.
 
-A sample larger than its layout allows (:func:`wire_limits`: the model's ``S`` values for a
+A sample larger than its layout allows (:func:`wire_bounds`: the model's ``S`` values for a
 belief, 2 or 3 integers for an action, an observation or a true state, labels of at most
 :data:`MAX_LABEL_CHARS` characters; ``plan_info``: its fields and their names) is dropped before
 it is copied or decoded
-(``nodes/take.py``; :func:`oversized`). Decoders raise :class:`MessageError` with a message that
+(``nodes/inputs.py``, ``nodes/take.py``; :func:`oversized`). Decoders raise :class:`MessageError` with a message that
 names the field and the problem. They bound what they accept before converting anything: epochs
 are ``0..MAX_EPOCH`` (so that ``epoch + 1`` always fits the ``int64`` of the next message, and an
 epoch label is at most 18 digits), and the length is checked before the data are copied. They
@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from std_msgs.msg import Float64MultiArray, Int64MultiArray, MultiArrayDimension, MultiArrayLayout
@@ -91,19 +92,34 @@ def max_wire_bytes(values: int, dims: int, value_bytes: int = 8, label_chars: in
     return 4 + 4 + dims * per_dim + 4 + 4 + 4 + value_bytes * values
 
 
-def wire_limits(num_states: int) -> dict[str, int]:
-    """The size bound of each sample of the loop's topics (bytes): ``belief`` (``S`` doubles, two
+@dataclass(frozen=True)
+class WireBound:
+    """The most bytes a sample of a topic takes (:func:`max_wire_bytes`) and what it holds, as the
+    line for a larger sample says it (:func:`oversized`)."""
+
+    max_bytes: int
+    layout: str
+
+
+def wire_bounds(num_states: int) -> dict[str, WireBound]:
+    """The size bound of each sample of the loop's topics: ``belief`` (``S`` doubles, two
     dimensions), ``likelihood`` (``S`` doubles, three), ``action``, ``observation`` and
     ``true_state`` (2, 3 and 2 integers, one dimension), ``plan_info`` (its fields, one dimension
     labelled with their names)."""
-    return {"belief": max_wire_bytes(num_states, 2), "likelihood": max_wire_bytes(num_states, 3),
-            "action": max_wire_bytes(2, 1), "observation": max_wire_bytes(3, 1), "true_state": max_wire_bytes(2, 1),
-            "plan_info": max_wire_bytes(len(PLAN_INFO_FIELDS), 1, label_chars=len(PLAN_INFO_LABEL))}
+    S = num_states
+    return {"belief": WireBound(max_wire_bytes(S, 2), f"a belief of {S} states"),
+            "likelihood": WireBound(max_wire_bytes(S, 3), f"a likelihood of {S} states"),
+            "action": WireBound(max_wire_bytes(2, 1), f"[{ACTION_LABEL.replace(',', ', ')}]"),
+            "observation": WireBound(max_wire_bytes(3, 1), f"[{OBSERVATION_LABEL.replace(',', ', ')}]"),
+            "true_state": WireBound(max_wire_bytes(2, 1), f"[{TRUE_STATE_LABEL.replace(',', ', ')}]"),
+            "plan_info": WireBound(max_wire_bytes(len(PLAN_INFO_FIELDS), 1, label_chars=len(PLAN_INFO_LABEL)),
+                                   f"[{PLAN_INFO_LABEL.replace(',', ', ')}]")}
 
 
-def oversized(what: str, size: int, limit: int, layout: str) -> str:
-    """The one line for a sample of ``size`` bytes over ``limit`` (``layout``: what it should hold)."""
-    return f"{what}: a sample of {size} bytes, more than the {limit} that {layout} takes: dropped unread"
+def oversized(what: str, size: int, bound: WireBound) -> str:
+    """The one line for a sample of ``size`` bytes over ``bound``."""
+    return (f"{what}: a sample of {size} bytes, more than the {bound.max_bytes} that {bound.layout} takes: "
+            "dropped unread")
 
 
 class MessageError(ValueError):

@@ -27,7 +27,7 @@ from ..core.gate import SetupStages
 from ..core.loop import TUNABLE, PlannerLoop, PlannerOutput, check_params
 from ..core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 from .loop_node import ManagedLoopNode, OneShot
-from .messages import MessageError, decode_belief, encode_action, encode_plan_info, wire_limits
+from .messages import MessageError, decode_belief, encode_action, encode_plan_info, wire_bounds
 from .params import declare_double, descriptor
 from .qos import STREAM_QOS
 from .runtime import callback, main_for
@@ -85,11 +85,10 @@ class PlannerNode(ManagedLoopNode):
         # sample whose writer left during its delivery), so the default group wakes plan_group
         # (the guard condition) whenever the mailbox holds a belief; a wake-up that finds the
         # mailbox taken plans nothing. The guard also serves the join.
-        limit = wire_limits(self.model.S)["belief"]
-        self.subscribe_input("belief", Float64MultiArray, "belief", STREAM_QOS, self._on_belief, max_bytes=limit,
-                             layout=f"a belief of {self.model.S} states",
+        bound = wire_bounds(self.model.S)["belief"]
+        self.subscribe_input("belief", Float64MultiArray, "belief", STREAM_QOS, self._on_belief, bound=bound,
                              on_bad=lambda problem: self.call(self.loop.rejected_belief, problem))
-        subscribe(self, Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS, limit,
+        subscribe(self, Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS, bound.max_bytes,
                   callback_group=plan_group)
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=plan_group)
         self._join = OneShot(self, self._plan_trigger.trigger)

@@ -40,15 +40,7 @@ from ..core.options import TIME_BUDGET_RANGE
 from .diagnostics import array, status
 from .inputs import CheckedInputs
 from .loop_node import OneShot
-from .messages import (
-    PLAN_INFO_LABEL,
-    MessageError,
-    decode_action,
-    decode_belief,
-    decode_plan_info,
-    decode_true_state,
-    wire_limits,
-)
+from .messages import MessageError, decode_action, decode_belief, decode_plan_info, decode_true_state, wire_bounds
 from .params import ParameterNode, declare_double, declare_model_file, descriptor
 from .qos import RECORDER_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -66,19 +58,18 @@ class RunInputs:
         self.loop, self.emit = loop, emit
         self.lock = threading.Lock()
         S, A = loop.S, loop.A
-        limits = wire_limits(S)
-        inputs = {"belief": (Float64MultiArray, lambda m: decode_belief(m, S), loop.belief, f"a belief of {S} states"),
-                  "action": (Int64MultiArray, lambda m: decode_action(m, A), loop.action, "[epoch, action_priority]"),
-                  "plan_info": (Float64MultiArray, decode_plan_info, loop.plan_info, f"[{PLAN_INFO_LABEL}]"),
-                  "true_state": (Int64MultiArray, decode_true_state, lambda s, now: loop.true_state(*s, now),
-                                 "[epoch, state]")}
+        bounds = wire_bounds(S)
+        inputs = {"belief": (Float64MultiArray, lambda m: decode_belief(m, S), loop.belief),
+                  "action": (Int64MultiArray, lambda m: decode_action(m, A), loop.action),
+                  "plan_info": (Float64MultiArray, decode_plan_info, loop.plan_info),
+                  "true_state": (Int64MultiArray, decode_true_state, lambda s, now: loop.true_state(*s, now))}
         self.checked = CheckedInputs(node, self.lock, lambda: loop.health, lambda logs: emit(RecorderOutput(logs=logs)))
         self.subscriptions = {
             topic: self.checked.subscribe(topic, kind, topic, RECORDER_QOS,
                                           functools.partial(self._on_message, topic, decode, apply),
-                                          max_bytes=limits[topic], layout=layout,
+                                          bound=bounds[topic],
                                           on_bad=functools.partial(self.call, loop.rejected, topic)).sub
-            for topic, (kind, decode, apply, layout) in inputs.items()}
+            for topic, (kind, decode, apply) in inputs.items()}
         self._timer = OneShot(node, lambda: self.call(loop.poll))
         node.create_timer(1.0, self._writers, clock=Clock(clock_type=ClockType.STEADY_TIME))
 

@@ -32,7 +32,7 @@ from ..core.loop.manager_params import RANGES, TUNABLE, check_params, check_targ
 from ..core.multitarget.planner import DEFAULT_EVALUATIONS, MAX_EVALUATIONS_RANGE, SEARCH_MODES
 from ..core.multitarget.problem import MAX_CAPACITY_UNITS
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, decode_belief, encode_action, encode_allocation, wire_limits
+from .messages import MessageError, decode_belief, encode_action, encode_allocation, wire_bounds
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import STREAM_QOS
 from .runtime import callback, config_errors, main_for
@@ -107,8 +107,7 @@ class SensorManager(LoopNode):
         self.allocation_pub = self.create_publisher(Int64MultiArray, "allocation", STREAM_QOS)
         for k, (t, m) in enumerate(zip(targets, models, strict=True)):
             self.subscribe_input(f"{t}/belief", Float64MultiArray, f"{t}/belief", STREAM_QOS,
-                                 lambda msg, k=k: self._on_belief(k, msg), max_bytes=wire_limits(m.S)["belief"],
-                                 layout=f"a belief of {m.S} states",
+                                 lambda msg, k=k: self._on_belief(k, msg), bound=wire_bounds(m.S)["belief"],
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_belief, k, problem))
         # decisions in their own group: beliefs are counted, parameters and diagnostics answered meanwhile
         group = MutuallyExclusiveCallbackGroup()

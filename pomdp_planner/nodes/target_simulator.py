@@ -22,7 +22,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 from ..core.io.sensors import initial_distribution, load_model_file, load_observation_models
 from ..core.loop import DEFAULT_JOIN_TIMEOUT, TargetLoop, TargetOutput
 from .loop_node import LoopNode, OneShot
-from .messages import MessageError, decode_belief, encode_observation, encode_true_state, wire_limits
+from .messages import MessageError, decode_belief, encode_observation, encode_true_state, wire_bounds
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import LATCHED_QOS, STREAM_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -78,8 +78,8 @@ class TargetSimulator(LoopNode):
         self.subscribe_actions(STREAM_QOS)
         if loop.timer_mode:
             self.subscribe_input("belief", Float64MultiArray, "belief", LATCHED_QOS, self._on_belief,
-                                 max_bytes=wire_limits(self.model.S)["belief"], layout=f"a belief of {self.model.S} "
-                                 "states", on_bad=lambda problem: None)  # the planner counts bad beliefs
+                                 bound=wire_bounds(self.model.S)["belief"],
+                                 on_bad=lambda problem: None)  # the planner counts bad beliefs
             self.create_timer(period, self._on_tick)  # on ROS time: /clock, with use_sim_time
         if self.min_subscribers > 0:
             self._wait_timer = self.create_timer(0.01, self._check_subscribers, clock=self.steady)

@@ -225,8 +225,7 @@ def make_problem(models: Sequence[POMDP], budget: object, efforts: Sequence[obje
         if len(gammas) > 1:
             shown = ", ".join(f"{m.name} {m.gamma:g}" for m in {m.gamma: m for m in models}.values())
             raise OptionError(f"{f['discount']}: the targets' models have different discounts ({shown}); one price "
-                              "per epoch "
-                             "needs one discount: give the joint discount explicitly")
+                              "per epoch needs one discount: give the joint discount explicitly")
     else:
         gamma = check_number(discount, f["discount"], 0.0, 1.0)
         cache: dict[int, POMDP] = {}
@@ -243,9 +242,9 @@ def make_problem(models: Sequence[POMDP], budget: object, efforts: Sequence[obje
     problem = MultiTargetProblem(tuple(models), rows, B, names)
     if B < problem.least_effort:
         raise OptionError(f"{f['budget']}: {format_effort(B)} is below the least effort of any joint action "
-                         f"({format_effort(problem.least_effort)} = the sum of every target's smallest effort)")
+                          f"({format_effort(problem.least_effort)} = the sum of every target's smallest effort)")
     if problem.knapsack_capacity > MAX_CAPACITY_UNITS:
         raise OptionError(f"{f['budget']}: {format_effort(B)} is {problem.capacity} units of 1/{problem.scale} "
-                          "(the efforts' "
-                         f"common denominator), more than the limit of {MAX_CAPACITY_UNITS} (MAX_CAPACITY_UNITS)")
+                          f"(the efforts' common denominator), more than the limit of {MAX_CAPACITY_UNITS} "
+                          "(MAX_CAPACITY_UNITS)")
     return problem
