@@ -240,6 +240,11 @@ class LifecycleClient:
         """``ChangeState`` by transition label (``configure``, ``activate``, ...); its ``success``."""
         return self._call(self._change, ChangeState.Request(transition=Transition(label=label))).success
 
+    def request(self, transition_id: int = 0, label: str = "") -> bool:
+        """``ChangeState`` with this transition id and label, as any client may send it; its ``success``."""
+        req = ChangeState.Request(transition=Transition(id=transition_id, label=label))
+        return self._call(self._change, req).success
+
     def transitions(self) -> list[tuple[str, str]]:
         """``GetAvailableTransitions``: ``(transition label, goal state label)`` pairs."""
         res = self._call(self._transitions, GetAvailableTransitions.Request())

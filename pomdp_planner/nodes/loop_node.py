@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.srv import ChangeState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
@@ -36,7 +37,7 @@ from std_msgs.msg import Int64MultiArray
 
 from ..core.gate import SetupStages
 from ..core.io.sensors import load_model_file
-from ..core.loop import LOOP_STATES, Log, Report, state_report
+from ..core.loop import LOOP_STATES, Log, Report, state_report, transition_request
 from ..core.model import POMDP
 from .diagnostics import array, status
 from .inputs import CheckedInputs, Input
@@ -55,6 +56,9 @@ from .runtime import callback, config_errors
 
 #: The parameters a managed node reads as it is made: read-only, refused at once.
 START_UP_PARAMETERS = frozenset({"autostart", "strict_parameters"})
+#: The transitions a client may ask for (by label), as ``LifecycleNodeMixin``'s methods that carry them out.
+TRIGGERS = {"configure": "trigger_configure", "cleanup": "trigger_cleanup", "activate": "trigger_activate",
+            "deactivate": "trigger_deactivate", "shutdown": "trigger_shutdown"}
 
 class OneShot:
     """A timer of ``node`` (on the steady clock) that calls ``fire`` once at the time it was last
@@ -217,11 +221,11 @@ class LoopNode(ParameterNode):
     def report(self) -> tuple[str, Report]:
         """``(hardware_id, report)`` for the diagnostics: the loop's report."""
         with self.lock:
-            return self.hardware_id(), self.loop.report(self.now())
+            return self.hardware_id(self.loop), self.loop.report(self.now())
 
-    def hardware_id(self) -> str:
-        """The diagnostics' ``hardware_id``: the model's name."""
-        return self.loop.model.name
+    def hardware_id(self, loop) -> str:
+        """The diagnostics' ``hardware_id`` of ``loop``: the model's name."""
+        return loop.model.name
 
     def _look_at_graphs_and_clock(self) -> None:
         """Before a report: the graph's writers of every input, and the ROS time (rule "Time")."""
@@ -270,6 +274,9 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
             "Configure and activate at start-up (false: wait, unconfigured, for the lifecycle services)",
             read_only=True))
         LifecycleNodeMixin.__init__(self)  # the lifecycle services, in the default callback group
+        # rclpy's change_state triggers a transition by id without checking that it exists from the
+        # current state (an RCLError out of the executor): requests go through the core's rule instead
+        self._service_change_state.callback = self._on_change_state
         self.model: POMDP | None = None
         self.configure_error = ""
         self.configure_seconds: float | None = None
@@ -362,6 +369,25 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
         return self.model
 
     # ------------------------------------------------------------- transitions
+    def _on_change_state(self, req: ChangeState.Request, resp: ChangeState.Response) -> ChangeState.Response:
+        """The ``change_state`` service: a transition that exists from the current state is carried
+        out, any other request is answered ``success: false`` with one line (``core.loop.transition_request``)."""
+        sm = self._state_machine
+        label, refusal = transition_request(req.transition.id, req.transition.label, sm.current_state[1],
+                                            [(t[0], t[1]) for t in sm.available_transitions])
+        trigger = TRIGGERS.get(label or "")
+        if trigger is None:
+            self.get_logger().warning(refusal or f"change_state: transition {label!r} is not one a client may ask "
+                                      "for; refused")
+            resp.success = False
+            return resp
+        try:
+            resp.success = getattr(self, trigger)() == TransitionCallbackReturn.SUCCESS
+        except Exception as exc:  # a bug (the transition exists): answered, and the node lives
+            self.get_logger().error(f"change_state: {label} failed: {exc!r}")
+            resp.success = False
+        return resp
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Parameters, model, loop (the planner's: the assumption gate and the bound LP), entities."""
         t0 = self._configuring_since = self.now()
@@ -467,5 +493,5 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
         values = {"lifecycle_state": state, **r.values}
         if self.configure_seconds is not None:
             values["configure_seconds"] = round(self.configure_seconds, 3)
-        hardware_id = loop.model.name if loop is not None else str(self.get_parameter("model_file").value)
+        hardware_id = self.hardware_id(loop) if loop is not None else str(self.get_parameter("model_file").value)
         return hardware_id, Report(r.level, r.message, values)

@@ -17,7 +17,10 @@ target the planner's: window, join, mailbox, re-sync, re-send, stall levels) are
 :class:`~pomdp_planner.core.loop.ManagerLoop`; the joint decision is the core's
 :class:`~pomdp_planner.core.multitarget.planner.MultiTargetPlanner`. Decisions run in their own
 ``MutuallyExclusiveCallbackGroup``, so beliefs are counted and parameters answered during a
-search. Parameters, topics and diagnostics: docs/ros.md, "Sensor manager".
+search. A managed (lifecycle) node, as the planner: ``configure`` reads the parameters, loads the
+models and runs every target's gate, ``activate`` / ``deactivate`` start and stop deciding
+(``autostart``, default true, walks both at start-up). Parameters, topics and diagnostics:
+docs/ros.md, "Sensor manager".
 """
 
 from __future__ import annotations
@@ -31,15 +34,15 @@ from ..core.loop import ManagerLoop, ManagerOutput
 from ..core.loop.manager_params import RANGES, TUNABLE, check_params, check_targets, manager_problem
 from ..core.multitarget.planner import DEFAULT_EVALUATIONS, MAX_EVALUATIONS_RANGE, SEARCH_MODES
 from ..core.multitarget.problem import MAX_CAPACITY_UNITS
-from .loop_node import LoopNode, OneShot
+from .loop_node import ManagedLoopNode, OneShot
 from .messages import MessageError, decode_belief, encode_action, encode_allocation, wire_bounds
 from .params import declare_double, declare_optional_array, descriptor, optional_array
 from .qos import STREAM_QOS
-from .runtime import callback, config_errors, main_for
+from .runtime import callback, main_for
 
 
-class SensorManager(LoopNode):
-    """Sensor manager node (see module docstring)."""
+class SensorManager(ManagedLoopNode):
+    """Sensor manager node, a managed node (see module docstring; its lifecycle: :class:`ManagedLoopNode`)."""
 
     task = "allocation"
 
@@ -83,28 +86,31 @@ class SensorManager(LoopNode):
             "Constant of the bound LP (mlr or fosd)", read_only=True,
             constraints=f"one of {', '.join(BOUND_CONSTANTS)}"))
         self.accept_changes(check_params)
+        self.bring_up()
 
+    def configure_loop(self) -> ManagerLoop:
+        """The targets, their models and the joint problem, the gate of every target; the topics."""
         value = self.get_parameter
-        with config_errors():
-            targets = check_targets(optional_array(self, "targets") or [])
-            files = optional_array(self, "model_files")
-            if files is None:
-                models = [load_model_file(self.model_file)] * len(targets)
-            else:
-                loaded = {}  # one model object per file: targets of one file are searched as one batch
-                for k, f in enumerate(files):
-                    if f not in loaded:
-                        loaded[f] = load_model_file(f, f"model_files[{k}]")
-                models = [loaded[f] for f in files]
-            discount = value("discount").value
-            problem = manager_problem(targets, models, value("effort_budget").value, optional_array(self, "efforts"),
-                                      None if discount == -1.0 else discount)
-            loop = ManagerLoop(problem, {name: value(name).value for name in TUNABLE}, self.live, now=self.now(),
-                               search=value("search").value, variant=value("bound_variant").value,
-                               constant=value("bound_constant").value,
-                               max_evaluations=value("max_evaluations").value)
-        self.action_pubs = [self.create_publisher(Int64MultiArray, f"{t}/action", STREAM_QOS) for t in targets]
-        self.allocation_pub = self.create_publisher(Int64MultiArray, "allocation", STREAM_QOS)
+        targets = check_targets(optional_array(self, "targets") or [])
+        files = optional_array(self, "model_files")
+        if files is None:
+            models = [load_model_file(self.model_file)] * len(targets)
+        else:
+            loaded = {}  # one model object per file: targets of one file are searched as one batch
+            for k, f in enumerate(files):
+                if f not in loaded:
+                    loaded[f] = load_model_file(f, f"model_files[{k}]")
+            models = [loaded[f] for f in files]
+        discount = value("discount").value
+        problem = manager_problem(targets, models, value("effort_budget").value, optional_array(self, "efforts"),
+                                  None if discount == -1.0 else discount)
+        loop = ManagerLoop(problem, {name: value(name).value for name in TUNABLE}, self.live, now=self.now(),
+                           search=value("search").value, variant=value("bound_variant").value,
+                           constant=value("bound_constant").value,
+                           max_evaluations=value("max_evaluations").value, active=False)
+        self.action_pubs = [self.create_lifecycle_publisher(Int64MultiArray, f"{t}/action", STREAM_QOS)
+                            for t in targets]
+        self.allocation_pub = self.create_lifecycle_publisher(Int64MultiArray, "allocation", STREAM_QOS)
         for k, (t, m) in enumerate(zip(targets, models, strict=True)):
             self.subscribe_input(f"{t}/belief", Float64MultiArray, f"{t}/belief", STREAM_QOS,
                                  lambda msg, k=k: self._on_belief(k, msg), bound=wire_bounds(m.S)["belief"],
@@ -113,24 +119,28 @@ class SensorManager(LoopNode):
         group = MutuallyExclusiveCallbackGroup()
         self._decide_trigger = self.create_guard_condition(self._decide, callback_group=group)
         self._wake = OneShot(self, self._decide_trigger.trigger)
-        self.run(loop)
+        return loop
 
     @callback
     def _on_belief(self, k: int, msg: Float64MultiArray) -> None:
-        try:
-            bel = decode_belief(msg, self.loop.problem.models[k].S)
-        except MessageError as exc:
-            self.call(self.loop.rejected_belief, k, str(exc))
+        loop = self.loop  # None after a cleanup
+        if loop is None:
             return
-        self.call(self.loop.belief, k, bel)
+        try:
+            bel = decode_belief(msg, loop.problem.models[k].S)
+        except MessageError as exc:
+            self.call(loop.rejected_belief, k, str(exc))
+            return
+        self.call(loop.belief, k, bel)
 
     @callback
     def _decide(self) -> None:
         """The decision callback (its own group): decide what is due, if anything."""
         with self.lock:
-            job = self.loop.take(self.now())
+            loop = self.loop  # None after a cleanup
+            job = None if loop is None else loop.take(self.now())
         if job is not None:
-            self.call(self.loop.decided, job, self.loop.search(job))
+            self.call(loop.decided, job, loop.search(job))
 
     def emit(self, out: ManagerOutput) -> None:
         for k, a in out.actions:
@@ -143,9 +153,9 @@ class SensorManager(LoopNode):
         if out.decide_now:
             self._decide_trigger.trigger()
 
-    def hardware_id(self) -> str:
+    def hardware_id(self, loop: ManagerLoop) -> str:
         """The targets' models joined by ``+``."""
-        return self.loop.hardware_id
+        return loop.hardware_id
 
 
 def main(args=None) -> None:

@@ -28,7 +28,7 @@ from .epoch_buffer import EpochBuffer, EpochReadings
 from .epochs import DEFAULT_JOIN_TIMEOUT, JOIN_DELAY, EpochLine, JoinWait, Liveness, Resender, classify
 from .filter_loop import BeliefOut, FilterLoop, FilterOutput
 from .health import Level, Log, LoopHealth, Report, StallLimits
-from .managed import LOOP_STATES, state_report
+from .managed import LOOP_STATES, state_report, transition_request
 from .manager_loop import Allocation, JointJob, ManagerLoop, ManagerOutput
 from .planner_loop import TUNABLE, PlanInfo, PlanJob, PlannerLoop, PlannerOutput, check_params
 from .samples import ActionSample, BeliefSample, LikelihoodSample, ObservationSample
@@ -77,4 +77,5 @@ __all__ = [
     "classify",
     "point_value",
     "state_report",
+    "transition_request",
 ]

@@ -46,6 +46,12 @@ Joint record           Every decision is also published as one record, the actio
                        of all targets (``allocation``): what a single sensor applies at once.
 =====================  ====================================================================
 
+The manager is a managed node: while inactive (rule "Inactive", as the planner's) it decides and
+publishes nothing; each target's newest belief waits in its mailbox and its position follows it
+(the epochs skipped are never decided); a decision that ends while inactive publishes nothing and
+gives its beliefs back to the mailboxes. Activated, it sends again the actions in force that no
+belief has answered and decides what the mailboxes hold.
+
 The bounds of a decision are the planner's, for the sub-problem it decided (the decided targets,
 the budget left to them); ``bound_guaranteed`` exactly as the planner says it (every target
 searched exhaustively). The search runs outside the loop's other calls (the node's planning
@@ -184,11 +190,12 @@ class TargetInbox:
 class ManagerLoop:
     """The sensor manager for ``problem`` (its ``names`` are the targets' namespaces) with the
     :data:`TUNABLE` parameters ``params``. ``search``, ``variant``, ``constant`` and
-    ``max_evaluations`` go to every :class:`~pomdp_planner.core.multitarget.planner.MultiTargetPlanner`."""
+    ``max_evaluations`` go to every :class:`~pomdp_planner.core.multitarget.planner.MultiTargetPlanner`.
+    ``active=False``: the loop starts inactive (module docstring; :meth:`activate`)."""
 
     def __init__(self, problem: MultiTargetProblem, params: Mapping[str, Any], live: Liveness, *, now: float,
                  search: str = "bnb", variant: str = "tight", constant: str = DEFAULT_CONSTANT,
-                 max_evaluations: int = DEFAULT_EVALUATIONS):
+                 max_evaluations: int = DEFAULT_EVALUATIONS, active: bool = True):
         params = checked_params(params, TUNABLE, check_params)
         check_choice(search, SEARCH_MODES, "search")
         check_variant(variant, "bound_variant")
@@ -204,6 +211,7 @@ class ManagerLoop:
         self.least = tuple(min(range(m.A), key=lambda a, row=row: row[a]) for m, row in
                            zip(problem.models, problem.efforts, strict=True))
         self.planning = False
+        self.active = active
         self.decision_count = 0
         self._reset_price = False
         self.last: JointDecision | None = None
@@ -258,6 +266,34 @@ class ManagerLoop:
             self._planners.popitem(last=False)
         return planner
 
+    # ----------------------------------------------------------- lifecycle
+    def activate(self, now: float) -> ManagerOutput:
+        """Decide and publish again (module docstring): the input watches count silence from now,
+        every action in force that no belief has answered is sent again, the mailboxes are decided."""
+        if self.active:
+            return self._result(now)
+        self.active = True
+        self.health.resume(now)
+        actions = []
+        for k, ib in enumerate(self.inboxes):
+            if ib.resender.waiting and ib.in_force is not None:
+                actions.append((k, ib.in_force))
+                ib.resender.resending(now)
+                self.health.count("resent_actions")
+        waiting = [ib.name for ib in self.inboxes if ib.mailbox is not None]
+        self.health.log("info", "activated: deciding " + (
+            f"the waiting beliefs of {', '.join(waiting)}" if waiting else "the next beliefs"))
+        return self._result(now, actions=actions)
+
+    def deactivate(self, now: float) -> ManagerOutput:
+        """Stop deciding and publishing (module docstring); the actions in force, the decision cache
+        and the newest beliefs stay."""
+        if self.active:
+            self.active = False
+            self.health.log("info", "deactivated: not deciding or publishing; the newest beliefs are kept for "
+                            "the activation")
+        return self._result(now)
+
     # ----------------------------------------------------------- beliefs
     def start(self, now: float) -> ManagerOutput:
         """The start-up lines."""
@@ -280,6 +316,8 @@ class ManagerLoop:
             else:
                 ib.stream = max(ib.stream, bel.epoch)
                 ib.line.clear_evidence()
+                if not self.active:  # the epochs skipped while inactive are never decided ("Inactive")
+                    ib.line.advance(ib.mailbox.epoch - 1, now)
         else:
             off_stream_belief(ib.line, self.health, verdict, bel.epoch, bel, stream=ib.stream,
                               window=self.live.epoch_window, stall_warn=self.live.stall.warn_after, now=now,
@@ -311,8 +349,8 @@ class ManagerLoop:
 
     # ----------------------------------------------------------- deciding
     def due(self, now: float) -> bool:
-        """The rule "When to decide" (module docstring)."""
-        if self.planning:
+        """The rule "When to decide" (module docstring); never while inactive."""
+        if self.planning or not self.active:
             return False
         ready = [ib for ib in self.inboxes if ib.ready(now)]
         if not ready:
@@ -324,7 +362,7 @@ class ManagerLoop:
     def wake_at(self, now: float) -> float | None:
         """The next time :meth:`due` can turn true without a new input (a join settling, the gather
         timeout, a waited-for target stalling), if any."""
-        if self.planning:
+        if self.planning or not self.active:
             return None
         times = [at for ib in self.inboxes if (at := ib.ready_at()) is not None and at > now]
         ready = [ib.ready_at() for ib in self.inboxes if ib.ready(now)]
@@ -389,6 +427,9 @@ class ManagerLoop:
     def decided(self, job: JointJob, searched: Searched, now: float) -> ManagerOutput:
         """The answer to ``job``: the decided targets' actions, the cached ones again, the joint record."""
         self.planning = False
+        if not self.active:  # deactivated during the search: nothing published, the beliefs wait
+            self._give_back(job, now)
+            return self._result(now)
         decision = searched.decision
         new: dict[int, ActionSample] = dict(job.cached)
         if job.beliefs:
@@ -433,17 +474,23 @@ class ManagerLoop:
     def _refuse(self, job: JointJob, why: str, now: float) -> ManagerOutput:
         """Publish nothing for ``job``: its beliefs go back to the mailboxes, their positions back."""
         self.health.warn("refused_decisions", f"refused a decision: {why}; nothing published", now)
+        self._give_back(job, now)
+        return self._result(now)
+
+    def _give_back(self, job: JointJob, now: float) -> None:
+        """``job``'s beliefs back to the mailboxes (a newer one there stays), their positions back
+        (unless a newer belief has moved one on since, while inactive)."""
         for k, (position, bel) in job.taken.items():
             ib = self.inboxes[k]
-            ib.line.position = position
+            if ib.line.position == bel.epoch:
+                ib.line.position = position
             ib.offer(bel, now)
-        return self._result(now)
 
     def watchdog(self, now: float) -> ManagerOutput:
         """Re-send each target's action in force while the belief it leads to has not come; the
         time-based re-sync; a decision that has become due."""
         actions = []
-        if not self.planning:
+        if self.active and not self.planning:
             for k, ib in enumerate(self.inboxes):
                 if ib.resender.due(now) and ib.in_force is not None:
                     actions.append((k, ib.in_force))
@@ -498,8 +545,10 @@ class ManagerLoop:
                 summary += (f" at depth {d.depth}, lambda {d.lam:.4g}, dual bound {d.dual_bound:.4g}, "
                             f"gap {d.gap:.4g} ({label})")
             head = [summary + f", effort in force {format_effort(effort)}/{format_effort(p.budget)}"]
-        report = self.health.report(now, values, head=head, idle="waiting for beliefs",
-                                    stall_note="" if not silent else "; " + "; ".join(silent))
+        if not self.active:
+            head.insert(0, "inactive: not deciding or publishing")
+        report = self.health.report(now, values, head=head, idle="waiting for beliefs", inactive=not self.active,
+                                    stall_note="" if not silent or not self.active else "; " + "; ".join(silent))
         values = report.values
         if job is not None:
             values.update({
