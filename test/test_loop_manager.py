@@ -385,3 +385,56 @@ def test_the_budget_and_the_discount_are_checked_with_the_parameters_names():
         manager_problem(("a", "b"), models, 2)
     with pytest.raises(OptionError, match="model_files: 1 model files for 2 targets"):
         manager_problem(("a", "b"), [PERIMETER], 2)
+
+
+# ----------------------------------------------------------------- inactive (a managed node)
+def test_an_inactive_manager_decides_nothing_and_its_positions_follow_the_newest_beliefs():
+    loop = make()
+    _, out = joined(loop)
+    in_force = dict(out.actions)
+    t = T0 + JOIN_DELAY
+    loop.deactivate(t)
+    for e in range(1, 40):  # a long pause beside targets that keep stepping
+        for k in range(3):
+            assert not loop.belief(k, bel(e, k), t + 0.01 * e).decide_now
+    assert loop.take(t + 5.0) is None and loop.wake_at(t + 5.0) is None
+    assert loop.watchdog(t + 5.0).actions == []  # no re-send while inactive
+    assert [ib.line.position for ib in loop.inboxes] == [38, 38, 38]  # the skipped epochs are never decided
+    assert loop.report(t + 20.0).level == Level.OK and "inactive" in loop.report(t + 20.0).message
+    out = loop.activate(t + 20.0)
+    assert out.actions == [] and out.decide_now  # every in-force action was answered; the mailboxes wait
+    job, out = decide(loop, t + 20.0)
+    assert {k: b.epoch for k, b in job.beliefs.items()} == {0: 39, 1: 39, 2: 39}
+    assert sorted(a.epoch for _, a in out.actions) == [40, 40, 40] and set(in_force) == {0, 1, 2}
+
+
+def test_a_decision_ending_while_inactive_publishes_nothing_and_activate_resends_the_unanswered():
+    loop = make()
+    _, out = joined(loop)
+    first = dict(out.actions)
+    t = T0 + JOIN_DELAY
+    for k in range(3):
+        loop.belief(k, bel(1, k), t + 0.1)
+    job = loop.take(t + 0.1)
+    assert job is not None
+    loop.deactivate(t + 0.2)
+    out = loop.decided(job, loop.search(job), t + 0.3)
+    assert out.actions == [] and out.allocation is None and loop.decision_count == 1
+    assert all(ib.in_force == first[k] for k, ib in enumerate(loop.inboxes))  # what the targets apply
+    assert [ib.mailbox.epoch for ib in loop.inboxes] == [1, 1, 1]  # given back
+    out = loop.activate(t + 5.0)
+    assert out.actions == [] and out.decide_now  # the beliefs of epoch 1 answered the actions in force
+    job, out = decide(loop, t + 5.0)
+    assert sorted(a.epoch for _, a in out.actions) == [2, 2, 2]
+
+
+def test_activate_sends_again_the_actions_in_force_no_belief_answered():
+    loop = make()
+    _, out = joined(loop)
+    sent = dict(out.actions)
+    t = T0 + JOIN_DELAY
+    loop.deactivate(t + 0.1)
+    loop.belief(1, bel(1, 1), t + 0.2)  # target2 answered, the others not
+    out = loop.activate(t + 0.3)
+    assert out.actions == [(0, sent[0]), (2, sent[2])] and loop.health.counts["resent_actions"] == 2
+    assert loop.activate(t + 0.4).actions == []  # already active
