@@ -1,8 +1,10 @@
 """One writer per stream (core/loop/writers.py) and the node's ROS time (core/loop/clock.py)
 without ROS, and how a loop's health applies them: the established writer, foreign samples while
-it is alive, a replaced writer after silence or after it left the graph, the graph's names in the
-report, unattributed samples, bounded memory; use_sim_time refused at run time and a /clock that
-does not advance. Time is passed in by hand."""
+it is alive, a replaced writer after silence (its restart, an expected writer) or after it left
+the graph, never a writer of another name that merely falls silent while in the graph (a flood's
+crowding out), a stray that spoke first replaced at once by the expected writer (its numbering
+forgotten), the graph's names in the report, unattributed samples, bounded memory; use_sim_time
+refused at run time and a /clock that does not advance. Time is passed in by hand."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from hypothesis import strategies as st
 from pomdp_planner.core.loop import Level, LoopHealth, StallLimits
 from pomdp_planner.core.loop.clock import ClockWatch
 from pomdp_planner.core.loop.health import InputWatch
-from pomdp_planner.core.loop.writers import MAX_WRITERS, WriterWatch
+from pomdp_planner.core.loop.writers import EXPECTED_WRITERS, MAX_WRITERS, WriterWatch, expected_writers
 
 T0 = 100.0
 PLANNER, PROBE, RESTARTED = "aa" * 8, "bb" * 8, "cc" * 8
@@ -34,7 +36,8 @@ def test_the_first_writer_is_followed_and_a_second_one_is_foreign_while_the_firs
     assert w.foreign == 21 and w.changes == 0 and w.established == PLANNER
     assert w.status() == "action has 2 writers: /planner [aaaaaaaaaaaaaaaa] (followed), /probe [bbbbbbbbbbbbbbbb]"
     assert w.values() == {"input.action.writer": "/planner [aaaaaaaaaaaaaaaa]", "input.action.writers": 2,
-                          "input.action.foreign_samples": 21, "input.action.writer_changes": 0}
+                          "input.action.expected_writers": "any", "input.action.foreign_samples": 21,
+                          "input.action.writer_changes": 0}
 
 
 def test_a_restarted_writer_takes_over_once_the_old_one_is_silent_for_alive_after():
@@ -50,6 +53,56 @@ def test_a_restarted_writer_takes_over_once_the_old_one_is_silent_for_alive_afte
                     "/belief_filter [cccccccccccccccc] (a restart?)")
     assert not w.takeover_due(T0 + 2.0)
     assert w.admit(PLANNER, T0 + 2.1)[0] == "foreign"  # the old one, should it come back, is now foreign
+
+
+def test_a_silent_writer_still_in_the_graph_is_never_replaced_by_another_name():
+    """A flood crowds the established writer's samples out: the reader hears nothing of it for as
+    long as the flood lasts, but the graph still lists it. Expected or not, known or not: the
+    flooder never takes over, and the established writer is followed again as soon as it is heard."""
+    for expected in (None, expected_writers("observation"), frozenset()):
+        w = WriterWatch("observation", alive_after=2.0, expected=expected)
+        w.graph({PLANNER: "/target_simulator", PROBE: "/flood"})
+        w.admit(PLANNER, T0)
+        for k in range(1, 3001):  # 30 s of a 100 Hz flood, the simulator unheard
+            assert w.admit(PROBE, T0 + 0.01 * k)[0] == "foreign"
+            assert not w.takeover_due(T0 + 0.01 * k)
+        assert w.admit(PLANNER, T0 + 30.5) == ("admitted", "") and w.changes == 0 and w.established == PLANNER
+
+
+def test_a_stray_that_spoke_first_is_dropped_once_the_expected_writer_appears():
+    w = WriterWatch("belief", alive_after=2.0, expected=expected_writers("belief"))
+    w.graph({PROBE: "/rosbag2_player"})
+    assert w.admit(PROBE, T0) == ("admitted", "")  # the first writer heard, while the loop starts
+    assert w.admit(PROBE, T0 + 0.1) == ("admitted", "")
+    w.graph({PROBE: "/rosbag2_player", PLANNER: "/robot1/belief_filter"})  # any namespace
+    verdict, text = w.admit(PLANNER, T0 + 0.2)
+    assert verdict == "replaced" and w.forget and w.established == PLANNER
+    assert text == ("belief: writer changed from /rosbag2_player [bbbbbbbbbbbbbbbb] (not an expected writer of this "
+                    "input) to /robot1/belief_filter [aaaaaaaaaaaaaaaa] (expected: belief_filter)")
+    for k in range(1, 100):  # the stray goes on: foreign, also when the filter is silent (in the graph)
+        assert w.admit(PROBE, T0 + 0.2 + 0.1 * k)[0] == "foreign"
+    assert w.established == PLANNER and w.changes == 1
+
+
+def test_expected_names_match_the_whole_name_or_its_last_part_and_the_user_adds_names():
+    assert expected_writers("measurement") == frozenset() and "planner" in EXPECTED_WRITERS["action"]
+    w = WriterWatch("measurement", alive_after=2.0, expected=expected_writers("measurement", ["sonar", " /a/b "]))
+    w.graph({PLANNER: "/robot/sonar", PROBE: "/sonar_stray", RESTARTED: "/a/b"})
+    assert w.is_expected(PLANNER) and w.is_expected(RESTARTED) and not w.is_expected(PROBE)
+    assert not w.is_expected("dd" * 8)  # not named by the graph yet: not expected
+
+
+def test_after_silence_a_restart_or_an_expected_writer_takes_over_a_stray_anyone():
+    w = WriterWatch("action", alive_after=2.0, expected=expected_writers("action"))
+    w.graph({PLANNER: "/planner", PROBE: "/probe", RESTARTED: "/sensor_manager"})
+    w.admit(PLANNER, T0)
+    assert w.admit(PROBE, T0 + 5.0)[0] == "foreign"  # not expected: never, silence or not
+    verdict, text = w.admit(RESTARTED, T0 + 5.1)  # another expected writer, after the planner's silence
+    assert verdict == "replaced" and not w.forget and "(silent for 5.1 s)" in text
+    s = WriterWatch("action", alive_after=2.0, expected=expected_writers("action"))
+    s.graph({PROBE: "/probe", "dd" * 8: "/other_stray"})
+    s.admit(PROBE, T0)  # a stray followed (no expected writer yet); silent: another stray may follow
+    assert s.admit("dd" * 8, T0 + 1.0)[0] == "foreign" and s.admit("dd" * 8, T0 + 2.5)[0] == "replaced"
 
 
 def test_a_writer_that_left_the_graph_is_replaced_at_once():

@@ -78,10 +78,12 @@ class BeliefFilter(ManagedLoopNode):
         for k, topic in enumerate(self.topics):
             self.subscribe_input(topic, Int64MultiArray, topic, STREAM_QOS,
                                  lambda msg, k=k: self._on_observation(k, msg), bound=bounds["observation"],
+                                 kind="observation",
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
         for k, topic in enumerate(soft_topics, start=len(self.topics)):
             self.subscribe_input(topic, Float64MultiArray, topic, STREAM_QOS,
                                  lambda msg, k=k: self._on_likelihood(k, msg), bound=bounds["likelihood"],
+                                 kind="likelihood",
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_observation, k, problem))
         self.subscribe_actions(STREAM_QOS)
         self._release = OneShot(self, self._on_release)  # armed only while an epoch waits for its time-out

@@ -6,8 +6,11 @@ facts about the writers of each input.
 publisher's GID come before any copy into Python), counts an oversized sample in the loop's
 health and drops it unread, asks the loop's health (:meth:`~pomdp_planner.core.loop.health.LoopHealth.admit`)
 whether the writer is the one the loop follows, keeps the newest foreign sample for a takeover,
-and only then deserializes the sample and hands it on. The loop nodes (:mod:`.loop_node`) and the
-run recorder's inputs (:mod:`.run_recorder`) use it.
+and only then deserializes the sample and hands it on. These checks are the subscription's
+*screen*: the project's executor runs it as it takes each sample (:mod:`.take`), so a flood of
+foreign samples is dropped without a callback each. Each input has the expected writers of its
+kind (``core/loop/writers.expected_writers``, with the node's ``expected_writers`` parameter). The
+loop nodes (:mod:`.loop_node`) and the run recorder's inputs (:mod:`.run_recorder`) use it.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from rclpy.serialization import deserialize_message
 
 from ..core.loop import Log
 from ..core.loop.health import LoopHealth
+from ..core.loop.writers import expected_writers
 from .messages import WireBound, oversized
 from .runtime import callback
 from .take import subscribe
@@ -39,6 +43,7 @@ class Input:
     bound: WireBound
     on_msg: Callable[[object], None]
     on_bad: Callable[[str], None]
+    expected: frozenset[str] = frozenset()  # the expected writers' node names (core/loop/writers.py)
     topic: str = ""
     sub: object = None                      # the subscription
     held: tuple[bytes, dict] | None = None  # the newest foreign sample: handed in again at a takeover
@@ -56,16 +61,18 @@ class CheckedInputs:
         self.context = node.context  # for @callback
         self.lock, self.health, self.log, self.now = lock, health, log, now
         self.streams: dict[str, Input] = {}
+        #: Node names added to every input's expected writers (the node's ``expected_writers``).
+        self.extra_writers: tuple[str, ...] = ()
 
     def subscribe(self, name: str, msg_type: type, topic: str, qos, on_msg: Callable[[object], None], *,
-                  bound: WireBound, on_bad: Callable[[str], None], **kwargs) -> Input:
-        """Subscribe to ``topic`` as the input ``name``: a sample larger than ``bound`` is dropped
-        unread, one of a writer other than the one the loop follows is dropped before it is
-        decoded, the rest is deserialized and handed to ``on_msg`` (one that does not deserialize
-        to ``on_bad``)."""
-        spec = Input(name, msg_type, bound, on_msg, on_bad)
+                  bound: WireBound, on_bad: Callable[[str], None], kind: str, **kwargs) -> Input:
+        """Subscribe to ``topic`` as the input ``name`` of ``kind`` (a key of
+        ``core.loop.writers.EXPECTED_WRITERS``): a sample larger than ``bound`` is dropped unread,
+        one of a writer other than the one the loop follows is dropped before it is decoded, the
+        rest is deserialized and handed to ``on_msg`` (one that does not deserialize to ``on_bad``)."""
+        spec = Input(name, msg_type, bound, on_msg, on_bad, expected_writers(kind, self.extra_writers))
         sub = subscribe(self.node, msg_type, topic, lambda raw, info: self.on_sample(spec, raw, info), qos,
-                        bound.max_bytes, **kwargs)
+                        bound.max_bytes, screen=lambda raw, info: self.screen(spec, raw, info), **kwargs)
         spec.topic, spec.sub = sub.topic_name, sub
         self.streams[name] = spec
         return spec
@@ -74,11 +81,29 @@ class CheckedInputs:
         """Forget every stream (their subscriptions are destroyed by the node)."""
         self.streams = {}
 
-    @callback
-    def on_sample(self, spec: Input, raw: bytes | None, info: dict) -> None:
+    def followed(self, name: str, writer: str | None) -> bool:
+        """Whether a sample of ``writer`` on input ``name`` comes from the writer the loop follows
+        (or from no known writer yet): a read-only look, for a second reader of the same topic."""
+        with self.lock:
+            health = self.health()
+            if health is None or writer is None:
+                return health is not None
+            established = health.writers[name].established
+        return established is None or established == writer
+
+    def screen(self, spec: Input, raw: bytes | None, info: dict) -> bool:
+        """The size and writer rules for one sample (module docstring): whether it is to be decoded."""
+        try:
+            return self._screen(spec, raw, info)
+        except Exception:  # e.g. the graph asked during a shutdown
+            if self.context.ok():
+                raise
+            return False
+
+    def _screen(self, spec: Input, raw: bytes | None, info: dict) -> bool:
         health = self.health()
         if health is None:  # taken before a cleanup released the subscription
-            return
+            return False
         now = self.now()
         size = info.get("size", 0 if raw is None else len(raw))
         if raw is None or size > spec.bound.max_bytes:
@@ -86,9 +111,12 @@ class CheckedInputs:
                 health.oversized(spec.name, oversized(spec.name, size, spec.bound), now)
                 logs = health.drain_logs()
             self.log(logs)
-            return
+            return False
         writer = info.get("publisher_gid")
-        if writer is not None and writer not in spec.asked and not health.writers[spec.name].known(writer):
+        ww = health.writers[spec.name]
+        if ww.expected is not spec.expected:
+            ww.expected = spec.expected
+        if writer is not None and writer not in spec.asked and not ww.known(writer):
             spec.asked[writer] = None  # its first sample: who is it? (once per writer)
             while len(spec.asked) > GRAPH_ASKED:
                 del spec.asked[next(iter(spec.asked))]
@@ -97,9 +125,14 @@ class CheckedInputs:
             admitted = health.admit(spec.name, writer, now)
             if not admitted:
                 spec.held = (raw, info)
-            logs = health.drain_logs()
-        self.log(logs)
-        if not admitted:
+            logs = health.drain_logs() if health.logs else ()
+        if logs:
+            self.log(logs)
+        return admitted
+
+    @callback
+    def on_sample(self, spec: Input, raw: bytes | None, info: dict) -> None:
+        if not info.get("screened") and not self.screen(spec, raw, info):
             return
         try:
             msg = deserialize_message(raw, spec.msg_type)
@@ -132,4 +165,6 @@ class CheckedInputs:
                 if held is not None:
                     spec.held = None
             if held is not None:
-                self.on_sample(spec, *held)
+                info = dict(held[1])
+                info.pop("screened", None)
+                self.on_sample(spec, held[0], info)

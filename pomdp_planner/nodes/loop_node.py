@@ -50,6 +50,7 @@ from .params import (
     declare_liveness,
     declare_model_file,
     descriptor,
+    expected_writer_names,
     liveness,
 )
 from .runtime import callback, config_errors
@@ -109,12 +110,14 @@ class LoopNode(ParameterNode):
         declare_liveness(self)
         self.lock = threading.Lock()
         self.loop = None
-        if not self.managed:
-            self.model_file = self.get_parameter("model_file").value
-            self.live = liveness(self)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.checked = CheckedInputs(self, self.lock, lambda: None if self.loop is None else self.loop.health,
                                      self.log, self.now)
+        if not self.managed:
+            self.model_file = self.get_parameter("model_file").value
+            with config_errors():
+                self.live = liveness(self)
+                self.checked.extra_writers = expected_writer_names(self)
         self.add_on_set_parameters_callback(self._refuse_sim_time)
 
     @staticmethod
@@ -138,10 +141,11 @@ class LoopNode(ParameterNode):
         return self.checked.streams
 
     def subscribe_input(self, name: str, msg_type: type, topic: str, qos, on_msg: Callable[[object], None], *,
-                        bound: WireBound, on_bad: Callable[[str], None], **kwargs) -> Input:
-        """Subscribe to ``topic`` as the loop's input ``name``, its samples checked for size and
-        writer before they are decoded (:meth:`.inputs.CheckedInputs.subscribe`)."""
-        return self.checked.subscribe(name, msg_type, topic, qos, on_msg, bound=bound, on_bad=on_bad, **kwargs)
+                        bound: WireBound, on_bad: Callable[[str], None], kind: str, **kwargs) -> Input:
+        """Subscribe to ``topic`` as the loop's input ``name`` of ``kind`` (its expected writers), its
+        samples checked for size and writer before they are decoded (:meth:`.inputs.CheckedInputs.subscribe`)."""
+        return self.checked.subscribe(name, msg_type, topic, qos, on_msg, bound=bound, on_bad=on_bad, kind=kind,
+                                      **kwargs)
 
     # ----------------------------------------------------------- time
     def _refuse_sim_time(self, params: list[Parameter]) -> SetParametersResult:
@@ -200,7 +204,7 @@ class LoopNode(ParameterNode):
 
     def subscribe_actions(self, qos) -> Input:
         """The ``action`` input of a loop that takes actions (the filter's and the target's)."""
-        return self.subscribe_input("action", Int64MultiArray, "action", qos, self._on_action,
+        return self.subscribe_input("action", Int64MultiArray, "action", qos, self._on_action, kind="action",
                                     bound=wire_bounds(self.model.S)["action"],
                                     on_bad=lambda problem: self.call(self.loop.rejected_action, problem))
 
@@ -399,6 +403,7 @@ class ManagedLoopNode(LifecycleNodeMixin, LoopNode):
             with config_errors():
                 self.model_file = self.get_parameter("model_file").value
                 self.live = liveness(self)
+                self.checked.extra_writers = expected_writer_names(self)
                 loop = self.configure_loop()
             self.create_timer(self.live.watchdog_period, self._watchdog, clock=self.steady)
         except NodeConfigError as exc:

@@ -92,6 +92,7 @@ class MeasurementAdapter(LoopNode):
         limit = max_wire_bytes(self.model.S, 1) if loop.soft else MAX_SENSOR_BYTES
         self.input_sub = self.subscribe_input(
             "measurement", INPUT_MESSAGES[loop.input_type], "measurement", SENSOR_QOS, self._on_measurement,
+            kind="measurement",
             bound=WireBound(limit, f"a {loop.input_type} reading"), on_bad=lambda problem: self.call(
                 self.loop.rejected_measurement, problem)).sub
         self.subscribe_actions(STREAM_QOS)

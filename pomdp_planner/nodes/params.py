@@ -21,6 +21,7 @@ from ..core.loop import Liveness, StallLimits
 from ..core.loop.epochs import DEFAULT_EPOCH_WINDOW, DEFAULT_RESEND_PERIOD
 from ..core.loop.health import DEFAULT_STALL_ERROR, DEFAULT_STALL_WARN
 from ..core.loop.parameter_names import BY_NAME, find_unknown, given_scopes, unknown_text
+from ..core.loop.writers import check_writer_names
 
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
 DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
@@ -134,6 +135,18 @@ def declare_liveness(node: Node) -> None:
         float_range=(0.01, 86400.0)))
     declare_double(node, "stall_error_after", DEFAULT_STALL_ERROR, d(
         "Seconds without a new input before diagnostics say ERROR", read_only=True, float_range=(0.01, 86400.0)))
+    declare_optional_array(node, "expected_writers", "string",
+                           "Node names (e.g. a sensor driver's) whose writers are expected on every input, besides "
+                           "the package's own nodes; a stray followed before an expected writer spoke is dropped "
+                           "when it does")
+
+
+def expected_writer_names(node: Node) -> tuple[str, ...]:
+    """The ``expected_writers`` of ``node`` (:func:`declare_liveness`), checked."""
+    try:
+        return check_writer_names(optional_array(node, "expected_writers") or ())
+    except ValueError as exc:
+        raise NodeConfigError(str(exc)) from None
 
 
 def liveness(node: Node) -> Liveness:

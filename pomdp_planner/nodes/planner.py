@@ -87,9 +87,10 @@ class PlannerNode(ManagedLoopNode):
         # mailbox taken plans nothing. The guard also serves the join.
         bound = wire_bounds(self.model.S)["belief"]
         self.subscribe_input("belief", Float64MultiArray, "belief", STREAM_QOS, self._on_belief, bound=bound,
+                             kind="belief",
                              on_bad=lambda problem: self.call(self.loop.rejected_belief, problem))
         subscribe(self, Float64MultiArray, "belief", self._on_belief_planning, STREAM_QOS, bound.max_bytes,
-                  callback_group=plan_group)
+                  callback_group=plan_group, screen=self._followed_belief)
         self._plan_trigger = self.create_guard_condition(self._plan_next, callback_group=plan_group)
         self._join = OneShot(self, self._plan_trigger.trigger)
         return loop
@@ -107,6 +108,11 @@ class PlannerNode(ManagedLoopNode):
             else:
                 out = self.loop.belief(bel, now, planner_ahead=True)
         self.emit(out)
+
+    def _followed_belief(self, raw: bytes | None, info: dict) -> bool:
+        """The planning reader's screen: only a sample of the followed writer wakes the planning side
+        (a flood of foreign beliefs costs it nothing; the other reader counts them)."""
+        return raw is not None and self.checked.followed("belief", info.get("publisher_gid"))
 
     @callback
     def _on_belief_planning(self, raw: bytes | None, info: dict) -> None:

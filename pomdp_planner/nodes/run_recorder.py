@@ -68,7 +68,7 @@ class RunInputs:
         self.checked = CheckedInputs(node, self.lock, lambda: loop.health, lambda logs: emit(RecorderOutput(logs=logs)))
         self.subscriptions = {
             topic: self.checked.subscribe(topic, kind, topic, RECORDER_QOS,
-                                          functools.partial(self._on_message, topic, decode, apply),
+                                          functools.partial(self._on_message, topic, decode, apply), kind=topic,
                                           bound=bounds[topic],
                                           on_bad=functools.partial(self.call, loop.rejected, topic)).sub
             for topic, (kind, decode, apply) in inputs.items()}

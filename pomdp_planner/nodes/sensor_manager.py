@@ -114,6 +114,7 @@ class SensorManager(ManagedLoopNode):
         for k, (t, m) in enumerate(zip(targets, models, strict=True)):
             self.subscribe_input(f"{t}/belief", Float64MultiArray, f"{t}/belief", STREAM_QOS,
                                  lambda msg, k=k: self._on_belief(k, msg), bound=wire_bounds(m.S)["belief"],
+                                 kind="belief",
                                  on_bad=lambda problem, k=k: self.call(self.loop.rejected_belief, k, problem))
         # decisions in their own group: beliefs are counted, parameters and diagnostics answered meanwhile
         group = MutuallyExclusiveCallbackGroup()

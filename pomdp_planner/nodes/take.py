@@ -14,9 +14,15 @@ A subscription made with :func:`subscribe` is a *raw* one (the callback gets the
 bytes and a dict). The project's executor (:class:`TakeWithWriter`, mixed into
 ``NodeExecutor``) takes it through :class:`SampleTake` and adds ``"publisher_gid"`` (hex) and
 ``"size"`` to the dict; any other executor takes it the stock way (bytes, no writer: the
-samples are *unattributed*, and the size is checked after the copy). If the library cannot be
-found, :data:`AVAILABLE` is false and every executor takes the stock way. ``test/test_nodes_take.py``
-checks that the GID matches the graph's ``endpoint_gid`` of the writer.
+samples are *unattributed*, and the size is checked after the copy). A subscription may have a
+``screen(raw, info) -> bool`` (the node's size and writer rules): the project's executor then
+calls it as each sample is taken, drains up to :data:`DRAIN` samples in one go while the screen
+drops them (a flood of foreign samples costs a ``ctypes`` call and a dictionary look-up each,
+not an executor task), and runs the callback only for a sample the screen passes, with
+``info["screened"]`` set; with any other executor the callback gets every sample and screens it.
+If the library cannot be found, :data:`AVAILABLE` is false and every executor takes the stock
+way. ``test/test_nodes_take.py`` checks that the GID matches the graph's ``endpoint_gid`` of the
+writer.
 """
 
 from __future__ import annotations
@@ -34,6 +40,9 @@ from rclpy.subscription import Subscription
 
 #: Buffer kept between takes (bytes); a larger sample grows it for one take only.
 SMALL_BUFFER = 4096
+#: Samples a screened subscription drains in one take while its screen drops them (then the
+#: executor serves the other entities before it comes back).
+DRAIN = 256
 _GID_SIZE = 16  # RMW_GID_STORAGE_SIZE (Jazzy)
 _RCL_RET_OK = 0
 
@@ -133,12 +142,15 @@ class SampleTake:
 
 
 def subscribe(node: Node, msg_type, topic: str, callback: Callable[[bytes | None, dict], None], qos: QoSProfile,
-              max_bytes: int, **kwargs) -> Subscription:
+              max_bytes: int, *, screen: Callable[[bytes | None, dict], bool] | None = None,
+              **kwargs) -> Subscription:
     """A raw subscription of ``node`` whose samples :class:`TakeWithWriter` takes with their writer;
-    ``callback(serialized or None, info)``: ``None`` for a sample larger than ``max_bytes``."""
+    ``callback(serialized or None, info)``: ``None`` for a sample larger than ``max_bytes``;
+    ``screen``: see the module docstring."""
     sub = node.create_subscription(msg_type, topic, callback, qos, raw=True, **kwargs)
     if AVAILABLE:
         sub.sample_take = SampleTake(sub, max_bytes)
+        sub.screen = screen
     return sub
 
 
@@ -150,12 +162,21 @@ class TakeWithWriter:
         take = getattr(sub, "sample_take", None)
         if take is None:
             return super()._take_subscription(sub)
-        try:
-            with sub.handle:
-                got = take.take()
-        except InvalidHandle:  # destroyed meanwhile
-            return None
-        if got is None:
+        screen = getattr(sub, "screen", None)
+        for _ in range(DRAIN if screen is not None else 1):
+            try:
+                with sub.handle:
+                    got = take.take()
+            except InvalidHandle:  # destroyed meanwhile
+                return None
+            if got is None:
+                return None
+            if screen is None:
+                break
+            if screen(*got):
+                got[1]["screened"] = True
+                break
+        else:  # DRAIN samples dropped: the others' turn (the subscription is still ready)
             return None
 
         async def _execute():

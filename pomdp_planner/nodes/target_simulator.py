@@ -77,7 +77,7 @@ class TargetSimulator(LoopNode):
         self.state_pub = self.create_publisher(Int64MultiArray, "true_state", STREAM_QOS)
         self.subscribe_actions(STREAM_QOS)
         if loop.timer_mode:
-            self.subscribe_input("belief", Float64MultiArray, "belief", LATCHED_QOS, self._on_belief,
+            self.subscribe_input("belief", Float64MultiArray, "belief", LATCHED_QOS, self._on_belief, kind="belief",
                                  bound=wire_bounds(self.model.S)["belief"],
                                  on_bad=lambda problem: None)  # the planner counts bad beliefs
             self.create_timer(period, self._on_tick)  # on ROS time: /clock, with use_sim_time

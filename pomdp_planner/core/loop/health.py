@@ -7,7 +7,7 @@ Times are passed in (``now``, seconds on a monotonic clock); nothing here reads 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Literal
@@ -190,6 +190,9 @@ class LoopHealth:
         self.logs: list[Log] = []
         self._throttles: dict[str, LogThrottle] = {}
         self._reported = dict.fromkeys(self.problems, 0)
+        #: Per input, what the loop does when the expected writer replaces a stray it followed
+        #: (``forget(now)``: drop what the stray's samples left, e.g. join the stream afresh).
+        self.forget: dict[str, Callable[[float], None]] = {}
 
     def count(self, counter: str, n: int = 1) -> None:
         self.counts[counter] += n
@@ -240,6 +243,9 @@ class LoopHealth:
             return False
         if verdict == "replaced":
             self.warn("writer_changes", text, now)
+            forget = self.forget.get(name)
+            if forget is not None and self.writers[name].forget:  # a stray's numbering goes with it
+                forget(now)
         return True
 
     def oversized(self, name: str, text: str, now: float) -> None:

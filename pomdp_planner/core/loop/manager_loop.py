@@ -157,6 +157,16 @@ class TargetInbox:
         self.in_force: ActionSample | None = None
         self.decisions: OrderedDict[int, int] = OrderedDict()  # action epoch -> priority (recent ones)
 
+    def join_afresh(self, now: float) -> None:
+        """The expected writer replaced a stray that was followed (rule "One writer"): the stray's
+        epochs, mailbox and decisions are dropped and the target's beliefs are joined as at the start;
+        its action in force stays (what the target applies)."""
+        self.line = EpochLine(self.line.window, now=now)
+        self.stream = -1
+        self.join = JoinWait()
+        self.mailbox, self.since = None, None
+        self.decisions.clear()
+
     def offer(self, bel: BeliefSample, now: float) -> None:
         """A new belief: the mailbox keeps the newest."""
         if self.mailbox is None or bel.epoch > self.mailbox.epoch:
@@ -206,6 +216,8 @@ class ManagerLoop:
         self._knobs = {"search": search, "variant": variant, "constant": constant, "max_evaluations": max_evaluations}
         self.inboxes = [TargetInbox(n, m, live, now) for n, m in zip(problem.names, problem.models, strict=True)]
         self.health = LoopHealth(COUNTERS, PROBLEMS, [ib.watch for ib in self.inboxes], live.stall)
+        for ib in self.inboxes:
+            self.health.forget[ib.watch.name] = ib.join_afresh
         self._planners: OrderedDict[tuple, MultiTargetPlanner] = OrderedDict()  # the planning side's only
         self.planner = self._planner_for(tuple(range(problem.K)), problem.budget, self.params)  # checks the set-up
         self.least = tuple(min(range(m.A), key=lambda a, row=row: row[a]) for m, row in

@@ -198,6 +198,20 @@ class PlannerLoop:
         self.last: SearchResult | None = None
         self.last_params: dict[str, Any] = {}
         self.active = active
+        self.health.forget["belief"] = self._join_afresh
+
+    def _join_afresh(self, now: float) -> None:
+        """The expected writer replaced a stray that was followed (rule "One writer"): what the
+        stray's beliefs left (their epochs, the mailbox, the decisions and the last action answering
+        them) is dropped, and the planner joins the new writer's stream as a fresh planner does."""
+        self.line = EpochLine(self.live.epoch_window, now=now)
+        self._stream = -1
+        self._mailbox = None
+        self._join = JoinWait()
+        self._decisions.clear()
+        self._last_action = None
+        self.resender = Resender(self.live.resend_period)
+        self.health.log("info", "belief: the stray's epochs are dropped; joining the expected writer's beliefs")
 
     @property
     def mailbox(self) -> BeliefSample | None:
