@@ -42,7 +42,7 @@ INPUTS = {"target_simulator: simulation": ("action",), "belief_filter: belief": 
 FLOODER = '''
 import random, sys, threading, time
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 from pomdp_planner.nodes.messages import encode_action, encode_belief, encode_observation
@@ -58,7 +58,13 @@ pubs = {(t, decoy): node.create_publisher(kind, t + ("_unread" if decoy else "")
         for t, kind in kinds.items() for decoy in (True, False)}
 executor = SingleThreadedExecutor()
 executor.add_node(node)
-threading.Thread(target=executor.spin, daemon=True).start()
+def run():
+    try:
+        executor.spin()
+    except ExternalShutdownException:
+        pass
+spin = threading.Thread(target=run, daemon=True)
+spin.start()
 rng = random.Random(3)
 print("ready", flush=True)
 for decoy, seconds in ((True, baseline), (False, flood)):
@@ -73,9 +79,9 @@ for decoy, seconds in ((True, baseline), (False, flood)):
         n += 1
         time.sleep(max(0.0, t0 + n / rate - time.monotonic()))
     print(f"sent {n}", flush=True)
-executor.shutdown()
+rclpy.try_shutdown()  # wakes the spin, which then ends
+spin.join(timeout=5.0)
 node.destroy_node()
-rclpy.try_shutdown()
 '''
 
 
@@ -172,8 +178,9 @@ def test_a_500_hz_flood_on_every_input_takes_over_nothing_and_the_loop_keeps_hal
                 os.environ[k] = v
         remove_dead_shm(shm_before)
     sent = int(next(ln for _, ln in reversed(lines) if ln.startswith("sent")).split()[1])
+    foreign = ", ".join(f"{k} {v[2]}" for k, v in after.items())
     print(f"decisions/s: {baseline:.1f} beside the unread flood, {flooded:.1f} under the flood ({sent} samples "
-          f"per input in {t_end - t_flood:.1f} s); foreign samples {', '.join(f'{k} {v[2]}' for k, v in after.items())}")
+          f"per input in {t_end - t_flood:.1f} s); foreign samples {foreign}")
     for key, (writer, changes, foreign) in after.items():
         assert writer == before[key][0] and changes == "0", (key, before[key], after[key])
         assert not writer.startswith("/flood"), key
