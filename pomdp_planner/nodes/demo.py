@@ -74,6 +74,7 @@ from ..core.simulate import simulate
 from .processes import PARAMETER_SETS, parameter_set_model, parameter_set_values, ros_env, start_nodes, stop_nodes
 from .qos import RECORDER_QOS
 from .run_recorder import RunInputs
+from .take import InputReader
 
 #: Seconds a row of the table waits for its plan_info or true state when their topic has not moved
 #: past it (the first row waits for the simulator, started last, to publish its initial state).
@@ -119,6 +120,7 @@ class Monitor:
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)
+        InputReader.close_of(self.node)
         self.node.destroy_node()
         self.context.try_shutdown()
 

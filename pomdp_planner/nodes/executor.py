@@ -22,8 +22,6 @@ from concurrent.futures import ThreadPoolExecutor
 
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, ShutdownException
 
-from .take import TakeWithWriter
-
 
 class _StartReportingPool(ThreadPoolExecutor):
     """A thread pool that reports each submitted callable when a worker starts it."""
@@ -40,7 +38,7 @@ class _StartReportingPool(ThreadPoolExecutor):
         return super().submit(run)
 
 
-class NodeExecutor(TakeWithWriter, MultiThreadedExecutor):
+class NodeExecutor(MultiThreadedExecutor):
     """``MultiThreadedExecutor`` without the re-submission busy loop of rclpy 7.1 (Jazzy).
 
     Jazzy's ``Executor._wait_for_ready_callbacks`` yields again every task that is "not executing
@@ -58,8 +56,8 @@ class NodeExecutor(TakeWithWriter, MultiThreadedExecutor):
     still queued (submitted, not yet started), it waits, without the GIL, until a worker starts
     it and then asks for the next ready work. A task that has run and is suspended (a coroutine
     awaiting a future) is submitted again as before. Everything else (callback groups, wait sets,
-    number of threads) is rclpy's, except that samples of the nodes' inputs are taken with their
-    writer (:class:`~.take.TakeWithWriter`).
+    number of threads) is rclpy's. (The samples of the nodes' inputs are taken by each node's
+    input reader, :class:`~.take.InputReader`, which hands the executor only those it passes.)
     """
 
     def __init__(self, num_threads: int | None = None, *, context=None):

@@ -22,6 +22,7 @@ from ..core.loop.epochs import DEFAULT_EPOCH_WINDOW, DEFAULT_RESEND_PERIOD
 from ..core.loop.health import DEFAULT_STALL_ERROR, DEFAULT_STALL_WARN
 from ..core.loop.parameter_names import BY_NAME, find_unknown, given_scopes, unknown_text
 from ..core.loop.writers import check_writer_names
+from .take import InputReader
 
 #: ``model_file`` when none is given (found by ``core.io.paths.resolve_path``).
 DEFAULT_MODEL = "config/models/tracking_s3_info.yaml"
@@ -271,6 +272,11 @@ class ParameterNode(Node):
                 reason = str(exc).split("Reason: ", 1)[-1].rsplit(": ", 1)[0]
                 raise NodeConfigError(refusal(name, value, desc, reason), node=self.get_name()) from None
         return declared
+
+    def destroy_node(self) -> None:
+        """End the node's input reader (``take.InputReader``), then destroy the node."""
+        InputReader.close_of(self)
+        super().destroy_node()
 
 
 def _given(node: Node, args: Sequence[str]) -> dict[str, int]:
