@@ -29,6 +29,7 @@ from pomdp_planner.core.loop import (
     StallLimits,
     point_value,
 )
+from pomdp_planner.core.loop.adapter_loop import STAMP_SLACK
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL = load_model_file(str(REPO / "config" / "models" / "tracking_s3_info.yaml"))  # S = A = Z = 3
@@ -386,3 +387,91 @@ def test_soft_evidence_through_the_adapter_matches_the_hard_observation_it_encod
         (want,) = hard.observation(0, ObservationSample(t, p, z), now).beliefs
         assert got.epoch == want.epoch == t
         np.testing.assert_allclose(got.belief, want.belief, rtol=1e-12, atol=1e-15)
+
+
+# ----------------------------------------------------------------- sensor clocks
+def _answer(loop, epoch, now, stamp, value=1.0):
+    """Publish action ``epoch`` at ``now`` and one reading stamped ``stamp`` 0.01 s later; what it forwarded."""
+    loop.action(ActionSample(epoch, 2), now)
+    return forwarded(loop.measurement(value, now + 0.01, stamp=stamp))
+
+
+@pytest.mark.parametrize("max_age", [0.0, 0.5, 1.0, 3600.0])
+def test_a_reading_stamped_far_ahead_is_refused_and_does_not_become_the_reference(max_age):
+    loop = joined(max_age=max_age)
+    assert forwarded(loop.measurement(1.0, T0 + 1, stamp=T0 + 1)) == [(1, 2, 1)]
+    loop.action(ActionSample(2, 2), T0 + 2)
+    assert loop.measurement(1.0, T0 + 2.01, stamp=2.0**31 - 1).samples == []  # sec = 2^31 - 1
+    assert loop.health.counts["future_readings"] == 1 and loop.newest_stamp == T0 + 1
+    assert forwarded(loop.measurement(1.0, T0 + 2.02, stamp=T0 + 2.02)) == [(2, 2, 1)]  # not frozen
+    for k in range(3, 20):
+        assert _answer(loop, k, T0 + k, T0 + k + 0.01) == [(k, 2, 1)]
+    assert loop.health.counts["clock_jumps"] == 0
+
+
+@pytest.mark.parametrize("max_age", [0.0, 3600.0])
+def test_a_sensor_clock_that_jumps_back_is_followed_with_one_warning(max_age):
+    """A restarted sensor whose clock starts again (stamps from about 2000 s back to 5 s, or, in step
+    with the node's clock within max_age, 1500 s back): its second reading is forwarded, one WARN."""
+    base = 2000.0 if max_age == 0 else T0 + 2000.0
+    loop = joined(max_age=max_age)
+    now = base if max_age else T0 + 1.0
+    t = 0.0
+    for k in range(1, 6):
+        t += 0.1
+        assert _answer(loop, k, now + t, base + t) == [(k, 2, 1)]
+    back = 5.0 if max_age == 0 else base - 1500.0
+    logs = []
+    assert loop.action(ActionSample(6, 2), now + 1.0) is not None
+    out = loop.measurement(1.0, now + 1.01, stamp=back)  # the first reading after the restart
+    assert out.samples == [] and loop.health.counts["out_of_order_readings"] == 1
+    out = loop.measurement(1.0, now + 1.11, stamp=back + 0.1)
+    assert forwarded(out) == [(6, 2, 1)]
+    logs += [ln.text for ln in out.logs if ln.level == "warning"]
+    for k in range(7, 20):
+        at = now + 1.0 + (k - 6) * 0.1
+        res = loop.action(ActionSample(k, 2), at)
+        logs += [ln.text for ln in res.logs if ln.level == "warning"]
+        out = loop.measurement(1.0, at + 0.01, stamp=back + (k - 5) * 0.1)
+        logs += [ln.text for ln in out.logs if ln.level == "warning"]
+        assert forwarded(out) == [(k, 2, 1)]
+    assert loop.health.counts["clock_jumps"] == 1 and len(logs) == 1
+    assert logs[0] == (f"measurement: the sensor's clock jumped back (stamps {back:.3f} s and {back + 0.1:.3f} s "
+                       f"after {base + 0.5:.3f} s: a restart?); following it")
+
+
+def test_a_sensor_clock_that_steps_ahead_is_followed_a_lone_stamp_ahead_is_not():
+    loop = joined(max_age=0.0)
+    assert _answer(loop, 1, T0 + 1, 50.0) == [(1, 2, 1)]
+    assert _answer(loop, 2, T0 + 2, 50.0 + 1e6) == []  # alone: refused
+    assert _answer(loop, 3, T0 + 3, 52.0) == [(3, 2, 1)]  # in step with the reference: taken
+    assert _answer(loop, 4, T0 + 4, 9000.0) == []
+    assert _answer(loop, 5, T0 + 5, 9001.0) == [(5, 2, 1)]  # two in step: the clock stepped ahead
+    assert loop.health.counts["clock_jumps"] == 1 and loop.newest_stamp == 9001.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["ok", "far_ahead", "far_back", "late", "restart"]),
+                          st.floats(0.0, 1.0)), min_size=1, max_size=40),
+       st.sampled_from([0.0, 0.5, 1.0, 3600.0]))
+def test_no_stamp_freezes_the_adapter(events, max_age):
+    """Whatever single stamps come (far ahead, far back, a little late) and whatever restarts of
+    the sensor's clock: the next two readings at the pace of real time are answered by then."""
+    loop = joined(max_age=max_age)
+    now, clock, epoch = T0, T0, 1
+    for kind, x in events:
+        now += 0.1
+        clock += 0.1
+        if kind == "restart" and max_age == 0.0:
+            clock = 5.0 + x
+        stamp = {"ok": clock, "far_ahead": 2.0**31 - 1, "far_back": 1.0 + x, "late": clock - 0.5 * x,
+                 "restart": clock}[kind]
+        loop.measurement(1.0, now, stamp=stamp)
+    answered = []
+    for _ in range(int(STAMP_SLACK / 0.1) + 3):  # a jump back within STAMP_SLACK heals as the stamps pass it
+        epoch += 1
+        now += 0.1
+        clock += 0.1
+        answered.append(_answer(loop, epoch, now, clock) == [(epoch, 2, 1)])
+    assert any(answered), (events, max_age)
+    assert all(answered[answered.index(True):])  # and from then on every reading is answered

@@ -27,14 +27,28 @@ Staleness              A stamped reading (a header stamp other than 0) more than
                        the node's clock at all (a sensor clock out of step): no such check, and
                        the numbering rule below takes arrival times. An unstamped reading
                        (``Float64``, a likelihood array, a zero stamp) is taken as of its arrival.
-Ordering               A stamped reading not newer than the newest stamp seen is dropped
-                       (``out_of_order_readings``). Unstamped readings are in arrival order.
+Ordering               A stamped reading not newer than the newest stamp seen (the
+                       *reference*) is dropped (``out_of_order_readings``); one whose stamp
+                       ran ahead of the reference by more than the time since it arrived (a
+                       sensor's stamps keep the pace of real time), give or take
+                       :data:`STAMP_SLACK`, is dropped as ``future_readings`` without becoming
+                       the reference (a stamp far ahead, even at ``max_age`` 0). Unstamped
+                       readings are in arrival order.
+Clock jumps            A sensor clock that jumps (a restart: stamps back from 2000 s to 5 s;
+                       an NTP step) is followed: two consecutive readings that disagree with
+                       the reference (older by more than :data:`STAMP_SLACK`, or ahead of its
+                       pace) but agree with each other (in order, at the pace of real time)
+                       make the second the reference and are one WARN (``clock_jumps``,
+                       naming both stamps); the second is taken. A lone stamp that disagrees
+                       is dropped as above, so no single reading can freeze the adapter or
+                       move its reference, at any ``max_age``.
 Binning                A scalar ``x`` goes to observation ``z = #{k : e_k <= x}`` for the
                        ``bin_edges`` ``e_1 < ... < e_{Z-1}``: bin ``z`` is ``[e_z, e_{z+1})``,
                        with ``e_0 = -inf`` and ``e_Z = +inf`` (:class:`ObservationBins`).
 Numbering              The adapter answers the newest action it heard, ``[t, p]``, with the
                        first valid reading taken at least ``settle_time`` after it heard the
-                       action (by its stamp, if stamped), published once as ``[t, p, z]``
+                       action (by its stamp, if stamped within :data:`STAMP_SLACK` of its
+                       arrival at ``max_age`` > 0; else by its arrival), published once as ``[t, p, z]``
                        (``forwarded``). Readings taken earlier (``early_readings``) and readings
                        while the newest action is already answered (``surplus_readings``) are
                        dropped: one reading per decision, so the loop runs at the pace of the
@@ -79,14 +93,22 @@ from .samples import ActionSample, LikelihoodSample, ObservationSample
 INPUT_TYPES = ("float64", "range", "point", "likelihood")
 #: What a ``point`` input gives (parameter ``point_field``): a coordinate or the Euclidean norm.
 POINT_FIELDS = ("x", "y", "z", "norm")
+#: Seconds by which a sensor's stamps may differ from the pace of the readings' arrival (delivery
+#: jitter) and still agree with it (the rules "Ordering" and "Clock jumps").
+STAMP_SLACK = 1.0
 
 COUNTERS = ("readings", "forwarded", "nan_readings", "stale_readings", "future_readings", "out_of_order_readings",
-            "out_of_limits_readings", "malformed_messages", "before_first_action", "early_readings",
+            "clock_jumps", "out_of_limits_readings", "malformed_messages", "before_first_action", "early_readings",
             "surplus_readings", "unanswered_actions", "stale_actions", "malformed_actions", "out_of_window", "resyncs",
             "resent_observations")
 #: Counts that make the report WARN when they grew since the previous one.
-PROBLEMS = ("nan_readings", "stale_readings", "future_readings", "out_of_order_readings", "out_of_limits_readings",
+PROBLEMS = ("nan_readings", "stale_readings", "future_readings", "out_of_order_readings", "clock_jumps",
+            "out_of_limits_readings",
             "malformed_messages", "malformed_actions", "out_of_window", "resyncs")
+
+
+def _stamp_text(stamp: float) -> str:
+    return f"{stamp:.3f} s"
 
 
 class ObservationBins:
@@ -183,6 +205,8 @@ class AdapterLoop:
         self._held: ActionSample | None = None
         self.pending: _Pending | None = None
         self.newest_stamp: float | None = None
+        self._newest_at = 0.0  # when the reading of the newest stamp arrived
+        self._jump: tuple[float, float] | None = None  # (stamp, arrival) of a reading that disagreed with it
         self.last_value: float | None = None
         self.line = EpochLine(live.epoch_window, now=now)
         self.action_watch = InputWatch("action", "action", started=now)
@@ -215,7 +239,9 @@ class AdapterLoop:
         if reading is None or not self._valid_stamp(stamp, now):
             self.sensor_watch.arrived(now, False)
             return self._result(now)
-        taken = stamp if stamp and self.max_age > 0 else now  # max_age 0: stamps not on this clock
+        # the time it was taken, on the node's clock: its stamp where the stamps are on that clock (max_age > 0)
+        # and this one is (within STAMP_SLACK of its arrival), else its arrival
+        taken = stamp if stamp and self.max_age > 0 and abs(now - stamp) <= STAMP_SLACK else now
         self._try_join(now)
         pending, answered = self.pending, None
         if pending is None:
@@ -326,7 +352,8 @@ class AdapterLoop:
         return self.bins.index(x)
 
     def _valid_stamp(self, stamp: float | None, now: float) -> bool:
-        """Staleness and ordering of a stamped reading (module docstring); counted when it fails."""
+        """Staleness, ordering and clock jumps of a stamped reading (module docstring); counted when
+        it fails."""
         if not stamp:
             return True
         name = self.input_name
@@ -339,12 +366,40 @@ class AdapterLoop:
             self.health.warn("future_readings", f"{name}: reading stamped {-age:.3g} s in the future (max_age "
                              f"{self.max_age:g} s: is the sensor's clock in step?); dropped", now)
             return False
-        if self.newest_stamp is not None and stamp <= self.newest_stamp:
-            self.health.warn("out_of_order_readings", f"{name}: reading stamped {self.newest_stamp - stamp:.3g} s "
-                             "before the newest one seen; dropped", now)
+        ref = self.newest_stamp
+        if ref is None or self._keeps_pace(ref, self._newest_at, stamp, now):
+            self._jump = None
+            self._reference(stamp, now)
+            return True
+        jump, self._jump = self._jump, None
+        if stamp >= ref - STAMP_SLACK and stamp <= ref:  # a little late (delivery order): not a jump
+            self.health.warn("out_of_order_readings", f"{name}: reading stamped {ref - stamp:.3g} s before the newest "
+                             "one seen; dropped", now)
             return False
-        self.newest_stamp = stamp
-        return True
+        self._jump = (stamp, now)
+        if jump is not None and self._keeps_pace(*jump, stamp, now):
+            self._jump = None
+            self.health.warn("clock_jumps", f"{name}: the sensor's clock jumped {'back' if stamp < ref else 'ahead'} "
+                             f"(stamps {_stamp_text(jump[0])} and {_stamp_text(stamp)} after {_stamp_text(ref)}: a "
+                             "restart?); following it", now)
+            self._reference(stamp, now)
+            return True
+        if stamp <= ref:
+            self.health.warn("out_of_order_readings", f"{name}: reading stamped {ref - stamp:.3g} s before the newest "
+                             "one seen; dropped", now)
+        else:
+            self.health.warn("future_readings", f"{name}: reading stamped {stamp - ref:.3g} s after the newest one, "
+                             f"seen {now - self._newest_at:.3g} s ago (ahead of the sensor's clock); dropped", now)
+        return False
+
+    @staticmethod
+    def _keeps_pace(ref: float, ref_at: float, stamp: float, now: float) -> bool:
+        """Whether ``stamp`` (arrived at ``now``) follows the reference stamp ``ref`` (arrived at
+        ``ref_at``): newer, and not ahead of the time since by more than :data:`STAMP_SLACK`."""
+        return ref < stamp <= ref + (now - ref_at) + STAMP_SLACK
+
+    def _reference(self, stamp: float, now: float) -> None:
+        self.newest_stamp, self._newest_at = stamp, now
 
     def _forward(self, pending: _Pending, reading, now: float) -> None:
         if self.soft:
