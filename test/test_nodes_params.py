@@ -94,11 +94,14 @@ def test_set_parameters_while_running_take_effect_at_next_decision(harness):
     ("bound_constant", "MLR", "bound_constant"),
     ("bound_constant", 1, "type"),
     ("model_file", "other.yaml", "read-only"),   # needs a restart
+    ("time_budget", 60.000001, "time_budget: must be a number in 0.001..60, got 60.000001"),  # rclpy: 1e-6 slack
+    ("deadline_slack", 10.000001, "deadline_slack: must be a number in 0..10, got 10.000001"),
+    ("", 1.0, "a parameter name must not be empty"),  # rclpy answers success
 ])
 def test_invalid_parameter_values_rejected_with_reason(harness, name, value, reason):
     h = harness
     planner = h.add(PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3)]))
-    before = planner.get_parameter(name).value
+    before = planner.get_parameter(name).value if name else None
     client_node = h.add(rclpy_node(h))
     client = AsyncParameterClient(client_node, "planner")
     h.start()
@@ -106,7 +109,10 @@ def test_invalid_parameter_values_rejected_with_reason(harness, name, value, rea
     (res,) = _set(client, **{name: value})
     assert not res.successful
     assert reason.lower() in res.reason.lower(), res.reason
-    assert planner.get_parameter(name).value == before
+    if name:
+        assert planner.get_parameter(name).value == before
+    else:
+        assert not planner.has_parameter("")
 
 
 def rclpy_node(h):

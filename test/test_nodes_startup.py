@@ -31,6 +31,7 @@ harness = pytest.fixture(make_harness)
 CLOSED_LOOP_S3 = str(REPO / "config" / "closed_loop_s3.yaml")
 TB = f"{TIME_BUDGET_RANGE[0]:g}..{TIME_BUDGET_RANGE[1]:g}"
 DEPTH = f"{MAX_DEPTH_RANGE[0]}..{MAX_DEPTH_RANGE[1]}"
+LONG = "a" * 300  # a file name longer than NAME_MAX (255)
 
 
 def _env() -> dict[str, str]:
@@ -74,6 +75,18 @@ BAD_STARTUP = [
      f"max_depth: must be an integer in {DEPTH}, got 0"),
     ("closed_loop", ["--params-file", CLOSED_LOOP_S3, "-p", "seed:=abc"], None, "target_simulator",
      "seed: must be an integer in 0..2147483647, got 'abc'"),
+    ("planner", ["-p", "time_budget:=60.000001"], None, "planner",  # within rclpy's slack of the edge
+     f"time_budget: must be a number in {TB}, got 60.000001"),
+    # a path with a part longer than a file name may be: every node, one line
+    *[(exe, ["-p", f"model_file:=/tmp/{LONG}.yaml", *extra], None, exe,
+       "model_file: a part of the path is 305 bytes long, more than a file or folder name may have (255)")
+      for exe, extra in (("planner", []), ("belief_filter", []), ("target_simulator", []),
+                         ("measurement_adapter", ["-p", "bin_edges:=[0.5, 1.5]"]),
+                         ("sensor_manager", ["-p", "targets:=[a]"]), ("run_recorder", ["-p", "file:=run.csv"]))],
+    ("run_recorder", ["-p", f"model_file:={S3}", "-p", f"file:={LONG}.csv"], None, "run_recorder",
+     "file: a part of the path is 304 bytes long"),
+    ("belief_filter", ["-p", f"model_file:={S3}", "-p", f"observation_model_files:=['/{LONG}']"], None,
+     "belief_filter", "observation_model_files[0]: a part of the path is 300 bytes long"),
     # what rcl refuses on the command line itself
     ("planner", [], 'planner:\n  ros__parameters:\n    max_depth: [1, "a"]\n', "pomdp_planner",
      "params.yaml, line 3 'max_depth: [1, \"a\"]': "),

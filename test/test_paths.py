@@ -4,6 +4,7 @@ from pathlib import Path
 
 import pytest
 
+from pomdp_planner.cli import main
 from pomdp_planner.core.io.paths import SOURCE_ROOT, resolve_path, shipped_model_path
 from pomdp_planner.core.model import ModelError
 
@@ -46,3 +47,32 @@ def test_missing_relative_path_names_field_and_places(tmp_path, monkeypatch):
 def test_empty_path(bad):
     with pytest.raises(ModelError, match=r"^model_file: empty path$"):
         resolve_path(bad)
+
+
+LONG = "c" * 300  # longer than a file name may be (NAME_MAX 255)
+S3_MODEL = str(Path(__file__).resolve().parents[1] / "config" / "models" / "tracking_s3_info.yaml")
+
+
+@pytest.mark.parametrize("argv,field", [
+    (["check", f"/tmp/{LONG}.yaml"], "MODEL"), (["bounds", f"{LONG}.yaml"], "MODEL"),
+    (["export", f"/tmp/{LONG}/m.yaml"], "MODEL"), (["simulate", f"/tmp/{LONG}.yaml"], "MODEL"),
+    (["plan", f"/tmp/{LONG}.yaml"], "MODEL"),
+    (["simulate", "--targets", f"{S3_MODEL},/tmp/{LONG}.yaml", "--budget", "1"], "--targets[1]"),
+    (["simulate", S3_MODEL, "--record", f"/tmp/{LONG}.csv"], "--record"),
+    (["export", S3_MODEL, "-o", f"/tmp/{LONG}.pomdp"], "-o/--output"),
+    (["plot", "run.csv", "-o", f"/tmp/{LONG}.png"], "--output"),
+    (["bench", "all", "--output", f"/tmp/{LONG}"], "--output"),
+])
+def test_a_path_part_longer_than_a_file_name_is_one_line_in_every_subcommand(argv, field, capsys):
+    code = main(argv)
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err[-2000:]
+    assert lines[0].startswith(f"pomdp-planner: error: {field}: a part of the path is ")
+    assert "more than a file or folder name may have (255)" in lines[0] and len(lines[0]) < 300
+
+
+def test_a_plot_of_a_record_with_a_long_file_name_is_one_line(capsys):
+    assert main(["plot", f"/tmp/{LONG}.csv", "-o", "/tmp/x.png"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "File name too long" in err[0]

@@ -11,7 +11,7 @@ import contextvars
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -251,6 +251,18 @@ class ParameterNode(Node):
         self.declare_parameter("strict_parameters", False, descriptor(
             "Refuse to start when a parameter given to this node is not one it declares (default: warn)",
             read_only=True))
+        self.add_on_set_parameters_callback(self._refuse_nameless_and_out_of_range)
+
+    def _refuse_nameless_and_out_of_range(self, params: list[Parameter]) -> SetParametersResult:
+        """A set that rclpy lets through: a parameter without a name, a number within rclpy's
+        tolerance (1e-6, relative) of its range but outside it (``time_budget`` 60.000001)."""
+        for p in params:
+            if not p.name:
+                return SetParametersResult(successful=False, reason="a parameter name must not be empty")
+            if self.has_parameter(p.name) and _out_of_range(p.value, self.describe_parameter(p.name)):
+                return SetParametersResult(successful=False,
+                                           reason=refusal(p.name, p.value, self.describe_parameter(p.name)))
+        return SetParametersResult(successful=True)
 
     def start(self) -> None:
         """What the node does once the parameters given to it are checked (nothing here)."""
@@ -260,15 +272,21 @@ class ParameterNode(Node):
         too), with a refused value raised as :class:`NodeConfigError`."""
         declared = []
         for entry in parameters:
+            name = f"{namespace}.{entry[0]}" if namespace else entry[0]
+            default = entry[1] if len(entry) > 1 else None
+            desc = entry[2] if len(entry) > 2 else ParameterDescriptor(
+                type=Parameter.Type.from_parameter_value(default).value)
+            given = None if ignore_override else self._parameter_overrides.get(name)
+            if given is not None and _out_of_range(given.value, desc):  # rclpy lets a value within 1e-6
+                typed = ParameterDescriptor(  # of an edge in
+                    type=desc.type or Parameter.Type.from_parameter_value(default).value,
+                    floating_point_range=desc.floating_point_range, integer_range=desc.integer_range,
+                    additional_constraints=desc.additional_constraints)
+                raise NodeConfigError(refusal(name, given.value, typed), node=self.get_name())
             try:
                 declared += super().declare_parameters(namespace, [entry], ignore_override)
             except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
-                name = f"{namespace}.{entry[0]}" if namespace else entry[0]
-                default = entry[1] if len(entry) > 1 else None
-                desc = entry[2] if len(entry) > 2 else ParameterDescriptor(
-                    type=Parameter.Type.from_parameter_value(default).value)
-                given = self._parameter_overrides.get(name)
-                value = default if given is None or ignore_override else given.value
+                value = default if given is None else given.value
                 reason = str(exc).split("Reason: ", 1)[-1].rsplit(": ", 1)[0]
                 raise NodeConfigError(refusal(name, value, desc, reason), node=self.get_name()) from None
         return declared

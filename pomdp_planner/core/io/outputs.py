@@ -28,6 +28,7 @@ from pathlib import Path
 
 from ..errors import OptionError, short_repr
 from .file_text import _file_kind
+from .paths import long_part
 
 #: The output name that means standard output.
 STDOUT = "-"
@@ -41,6 +42,9 @@ def _as_path(path: str | os.PathLike, field: str, what: str) -> Path:
     text = str(path)
     if not text.strip() or "\0" in text:
         raise OptionError(f"{field}: not a {what} name: {short_repr(text)}")
+    problem = long_part(text)
+    if problem:
+        raise OptionError(f"{field}: {problem}")
     return Path(text).expanduser()
 
 

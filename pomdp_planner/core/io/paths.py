@@ -23,6 +23,7 @@ import os
 import sys
 from pathlib import Path
 
+from ..errors import short_repr
 from ..model import ModelError
 from .file_text import _file_kind
 
@@ -31,6 +32,19 @@ PACKAGE = "pomdp_planner"
 SOURCE_ROOT = Path(__file__).resolve().parents[3]
 #: Folder of the shipped models, relative to a package root.
 MODELS_DIR = Path("config") / "models"
+#: The longest name of one file or folder (one part of a path), in bytes: NAME_MAX of Linux's file systems.
+NAME_MAX = 255
+
+
+def long_part(path: str | os.PathLike) -> str:
+    """The problem of a path with a part longer than :data:`NAME_MAX` bytes (the system refuses it
+    with "File name too long"), as the end of a one-line message; ``""`` if there is none."""
+    for part in Path(path).parts:
+        n = len(os.fsencode(part))
+        if n > NAME_MAX:
+            return (f"a part of the path is {n} bytes long, more than a file or folder name may have ({NAME_MAX}): "
+                    f"{short_repr(part)}")
+    return ""
 
 
 def package_roots() -> list[Path]:
@@ -60,10 +74,16 @@ def resolve_path(path: str, field: str = "model_file") -> Path:
     """The existing file that ``path`` names (module docstring); ``ModelError`` naming ``field`` if none."""
     if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
         raise ModelError(f"{field}: empty path")
+    problem = long_part(path)
+    if problem:
+        raise ModelError(f"{field}: {problem}")
     cands = _candidates(str(path))
     for c in cands:
-        if c.is_file():
-            return c
+        try:
+            if c.is_file():
+                return c
+        except OSError as exc:  # e.g. a folder on the way that may not be searched
+            raise ModelError(f"{field}: cannot read {c}: {exc.strerror or type(exc).__name__}") from None
     for c in cands:  # no regular file, but something of that name (a directory, a FIFO, a device)
         try:
             mode = c.stat().st_mode
