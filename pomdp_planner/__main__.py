@@ -17,6 +17,8 @@ import sys
 import threading
 from collections.abc import Sequence
 
+from . import _interrupted_while_starting
+
 #: Exit code of an interrupted command (128 + SIGINT, the shell's convention).
 EXIT_INTERRUPTED = 130
 INTERRUPTED = "pomdp-planner: interrupted"
@@ -30,10 +32,11 @@ def _exit_interrupted(signum: int, frame: object) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
-    # Only when SIGINT has Python's default handler in the main thread: an ignored SIGINT (a
-    # background job) stays ignored, and an embedding program's handler is left alone.
+    # Only when SIGINT has Python's default handler in the main thread (or the package's start-up
+    # one, pomdp_planner/__init__.py): an ignored SIGINT (a background job) stays ignored, and an
+    # embedding program's handler is left alone.
     guard = (threading.current_thread() is threading.main_thread()
-             and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+             and signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _interrupted_while_starting))
     if guard:
         signal.signal(signal.SIGINT, _exit_interrupted)
     try:

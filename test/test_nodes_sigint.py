@@ -22,11 +22,12 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from nodes_support import die_with_test  # noqa: E402
+from nodes_support import S3, die_with_test  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
 from pomdp_planner.nodes.executor import NodeExecutor  # noqa: E402
+from pomdp_planner.nodes.processes import node_command  # noqa: E402
 from pomdp_planner.nodes.runtime import _SigintWhileSpinning  # noqa: E402
 
 NODE = textwrap.dedent("""
@@ -140,3 +141,43 @@ def test_sigint_during_startup_still_stops_the_process():
     assert "Traceback" not in err, err[-2000:]
     assert "spinning" not in out  # it stopped during the start-up, it did not go on to spin
     assert time.monotonic() - t0 < 15  # interrupted the 20 s start-up instead of waiting it out
+
+
+@pytest.mark.parametrize("executable", ["planner", "target_simulator"])
+def test_sigint_from_the_packages_first_import_on_is_a_clean_exit_and_at_most_one_line(executable, tmp_path):
+    """Ctrl-C at any moment of a node executable's start-up once the package is imported (the
+    interpreter's own start before that is Python's): exit code 0 or 130, no traceback, at most
+    one line besides the node's log lines. The moment of the package's import is read from
+    ``PYTHONPROFILEIMPORTTIME`` (a line per finished import, on stderr)."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="OFF", PYTHONUNBUFFERED="1", PYTHONPROFILEIMPORTTIME="1")
+    for delay in (0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6):
+        proc = subprocess.Popen([*node_command(executable), "--ros-args", "-p", f"model_file:={S3}"], env=env,
+                                cwd=tmp_path, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                preexec_fn=die_with_test)
+        lines: list[str] = []
+        imported = threading.Event()
+
+        def read(proc=proc, lines=lines, imported=imported):
+            for line in proc.stderr:
+                lines.append(line.rstrip("\n"))
+                if line.startswith("import time:") and line.rsplit("|", 1)[-1].strip() == "pomdp_planner":
+                    imported.set()
+
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        try:
+            assert imported.wait(60), "the package was never imported: " + "\n".join(lines[-5:])
+            time.sleep(delay)
+            proc.send_signal(signal.SIGINT)
+            code = proc.wait(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        reader.join(timeout=5)
+        said = [ln for ln in lines if ln.strip() and not ln.startswith("import time:")
+                and not ln.startswith(("[INFO]", "[DEBUG]"))]
+        assert code in (0, 130), (delay, code, said[-20:])
+        assert len(said) <= 1 and not any("Traceback" in ln or "KeyboardInterrupt" in ln for ln in said), \
+            (delay, said[-20:])
+        if said:
+            assert said[0] == f"{executable}: interrupted while starting", said

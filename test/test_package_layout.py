@@ -75,6 +75,19 @@ def test_setup_declares_cli_and_nodes():
         assert module.startswith(f"{PACKAGE}.") and func.isidentifier(), f"{name}: bad entry point {target!r}"
 
 
+def test_the_package_knows_its_executables_for_its_start_up_sigint_handler():
+    """pomdp_planner/__init__.py guards the start of exactly setup.py's console scripts (and their -m forms)."""
+    import pomdp_planner
+
+    assert set(pomdp_planner.EXECUTABLES) == set(declared_executables())
+    started = pomdp_planner._started_as_executable
+    assert started(["/v/bin/python", "/v/bin/planner", "--ros-args"]) == "planner"
+    assert started(["python", "-m", "pomdp_planner.nodes.planner"]) == "pomdp_planner.nodes.planner"
+    assert started(["python", "-m", "pomdp_planner", "check", "m.yaml"]) == "pomdp_planner"
+    assert started(["python", "-m", "pomdp_planner.nodes.demo"]) == ""  # the demo handles Ctrl-C itself
+    assert started(["python", "-c", "import pomdp_planner"]) == "" and started(["python", "-m", "pytest"]) == ""
+
+
 def test_entry_points_name_existing_functions():
     """Every console script targets a function that the source tree defines."""
     for name, target in declared_executables().items():
