@@ -36,8 +36,8 @@ def test_the_first_writer_is_followed_and_a_second_one_is_foreign_while_the_firs
     assert w.foreign == 21 and w.changes == 0 and w.established == PLANNER
     assert w.status() == "action has 2 writers: /planner [aaaaaaaaaaaaaaaa] (followed), /probe [bbbbbbbbbbbbbbbb]"
     assert w.values() == {"input.action.writer": "/planner [aaaaaaaaaaaaaaaa]", "input.action.writers": 2,
-                          "input.action.expected_writers": "any", "input.action.foreign_samples": 21,
-                          "input.action.writer_changes": 0}
+                          "input.action.expected_writers": "any", "input.action.wrong_type_publishers": 0,
+                          "input.action.foreign_samples": 21, "input.action.writer_changes": 0}
 
 
 def test_a_restarted_writer_takes_over_once_the_old_one_is_silent_for_alive_after():
@@ -203,3 +203,19 @@ def test_on_the_system_clock_nothing_is_watched():
     c = ClockWatch(False, 2.0, T0)
     c.tick(12345, T0)
     assert c.status(T0 + 100) == "" and c.values(T0) == {"use_sim_time": False}
+
+
+def test_a_publisher_of_another_type_is_one_warning_once_and_in_the_report_while_it_is_there():
+    h = LoopHealth(["x"], [], [InputWatch("measurement", "reading", started=T0)], StallLimits())
+    h.writers["measurement"].type_name = "sensor_msgs/msg/Range"
+    h.graph("measurement", {PLANNER: "/sonar"}, {PROBE: ("/laser", "sensor_msgs/msg/LaserScan")}, T0)
+    assert [ln.text for ln in h.drain_logs()] == [
+        "measurement: /laser [bbbbbbbbbbbbbbbb] publishes sensor_msgs/msg/LaserScan, not the sensor_msgs/msg/Range "
+        "this node reads: its samples never reach it"]
+    h.graph("measurement", {PLANNER: "/sonar"}, {PROBE: ("/laser", "sensor_msgs/msg/LaserScan")}, T0 + 1)
+    assert h.drain_logs() == []  # said once
+    r = h.report(T0 + 1, {})
+    assert r.level == Level.WARN and r.values["input.measurement.wrong_type_publishers"] == 1
+    assert "measurement: /laser publishes sensor_msgs/msg/LaserScan, not sensor_msgs/msg/Range" in r.message
+    h.graph("measurement", {PLANNER: "/sonar"}, {}, T0 + 1.5)  # it left
+    assert h.report(T0 + 1.5, {}).level == Level.OK

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -31,6 +32,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy
 from sensor_msgs.msg import Range
 from std_msgs.msg import Float64, Float64MultiArray, Int64MultiArray
+from test_nodes_multiprocess import domain  # noqa: F401 (a fixture)
 
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.nodes.belief_filter import BeliefFilter
@@ -327,3 +329,81 @@ def test_the_filter_node_counts_bad_soft_evidence_and_applies_good_evidence(harn
     assert h.wait_until(lambda: 1 in probe.beliefs, timeout=10)
     post = np.full(3, 1 / 3) @ MODEL.P[1] * np.array([0.25, 1.0, 4.0])
     np.testing.assert_allclose(probe.beliefs[1], post / post.sum(), rtol=1e-12)
+
+
+def test_a_publisher_of_another_type_on_the_sensor_topic_is_named_once_and_in_diagnostics(domain, tmp_path):  # noqa: F811
+    """A driver publishing ``Float64`` where the adapter (a process) reads a ``Range``: the middleware
+    never delivers its samples, and the graph knows its type: one WARN line naming it, and the
+    diagnostics say so (WARN) while it is there."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    log = tmp_path / "adapter.log"
+    with open(log, "wb") as fh:
+        proc = subprocess.Popen([*node_command("measurement_adapter"), "--ros-args", "-p", f"model_file:={S3}",
+                                 "-p", "input_type:=range", "-p", "bin_edges:=[0.5, 1.5]"], stdout=fh,
+                                stderr=subprocess.STDOUT, preexec_fn=die_with_test)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = Node("sonar_driver", context=ctx)
+    statuses: list[tuple[int, str, dict]] = []
+
+    def on_diag(msg):
+        for st in msg.status:
+            if st.name == "measurement_adapter: measurements":
+                level = st.level[0] if isinstance(st.level, bytes) else st.level
+                statuses.append((level, st.message, {kv.key: kv.value for kv in st.values}))
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
+    pub = node.create_publisher(Float64, "measurement", SENSOR_QOS)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    threading.Thread(target=executor.spin, daemon=True).start()
+    try:
+        deadline = time.monotonic() + 60
+        while not any(v.get("input.measurement.wrong_type_publishers") == "1" for _, _, v in statuses):
+            assert time.monotonic() < deadline and proc.poll() is None, statuses[-1:]
+            pub.publish(Float64(data=1.0))
+            time.sleep(0.1)
+        seen = len(statuses)
+        while len(statuses) < seen + 3:  # three more reports: still said, and the line not repeated
+            assert time.monotonic() < deadline, statuses[-1:]
+            time.sleep(0.1)
+        level, message, _ = statuses[-1]
+        assert level == 1 and "/sonar_driver publishes std_msgs/msg/Float64, not sensor_msgs/msg/Range" in message
+    finally:
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=20)
+        executor.shutdown()
+        node.destroy_node()
+        ctx.try_shutdown()
+    text = log.read_text(errors="replace")
+    lines = [ln for ln in text.splitlines() if "publishes std_msgs/msg/Float64" in ln]
+    assert code == 0 and "Traceback" not in text
+    assert len(lines) == 1 and "[WARN]" in lines[0] and lines[0].endswith(
+        "publishes std_msgs/msg/Float64, not the sensor_msgs/msg/Range this node reads: its samples never reach it")
+    assert "measurement: /sonar_driver [" in lines[0]
+
+
+@pytest.mark.parametrize("kind", ["range", "point"])
+def test_a_reading_with_a_frame_id_of_8_mb_is_dropped_unread(harness, kind):
+    """A header's ``frame_id`` makes a reading oversized like any other part (rule "Bounded samples"):
+    dropped before it is decoded, counted; the next reading is forwarded."""
+    h = harness
+    ad = adapter(h, input_type=kind, resend_period=0.0)
+    probe = h.add(Probe(h, "/", SENSOR_TYPES[kind]))
+    h.start()
+    assert h.wait_matched(probe.sensor_pub, 1) and h.wait_matched(probe.action_pub, 2)
+    probe.action_pub.publish(encode_action(1, 2))
+    assert h.wait_until(lambda: loop_state(ad, lambda lp: lp.pending and lp.pending.epoch) == 1, timeout=10)
+    big = sensor_message(kind, 1.0, clock(ad))
+    big.header.frame_id = "f" * (8 * 1024 * 1024)
+    probe.sensor_pub.publish(big)
+    assert h.wait_until(lambda: loop_state(ad, lambda lp: lp.health.counts["oversized_samples"]) == 1, timeout=10)
+    assert loop_state(ad, lambda lp: lp.health.counts["readings"]) == 0  # never decoded
+    for _ in range(20):
+        probe.sensor_pub.publish(sensor_message(kind, 1.0, clock(ad)))
+        if h.wait_until(lambda: probe.outputs, timeout=0.5):
+            break
+    assert probe.outputs[0] == (1, 2, 1)

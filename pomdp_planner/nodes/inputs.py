@@ -44,6 +44,11 @@ class Input:
     on_msg: Callable[[object], None]
     on_bad: Callable[[str], None]
     expected: frozenset[str] = frozenset()  # the expected writers' node names (core/loop/writers.py)
+
+    @property
+    def type_name(self) -> str:
+        """The message type as the graph names it, e.g. ``sensor_msgs/msg/Range``."""
+        return f"{self.msg_type.__module__.split('.')[0]}/msg/{self.msg_type.__name__}"
     topic: str = ""
     sub: object = None                      # the subscription
     held: tuple[bytes, dict] | None = None  # the newest foreign sample: handed in again at a takeover
@@ -142,13 +147,25 @@ class CheckedInputs:
         spec.on_msg(msg)
 
     def look_at_graph(self, spec: Input) -> None:
-        """The graph's facts about the writers of ``spec``'s topic: ``{GID (hex): node name}``."""
-        writers = {bytes(i.endpoint_gid).hex(): (i.node_namespace.rstrip("/") + "/" + i.node_name)
-                   for i in self.node.get_publishers_info_by_topic(spec.topic)}
+        """The graph's facts about the writers of ``spec``'s topic: ``{GID (hex): node name}``, and
+        the publishers of it with another message type (named once, and in the report)."""
+        writers, wrong = {}, {}
+        for i in self.node.get_publishers_info_by_topic(spec.topic):
+            gid, name = bytes(i.endpoint_gid).hex(), i.node_namespace.rstrip("/") + "/" + i.node_name
+            if i.topic_type == spec.type_name:
+                writers[gid] = name
+            else:
+                wrong[gid] = (name, i.topic_type)
         with self.lock:
             health = self.health()
             if health is not None:  # None: released by a cleanup meanwhile
-                health.writers[spec.name].graph(writers)
+                health.writers[spec.name].type_name = spec.type_name
+                health.graph(spec.name, writers, wrong, self.now())
+                logs = health.drain_logs() if health.logs else ()
+            else:
+                logs = ()
+        if logs:
+            self.log(logs)
 
     def look_at_graphs(self) -> None:
         """The graph's writers of every input (before a report)."""

@@ -248,6 +248,14 @@ class LoopHealth:
                 forget(now)
         return True
 
+    def graph(self, name: str, writers: Mapping[str, str], wrong_types: Mapping[str, tuple[str, str]],
+              now: float) -> None:
+        """The graph's writers of input ``name`` and the publishers of its topic with another
+        message type (:meth:`~.writers.WriterWatch.graph`): each of those is one warning, once."""
+        for text in self.writers[name].graph(writers, wrong_types):
+            self.last_warning = text
+            self.log("warning", text)
+
     def oversized(self, name: str, text: str, now: float) -> None:
         """A sample of input ``name`` larger than the model implies, dropped unread (``text``: why)."""
         self.reject(self.watch(name), "oversized_samples", text, now)

@@ -24,6 +24,11 @@ proof that a writer has gone) cannot take over a stream. When an expected writer
 that was not expected, the stray's numbering is dropped with it (``forget``: the loop joins the
 new writer's stream afresh).
 
+A publisher of the stream's topic with another message type never delivers a sample (the
+middleware matches topics by type as well): the graph names it (:meth:`WriterWatch.graph`'s
+``wrong_types``), and the report says so while it is there (a sensor driver publishing a
+``LaserScan`` where the adapter reads a ``Range`` would otherwise be only "no new reading").
+
 Writer ids are opaque strings (the nodes pass the publisher GID in hex) or ``None`` when the
 middleware does not say who wrote a sample (*unattributed*: admitted, the preference cannot apply).
 Node names come from the graph (:meth:`WriterWatch.graph`), which the nodes look at once a second
@@ -93,6 +98,7 @@ class WriterWatch:
         self.name = name
         self.alive_after = alive_after
         self.expected = expected
+        self.type_name = ""  # the stream's message type, as the graph names types (the node sets it)
         self.established: str | None = None
         self.unattributed = 0           # samples without a writer id
         self.changes = 0                # replaced established writers
@@ -100,17 +106,25 @@ class WriterWatch:
         self._writers: OrderedDict[str, _Writer] = OrderedDict()
         self._graph: dict[str, str] | None = None  # id -> node name, as last seen in the graph
         self._names: dict[str, str] = {}            # every name the graph gave (bounded with the writers)
+        self.wrong_types: dict[str, tuple[str, str]] = {}  # id -> (node name, message type): another type
         self.candidate: str | None = None           # the newest foreign writer (a successor, should the
                                                     # established one go)
 
     # ----------------------------------------------------------- facts
-    def graph(self, writers: Mapping[str, str]) -> None:
-        """The writers the graph lists on this stream now: ``{writer id: node name}``."""
+    def graph(self, writers: Mapping[str, str], wrong_types: Mapping[str, tuple[str, str]] | None = None) -> list[str]:
+        """The writers the graph lists on this stream now: ``{writer id: node name}``, and the
+        publishers of its topic with another message type: ``{id: (node name, type)}``. Returns a
+        warning for each of those not seen before (the module docstring)."""
+        new = {k: v for k, v in (wrong_types or {}).items() if k not in self.wrong_types}
+        self.wrong_types = dict(wrong_types or {})
+        warnings = [f"{self.name}: {node} [{k}] publishes {kind}, not the {self.type_name or 'expected type'} this "
+                    "node reads: its samples never reach it" for k, (node, kind) in sorted(new.items())]
         self._graph = dict(writers)
         self._names.update(writers)
         if len(self._names) > 4 * MAX_WRITERS:
             keep = set(self._writers) | set(self._graph)
             self._names = {k: v for k, v in self._names.items() if k in keep}
+        return warnings
 
     def known(self, writer: str) -> bool:
         """Whether the graph has named ``writer`` (else the node looks at the graph again)."""
@@ -205,13 +219,17 @@ class WriterWatch:
 
     # ----------------------------------------------------------- report
     def status(self) -> str:
-        """What the report says while the graph lists more than one writer of the stream (a
-        warning), naming them; ``""`` otherwise."""
-        if self._graph is None or len(self._graph) <= 1:
-            return ""
-        names = ", ".join(self.label(k) + (" (followed)" if k == self.established else "")
-                          for k in sorted(self._graph, key=lambda k: (k != self.established, self._graph[k], k)))
-        return f"{self.name} has {len(self._graph)} writers: {names}"
+        """What the report says while the graph lists more than one writer of the stream, or a
+        publisher of its topic with another message type (a warning), naming them; ``""`` otherwise."""
+        texts = []
+        if self._graph is not None and len(self._graph) > 1:
+            names = ", ".join(self.label(k) + (" (followed)" if k == self.established else "")
+                              for k in sorted(self._graph, key=lambda k: (k != self.established, self._graph[k], k)))
+            texts.append(f"{self.name} has {len(self._graph)} writers: {names}")
+        if self.wrong_types:
+            kinds = ", ".join(f"{node} publishes {kind}" for node, kind in sorted(self.wrong_types.values()))
+            texts.append(f"{self.name}: {kinds}, not {self.type_name or 'the expected type'}")
+        return "; ".join(texts)
 
     def values(self) -> dict[str, object]:
         """Diagnostic values of this stream (``input.<name>.writer*``)."""
@@ -219,4 +237,5 @@ class WriterWatch:
         return {f"{p}.writer": "none" if self.established is None else self.label(self.established),
                 f"{p}.writers": "unknown" if self._graph is None else len(self._graph),
                 f"{p}.expected_writers": ",".join(sorted(self.expected or ())) or "any",
+                f"{p}.wrong_type_publishers": len(self.wrong_types),
                 f"{p}.foreign_samples": self.foreign, f"{p}.writer_changes": self.changes}
