@@ -284,3 +284,22 @@ def test_error_lines_stay_one_line_whatever_the_value(capsys: pytest.CaptureFixt
     assert len(err.strip().splitlines()) == 1 and len(err) < 400
     assert main(["check", "/no/such\nfile.yaml"]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("module,argv", [
+    ("pomdp_planner.nodes.demo", ["--steps", "0"]), ("pomdp_planner.nodes.demo", ["--model", "nope"]),
+    ("pomdp_planner.bench.search", ["--nope"]), ("pomdp_planner.bench.lp", ["--repeat", "x"]),
+    ("pomdp_planner.bench.structure", ["--nope"]), ("pomdp_planner.bench.configure", ["--nope"]),
+    ("pomdp_planner.bench.mcts", ["--nope"]), ("pomdp_planner.bench.multitarget", ["--nope"]),
+    ("pomdp_planner.bench.ros.latency", ["--nope"]), ("pomdp_planner.bench.ros.soak", ["--nope"]),
+])
+def test_the_python_m_tools_refuse_a_bad_argument_in_one_line(module, argv, capsys):
+    """The demo and the benchmarks' own command lines: one line naming the problem (argparse's
+    default printed the usage first)."""
+    import importlib
+
+    with pytest.raises(SystemExit) as info:
+        importlib.import_module(module).main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert info.value.code == 2 and len(err) == 1, err
+    assert err[0].startswith(f"python -m {module}: error: ")

@@ -87,6 +87,9 @@ BAD_STARTUP = [
      "file: a part of the path is 304 bytes long"),
     ("belief_filter", ["-p", f"model_file:={S3}", "-p", f"observation_model_files:=['/{LONG}']"], None,
      "belief_filter", "observation_model_files[0]: a part of the path is 300 bytes long"),
+    ("target_simulator", ["-p", f"model_file:={S3}", "-p", "observation_topics:=[]"], None, "target_simulator",
+     "observation_topics: at least one topic is needed"),  # an empty list arrives unset (it was a traceback)
+    ("planner", ["--foo", "--bar"], None, "pomdp_planner", "--ros-args: unknown argument --foo, --bar"),
     # what rcl refuses on the command line itself
     ("planner", [], 'planner:\n  ros__parameters:\n    max_depth: [1, "a"]\n', "pomdp_planner",
      "params.yaml, line 3 'max_depth: [1, \"a\"]': "),

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from ..cli._common import Parser
 from ..core.bounds import BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.checks import integer, number
 from ..core.domains.comparison import comparison_y
@@ -188,7 +189,7 @@ def run_from_args(args: argparse.Namespace, prog: str) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     prog = "python -m pomdp_planner.bench.configure"
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
+    parser = Parser(prog=prog, description=__doc__.split("\n\n")[0])
     add_arguments(parser)
     return run_from_args(parser.parse_args(argv), prog)
 

@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..cli._common import Parser
 from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
 from ..core.checks import integer
 from ..core.domains.comparison import comparison_model
@@ -161,7 +162,7 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.lp", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m pomdp_planner.bench.lp", description=__doc__.split("\n\n")[0])
     parser.add_argument("--models", nargs="+", default=list(DEFAULT_MODELS), metavar="MODEL",
                         help="'comparison:S,A' or model files (default: %(default)s)")
     parser.add_argument("--repeat", type=integer, default=1, metavar="N", help="best of N runs per cell (1)")

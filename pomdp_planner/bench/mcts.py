@@ -26,7 +26,6 @@ one run.
 
 from __future__ import annotations
 
-import argparse
 import math
 import statistics
 import sys
@@ -36,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from ..cli._common import Parser
 from ..core.belief_mcts import BeliefMCTS, BeliefMCTSPolicy, rho_range
 from ..core.checks import integer, number
 from ..core.io.model_yaml import load_model
@@ -217,7 +217,7 @@ def closed_loop_table(rows: Sequence[dict[str, Any]]) -> str:
 
 # ------------------------------------------------------------------ command line
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.mcts", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m pomdp_planner.bench.mcts", description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", action="append", default=None,
                         help="shipped model name or model file (repeatable)")
     parser.add_argument("--simulations", type=integer, default=5000, help="simulations per timed search (5000)")

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from ..cli._common import Parser
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file, write_text_file
 from ..core.io.paths import shipped_model_path
@@ -433,7 +434,7 @@ def run_from_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.multitarget",
+    parser = Parser(prog="python -m pomdp_planner.bench.multitarget",
                                      description=__doc__.split("\n\n")[0])
     add_arguments(parser)
     try:

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from ..cli._common import Parser
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.checks import integer
 from ..core.gate import build_planner
@@ -307,7 +308,7 @@ def run_from_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.search",
+    parser = Parser(prog="python -m pomdp_planner.bench.search",
                                      description=__doc__.split("\n\n")[0])
     add_arguments(parser)
     try:

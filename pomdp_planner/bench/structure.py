@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..cli._common import Parser
 from ..core.checks import integer
 from ..core.model import POMDP
 from ..core.structure import REFUTED, AssumptionReport, check_assumptions, estimate_check, is_proven
@@ -116,7 +117,7 @@ def run_from_args(args: argparse.Namespace, prog: str) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     prog = "python -m pomdp_planner.bench.structure"
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
+    parser = Parser(prog=prog, description=__doc__.split("\n\n")[0])
     add_arguments(parser)
     return run_from_args(parser.parse_args(argv), prog)
 

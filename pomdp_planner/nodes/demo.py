@@ -46,7 +46,6 @@ at the first row the rule gives and says so (no hang).
 
 from __future__ import annotations
 
-import argparse
 import os
 import random
 import shutil
@@ -62,6 +61,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Int64MultiArray
 
+from ..cli._common import Parser
 from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file
@@ -285,7 +285,7 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pomdp_planner.nodes.demo", description=__doc__.split("\n")[0])
+    parser = Parser(prog="python -m pomdp_planner.nodes.demo", description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=30, help="decision epochs to run (default 30)")
     parser.add_argument("--model", choices=PARAMETER_SETS, default="perimeter_s8",
                         help="shipped parameter set config/<node>_<model>.yaml: s3, s8 (the paper's tracking "

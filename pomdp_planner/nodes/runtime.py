@@ -16,6 +16,7 @@ the ``[FATAL]`` line is all that is printed.
 from __future__ import annotations
 
 import _thread
+import ast
 import functools
 import inspect
 import os
@@ -188,6 +189,15 @@ def _node_name(make: Callable[[], Node]) -> str | None:
     return default if isinstance(default, str) else None
 
 
+def _unknown_args(exc: Exception) -> str:
+    """The arguments rcl did not know (``UnknownROSArgsError`` says ``['--foo']``), joined."""
+    try:
+        args = ast.literal_eval(str(exc))
+    except (ValueError, SyntaxError):
+        return str(exc)
+    return ", ".join(map(str, args)) if isinstance(args, list) else str(args)
+
+
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None) -> int:
     """The Jazzy idiom: init, build nodes, spin a :class:`NodeExecutor`, clean exit on Ctrl-C/SIGTERM.
 
@@ -207,6 +217,11 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
     try:
         try:
             rclpy.init(args=args)
+        except _rclpy_impl.UnknownROSArgsError as exc:
+            held.release(keep=False)
+            print(f"[FATAL] [pomdp_planner]: --ros-args: unknown argument {_unknown_args(exc)} (the ROS arguments "
+                  "are -p, -r, --params-file, --log-level, -e, --enclave, ...)", file=sys.stderr)
+            return 1
         except _rclpy_impl.RCLError as exc:
             held.release(keep=False)
             print(f"[FATAL] [pomdp_planner]: {command_line_error(str(exc))}", file=sys.stderr)

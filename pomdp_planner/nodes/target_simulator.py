@@ -60,7 +60,7 @@ class TargetSimulator(LoopNode):
             "from 0 on its own", read_only=True, float_range=(0.0, 3600.0)))
 
         value = self.get_parameter
-        topics = list(value("observation_topics").value)
+        topics = optional_array(self, "observation_topics") or []  # an empty list ([]) arrives unset
         if not topics:
             raise NodeConfigError("observation_topics: at least one topic is needed")
         s0, period = value("initial_state").value, value("step_period").value

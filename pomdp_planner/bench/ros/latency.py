@@ -26,7 +26,6 @@ the budget, the planner's own time_used (median), the depth reached, how many de
 
 from __future__ import annotations
 
-import argparse
 import os
 import random
 import sys
@@ -42,6 +41,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
+from ...cli._common import Parser
 from ...core.io.paths import resolve_path
 from ...nodes.belief_filter import BeliefFilter
 from ...nodes.executor import NodeExecutor, shutdown_executor
@@ -155,7 +155,7 @@ def measure(budget: float, decisions: int, model_key: str, max_depth: int, proce
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.ros.latency", description=__doc__.split("\n")[0])
+    p = Parser(prog="python -m pomdp_planner.bench.ros.latency", description=__doc__.split("\n")[0])
     p.add_argument("--budgets", type=float, nargs="+", default=[0.05, 0.1, 0.5])
     p.add_argument("--decisions", type=int, default=40)
     p.add_argument("--model", choices=("s3", "s8"), default="s8")

@@ -21,7 +21,6 @@ mean CPU over the measured part of the run in % of one core.
 
 from __future__ import annotations
 
-import argparse
 import os
 import random
 import sys
@@ -37,6 +36,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from ...cli._common import Parser
 from ...nodes.processes import NODES, ros_env, start_nodes, stop_nodes
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
@@ -153,7 +153,7 @@ def run(model: str, step_period: float, epochs: int, minutes: float, sample: flo
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m pomdp_planner.bench.ros.soak", description=__doc__.split("\n")[0])
+    p = Parser(prog="python -m pomdp_planner.bench.ros.soak", description=__doc__.split("\n")[0])
     p.add_argument("--model", choices=("s3", "s8"), default="s8")
     p.add_argument("--step-period", type=float, default=0.0, help="simulator step_period (0 = free running)")
     p.add_argument("--epochs", type=int, default=50_000, help="stop at this epoch (default 50 000)")
