@@ -438,3 +438,18 @@ def test_activate_sends_again_the_actions_in_force_no_belief_answered():
     out = loop.activate(t + 0.3)
     assert out.actions == [(0, sent[0]), (2, sent[2])] and loop.health.counts["resent_actions"] == 2
     assert loop.activate(t + 0.4).actions == []  # already active
+
+
+def test_a_targets_filter_that_resumes_after_a_pause_is_decided_without_a_stray_warning():
+    loop = make()
+    joined(loop)
+    t = T0 + JOIN_DELAY
+    for e in range(1, 8):  # every target at 50 Hz
+        t += 0.02
+        for k in range(3):
+            loop.belief(k, bel(e, k), t)
+        if loop.take(t) is not None:
+            loop.planning = False
+    out = loop.belief(0, bel(20, 0), t + 0.5)  # target1's filter was inactive for 12 epochs
+    assert loop.inboxes[0].mailbox.epoch == 20 and loop.health.counts["unexplained_epochs"] == 0
+    assert any("target1: belief of epoch 20 after 0.50 s without a belief" in ln.text for ln in out.logs)

@@ -109,14 +109,43 @@ def test_a_belief_that_does_not_follow_the_beliefs_so_far_is_planned_only_if_the
     for k in range(20):  # a single stray belief is never planned, however long the planner waits
         loop2.watchdog(T0 + 2.0 + k)
     assert loop2.line.position == 11
+    for e in (12, 13, 14):  # the filter goes on at its pace
+        loop2.belief(bel(e), T0 + 29.6 + 0.1 * (e - 12))
+        loop2.take(T0 + 29.6 + 0.1 * (e - 12))
     # a jump of the filter (a lost run of readings, or a filter restarted ahead): two consecutive beliefs
     loop2.belief(bel(30), T0 + 30.0)
     out = loop2.belief(bel(31), T0 + 30.1)
     assert loop2.mailbox.epoch == 31 and out.plan_now
-    assert "followed the beliefs from epoch 11 to epoch 31" in out.logs[0].text
+    assert "followed the beliefs from epoch 14 to epoch 31" in out.logs[0].text
     assert loop2.health.counts["resyncs"] == 0 and loop2.health.counts["unexplained_epochs"] == 3  # 40, 41, 30
     assert loop2.take(T0 + 30.2).epoch == 31
     assert loop2.belief(bel(32), T0 + 30.3).logs == [] and loop2.mailbox.epoch == 32
+
+
+def test_a_filter_that_resumes_after_a_pause_is_planned_at_once_without_a_stray_warning():
+    """A filter deactivated and activated again beside a sensor that kept stepping publishes its
+    newest belief, epochs ahead, after a silence of many times its pace: planned, one info line,
+    nothing counted as unexplained. Ahead at its pace, the same belief is unexplained."""
+    loop = make()
+    joined(loop, 0)
+    t = T0 + 1.0
+    for e in range(1, 10):  # a 50 Hz stream
+        t += 0.02
+        loop.belief(bel(e), t)
+        loop.take(t)
+    out = loop.belief(bel(25), t + 0.3)  # 15 epochs withheld while inactive
+    assert loop.mailbox.epoch == 25 and loop.health.counts["unexplained_epochs"] == 0
+    assert [(ln.level, ln.text) for ln in out.logs] == [(
+        "info", "belief of epoch 25 after 0.30 s without a belief (newest: epoch 9): the filter resumed (activated "
+        "again?); planned")]
+    assert loop.take(t + 0.3).epoch == 25
+    for e in range(26, 30):
+        t += 0.02
+        loop.belief(bel(e), t + 0.3)
+        loop.take(t + 0.3)
+    out = loop.belief(bel(40), t + 0.32)  # ahead at the stream's pace: unexplained
+    assert loop.mailbox is None and loop.health.counts["unexplained_epochs"] == 1
+    assert "a stray, forged or replayed message?" in out.logs[0].text
 
 
 def test_plan_now_wakes_the_planning_side_only_when_it_would_miss_the_mailbox():

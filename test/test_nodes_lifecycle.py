@@ -309,6 +309,8 @@ def test_deactivate_and_activate_beside_a_sensor_that_keeps_stepping_mispairs_no
     assert h.wait_until(lambda: _newest(rec, "belief") >= last_published + 15, timeout=30)
     first_after = min(e for e in rec.belief_epochs(3) if e > last_published)
     assert first_after >= last_published + 15  # the newest at once, no belief for the epochs in between
+    with planner.lock:  # a documented transition: no "stray, forged or replayed" warning at the planner
+        assert planner.loop.health.counts["unexplained_epochs"] == 0
 
     assert lc["planner"].change("deactivate")
     with planner.lock:

@@ -73,7 +73,7 @@ from ..errors import InputError
 from ..model import POMDP
 from ..multitarget.planner import DEFAULT_EVALUATIONS, SEARCH_MODES, JointDecision, MultiTargetPlanner
 from ..multitarget.problem import MultiTargetProblem, format_effort, make_problem
-from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
+from .epochs import BeliefPace, EpochLine, JoinWait, Liveness, Resender, off_stream_belief
 from .health import InputWatch, Log, LoopHealth, Report
 from .manager_params import TUNABLE, check_params
 from .planner_loop import DECISION_CACHE, apply_changes, checked_params
@@ -155,6 +155,7 @@ class TargetInbox:
         self.mailbox: BeliefSample | None = None
         self.since: float | None = None  # when the mailbox got its first belief since the last decision
         self.in_force: ActionSample | None = None
+        self.pace = BeliefPace()  # when beliefs come (a filter resuming after a pause)
         self.decisions: OrderedDict[int, int] = OrderedDict()  # action epoch -> priority (recent ones)
 
     def join_afresh(self, now: float) -> None:
@@ -317,7 +318,13 @@ class ManagerLoop:
         ib = self.inboxes[k]
         verdict = ib.line.classify(bel.epoch)
         if verdict in ("next", "ahead") and bel.epoch > max(ib.stream, ib.line.position) + 1:
-            verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
+            if ib.pace.resumed(now):
+                self.health.log("info", f"{ib.name}: belief of epoch {bel.epoch} after {now - ib.pace.last:.2f} s "
+                                f"without a belief (newest: epoch {ib.stream}): the filter resumed (activated "
+                                "again?); decided")
+            else:
+                verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
+        ib.pace.heard(now)
         new = verdict in ("join", "next", "ahead")
         ib.watch.arrived(now, new, bel.epoch)
         if new:

@@ -29,7 +29,7 @@ from ..errors import OptionError
 from ..gate import PlannerSetup, build_planner
 from ..model import POMDP, format_bytes, priority_of
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
-from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
+from .epochs import BeliefPace, EpochLine, JoinWait, Liveness, Resender, off_stream_belief
 from .health import InputWatch, Level, Log, LoopHealth, Report
 from .samples import ActionSample, BeliefSample
 
@@ -198,6 +198,7 @@ class PlannerLoop:
         self.last: SearchResult | None = None
         self.last_params: dict[str, Any] = {}
         self.active = active
+        self._pace = BeliefPace()  # when beliefs come (a filter resuming after a pause)
         self.health.forget["belief"] = self._join_afresh
 
     def _join_afresh(self, now: float) -> None:
@@ -304,7 +305,13 @@ class PlannerLoop:
         since; it is woken anyway after a re-sync."""
         verdict = self.line.classify(bel.epoch)
         if verdict in ("next", "ahead") and bel.epoch > max(self._stream, self.line.position) + 1:
-            verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
+            if self._pace.resumed(now):
+                self.health.log("info", f"belief of epoch {bel.epoch} after {now - self._pace.last:.2f} s without "
+                                f"a belief (newest: epoch {self._stream}): the filter resumed (activated again?); "
+                                "planned")
+            else:
+                verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
+        self._pace.heard(now)
         new = verdict in ("join", "next", "ahead")
         self.health.watches[0].arrived(now, new, bel.epoch)
         if new:
