@@ -7,10 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from pomdp_planner.cli import main
 from pomdp_planner.core.io.model_yaml import load_model, save_model
 from pomdp_planner.core.model import POMDP
+from pomdp_planner.core.structure import short_belief
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 S3 = str(MODELS / "tracking_s3_info.yaml")
@@ -77,3 +79,27 @@ def test_check_malformed_model(tmp_path, capsys):
     assert "transition[0][0]" in err and "sums to 1.1" in err
     assert main(["check", str(tmp_path / "missing.yaml")]) == 2
     assert "MODEL: file " + str(tmp_path / "missing.yaml") + " does not exist" in capsys.readouterr().err
+
+
+def test_a_counterexample_belief_of_many_states_is_printed_by_its_nonzero_entries(tmp_path, capsys):
+    """A model of 30 states failing (A2): the counterexample's belief is its nonzero entries (a
+    counterexample of the exact small-support test has two), not 30 numbers over several lines."""
+    rng = np.random.default_rng(1)
+    S, A, Z = 30, 2, 3
+    doc = {"name": "random_s30", "discount": 0.9, "states": S, "actions": A, "observations": Z,
+           "transition": rng.dirichlet(np.ones(S) * 0.3, size=(A, S)).tolist(),
+           "observation": rng.dirichlet(np.ones(Z), size=(A, S)).tolist(),
+           "reward": rng.uniform(0, 1, size=(S, A)).tolist(), "uncertainty": {"function": "renyi2",
+                                                                             "weights": [0.5, 0.5]}}
+    path = tmp_path / "random_s30.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    main(["check", str(path)])
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "counterexample:" in ln]
+    assert len(lines) == 1 and "(S=30, the other 28 entries 0)" in lines[0] and len(lines[0]) < 300, lines
+    x = np.zeros(12)
+    x[[1, 5]] = [0.25, 0.75]
+    assert short_belief(x) == "{1: 0.25, 5: 0.75} (S=12, the other 10 entries 0)"
+    x = np.full(20, 0.05)
+    assert short_belief(x) == ("{0: 0.05, 1: 0.05, 2: 0.05, 3: 0.05, 4: 0.05, 5: 0.05} (S=20; the other 14 entries "
+                               "sum to 0.7)")
+    assert short_belief(np.array([0.5, 0.5, 0.0])) == "[0.5 0.5 0. ]"

@@ -319,6 +319,30 @@ def _project_simplex(X: np.ndarray) -> np.ndarray:
     return np.maximum(X - theta, 0.0)
 
 
+#: Longest belief a report prints in full; a longer one is printed by its largest entries.
+SHORT_BELIEF_STATES = 8
+SHORT_BELIEF_ENTRIES = 6
+
+
+def short_belief(x: np.ndarray) -> str:
+    """A belief as a report prints it, on one line: every entry (3 decimals) up to
+    :data:`SHORT_BELIEF_STATES` states; beyond, its nonzero entries by state (``{4: 0.406, 20:
+    0.594} (S=30, the other 28 entries 0)``), at most :data:`SHORT_BELIEF_ENTRIES` of them, the
+    largest, with the number and the sum of the others."""
+    x = np.asarray(x, dtype=float)
+    if x.size <= SHORT_BELIEF_STATES:
+        return np.array2string(x, precision=3, suppress_small=True, max_line_width=10**6)
+    nonzero = np.flatnonzero(np.abs(x) > 5e-4)
+    shown = nonzero[np.argsort(-x[nonzero], kind="stable")][:SHORT_BELIEF_ENTRIES]
+    shown = np.sort(shown)
+    text = "{" + ", ".join(f"{i}: {x[i]:.3g}" for i in shown) + "}"
+    rest = x.size - shown.size
+    rest_sum = float(x.sum() - x[shown].sum())
+    if rest_sum > 5e-4:
+        return f"{text} (S={x.size}; the other {rest} entries sum to {rest_sum:.3g})"
+    return f"{text} (S={x.size}, the other {rest} entries 0)"
+
+
 def _pair_counterexamples(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact minimum of ``x^T D x`` over the simplex points supported on 1 or 2 indices.
 
@@ -931,7 +955,7 @@ class AssumptionReport:
         worst = c.worst_refutation()
         if worst is not None:
             (a, j, z), x, val = worst
-            xs = np.array2string(np.asarray(x), precision=3, suppress_small=True, max_line_width=200)
+            xs = short_belief(x)
             lines.append(f"       counterexample: priorities ({a + 1},{a + 2}), j={j}, z={z}: belief x={xs} "
                          f"gives x^T D x = {val:.3g} < 0, so tau(x, {a + 2}, {z}) is not MLR-above "
                          f"tau(x, {a + 1}, {z}) (Lemma 1 (L2) fails)")
