@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pomdp_planner.cli import main
+from pomdp_planner.cli import main, plan
+from pomdp_planner.core import search_time
 from pomdp_planner.core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT, sample_beliefs, solve_bounds
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
@@ -19,6 +20,7 @@ from pomdp_planner.core.search import (
     check_time_budget,
     complete_tree_nodes,
 )
+from pomdp_planner.core.search_time import ANNOUNCE_SECONDS, MAX_SEARCH_SECONDS, search_notice, search_seconds
 
 MODELS = Path(__file__).resolve().parents[1] / "config" / "models"
 S3 = str(MODELS / "tracking_s3_info.yaml")
@@ -137,3 +139,37 @@ def test_plan_constant_fosd_vs_mlr_on_the_natural_s8_model(capsys: pytest.Captur
         assert d["bounds"]["constant"] == d["gate"]["constant"] == c and d["bounds"]["why"].startswith(c + ":")
     assert main(["plan", S8_NATURAL, "--belief", text, "--depth", "2", "--constant", "fosd"]) == 0
     assert "constant fosd" in capsys.readouterr().out  # the text output says which constant
+
+
+
+def test_a_long_default_search_is_announced_and_one_beyond_the_limit_refused(monkeypatch, capsys):
+    """``plan`` with the default depth on a model where it takes long: one line on stderr with the
+    expected time before the search (above ANNOUNCE_SECONDS), a refusal with the estimate above
+    MAX_SEARCH_SECONDS unless --no-limit. The thresholds are lowered here, so that a small model
+    shows both without a long search."""
+    model = S3
+    monkeypatch.setattr(search_time, "ANNOUNCE_SECONDS", 0.0)
+    assert main(["plan", model, "--belief", "uniform"]) == 0
+    out, err = capsys.readouterr()
+    expected = search_time.search_seconds(3, 3, 3, 3)
+    assert expected == complete_tree_nodes(3, 3, 3) * (search_time.NODE_SECONDS + 3 * search_time.STATE_SECONDS)
+    assert err.splitlines() == [
+        f"pomdp-planner plan: a search of depth 3 on this model (S=3, A=3, Z=3) is expected to take up to about "
+        f"{expected:.0f} s (820 belief nodes in the complete tree; branch-and-bound prunes some); --time-budget S "
+        "bounds it"]
+    assert out.startswith("action: priority ")
+    monkeypatch.setattr(plan, "MAX_SEARCH_SECONDS", 1e-6)
+    assert main(["plan", model, "--belief", "uniform"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("pomdp-planner: error: --depth: a search of depth 3 on this model ")
+    assert "more than the limit of 0 s; use --time-budget S (anytime search, stopped in time)" in err[0]
+    assert main(["plan", model, "--belief", "uniform", "--no-limit"]) == 0
+    assert main(["plan", model, "--belief", "uniform", "--time-budget", "0.05"]) == 0  # the anytime search: bounded
+
+
+def test_the_expected_time_tells_seconds_from_minutes_on_the_model_that_ran_98_s():
+    """S = 60, A = 8, Z = 60 at the default depth 3 (a 98 s search, unannounced, before): announced;
+    at depth 2 (0.1-0.2 s) not."""
+    assert ANNOUNCE_SECONDS < search_seconds(60, 8, 60, 3) < MAX_SEARCH_SECONDS
+    assert "is expected to take up to about 78 s (1.11e+08 belief nodes" in search_notice(60, 8, 60, 3, "--depth")
+    assert search_notice(60, 8, 60, 2, "--depth") == ""

@@ -18,8 +18,10 @@ output then says that no guarantee holds, and no decision is certified. Crossed 
 (lower > upper) are reported as such.
 
 Resource guards (checked before the search starts; a refusal is exit code 2 with the figures):
-a fixed depth whose complete tree has more than ``MAX_TREE_NODES`` (1e10) belief nodes is
-refused unless ``--no-limit``; a depth whose memory estimate exceeds ``--memory-budget`` (MiB,
+a fixed depth whose complete tree has more than ``MAX_TREE_NODES`` (1e10) belief nodes, or whose
+search is expected to take more than ``MAX_SEARCH_SECONDS`` (600 s, ``core/search_time.py``), is
+refused unless ``--no-limit``; one expected to take more than a few seconds is announced on
+stderr, with the expected time, before it starts; a depth whose memory estimate exceeds ``--memory-budget`` (MiB,
 default 1024) is refused with the deepest depth that fits; the anytime search's
 ``--max-depth`` is capped at that depth instead, and the output says so.
 
@@ -48,6 +50,7 @@ from ..core.search import (
     check_tree_size,
     deepest_depth_within_budget,
 )
+from ..core.search_time import MAX_SEARCH_SECONDS, search_notice
 from ._common import (
     add_belief_argument,
     add_json_argument,
@@ -119,6 +122,9 @@ def run(args: argparse.Namespace) -> int:
             check_tree_size(A, Z, depth, "--depth", hint="use --time-budget S (anytime search, stopped in time) "
                             "or --no-limit")
         check_search_memory(S, A, Z, depth, memory, "--depth")
+        notice = search_notice(S, A, Z, depth, "--depth", limit=None if args.no_limit else MAX_SEARCH_SECONDS,
+                               hint="use --time-budget S (anytime search, stopped in time), a smaller --depth, "
+                                    "or --no-limit")
     else:
         check_search_memory(S, A, Z, 1, memory, "--max-depth")  # refused if not even depth 1 fits
         fits = deepest_depth_within_budget(S, A, Z, max_depth, memory)
@@ -142,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json and not args.exhaustive and not setup.guaranteed:  # the text output has a "search:" line
         print(f"pomdp-planner plan: {setup.describe()}", file=sys.stderr)
     use_bounds = setup.pruning
+    if budget is None and notice:  # after the set-up's own lines, right before the search
+        print(f"pomdp-planner plan: {notice}; --time-budget S bounds it", file=sys.stderr, flush=True)
     if budget is not None:
         res = planner.plan(belief, max_depth=max_depth, time_budget=budget, use_bounds=use_bounds)
     else:
