@@ -168,6 +168,26 @@ def test_decisions_are_json_ready_with_priorities():
     assert set(data) >= {"lambda", "dual_bound", "gap", "lower_bound", "bound_guaranteed", "budget_use"}
 
 
+def test_beliefs_are_validated_once_at_the_boundary(monkeypatch):
+    """A decision validates its K beliefs once, one vectorised check per group of targets with the
+    same model (``check_belief_rows``), and never again inside the searches: not in any price's
+    evaluation, not for the posteriors of the lower bound."""
+    import pomdp_planner.core.multitarget.planner as planner_module
+    import pomdp_planner.core.search as search_module
+
+    singles, rows = [], []
+    real_single, real_rows = search_module.check_belief, planner_module.check_belief_rows
+    monkeypatch.setattr(search_module, "check_belief", lambda *a, **k: singles.append(1) or real_single(*a, **k))
+    monkeypatch.setattr(planner_module, "check_belief_rows", lambda *a, **k: rows.append(1) or real_rows(*a, **k))
+    problem = make_problem([PERIMETER, TRACKING] * 4, budget=4, discount=0.95)
+    for search in ("bnb", "exhaustive"):
+        planner = MultiTargetPlanner(problem, search=search, depth=2)
+        dec = planner.decide(_beliefs(problem, 3))
+        assert len(dec.prices) > 1 and singles == [] and len(rows) == 2  # two groups: one check each
+        rows.clear()
+    assert planner.evaluate(_beliefs(problem, 4), 0.5, 2).gap >= -1e-9 and singles == [] and len(rows) == 2
+
+
 def test_bad_input_names_the_field():
     problem = make_problem([PERIMETER, PERIMETER], budget=2)
     planner = MultiTargetPlanner(problem, depth=2)

@@ -6,32 +6,264 @@ integer capacity ``C``, find
 
     max_{a_1..a_K} sum_k v_k(a_k)   subject to   sum_k w_k(a_k) <= C,
 
-one action per target. Dynamic programming over the capacity: ``T_0(c) = 0`` and
-``T_k(c) = max_{a: w_k(a) <= c} T_{k-1}(c - w_k(a)) + v_k(a)`` for ``c = 0..C``; ``T_K(C)`` is the
-optimum and the maximisers, stored per ``(k, c)``, give the joint action back. Exact: the weights
-are integers, so feasibility is never decided up to rounding, and every joint action within the
-capacity is a path through the table. ``O(K A C)`` time (vectorised over ``c``), ``O(K C)``
-memory; ``C`` is at most the largest joint effort (:attr:`~.problem.MultiTargetProblem.knapsack_capacity`).
+one action per target. Two exact algorithms over the capacity ``c = 0..C`` give the same optimum
+and the same joint action (up to the order in which floating-point values are added):
 
-Ties: of equal values, the smallest action index (the highest priority) of the last target
-decided wins first; the result is deterministic. ``-inf`` values mark actions that may not be
-taken; if no joint action has a finite value the knapsack raises ``ValueError``.
+* :func:`solve_knapsack_reference`, dynamic programming target after target: ``T_0(c) = 0`` and
+  ``T_k(c) = max_{a: w_k(a) <= c} T_{k-1}(c - w_k(a)) + v_k(a)``; ``T_K(C)`` is the optimum and
+  the maximisers, stored per ``(k, c)``, give the joint action back. ``O(K A C)`` time, a Python
+  step per target.
+* the tree (:func:`solve_padded`'s default): the targets are leaves of a balanced binary tree and
+  every node holds its subtree's best value for every capacity (``P(c)``: the best total of its
+  targets within ``c``); a parent is the max-plus convolution of its children,
+  ``P(c) = max_{c_L + c_R = c} P_L(c_L) + P_R(c_R)``, computed for all nodes of a level at once,
+  so a decision costs ``log2 K`` vectorised steps instead of ``K`` Python steps. A level of ``m``
+  nodes whose children hold ``n`` capacities costs ``m n min(C + 1, 2n - 1)``: about ``3 K C
+  max_a w`` in all when the weights are small beside ``C`` (the planner's case). Where that
+  would exceed the target-by-target cost several times (large weights, e.g. fine fractional
+  efforts) the reference runs instead.
+
+Exact: the weights are integers, so feasibility is never decided up to rounding, and every
+joint action within the capacity is a path through either table.
+
+**Ties** (both algorithms): of the joint actions with the optimal value, the one whose *last*
+target's action index is the smallest (the highest priority), then the next-to-last's, and so
+on: the reverse-lexicographic minimum. The reference gets it by taking the first maximiser when
+it goes back from the last target; the tree by ranking, in every node, the joint actions it keeps
+for its capacities in that order, and preferring, among a parent's best splits, the one whose
+later half ranks first, then its earlier half. The result is deterministic. ``-inf`` values mark
+actions that may not be taken; if no joint action has a finite value the knapsack raises
+``ValueError``.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
 
+#: The tree runs when its element count is at most this multiple of the reference's
+#: (``K A (C + 1)``, plus :data:`STEP_ELEMENTS` per target for the reference's Python step) ...
+TREE_COST_FACTOR = 4.0
+#: ... and no level needs more than this many elements (the memory of one level's candidates).
+TREE_MAX_LEVEL_ELEMENTS = 1 << 22
+#: The reference's fixed cost per target, in array elements (a Python step of a few numpy calls).
+STEP_ELEMENTS = 4000
+METHODS = ("auto", "tree", "reference")
+_NO_RANK = np.iinfo(np.int64).max
 
-def solve_knapsack(values: Sequence[np.ndarray], weights: Sequence[np.ndarray], capacity: int
-                   ) -> tuple[float, tuple[int, ...]]:
+
+def padded(values: Sequence[np.ndarray], weights: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``(V, W)``: the targets' values and integer weights as ``K x max_k A_k`` arrays, the missing
+    actions of targets with fewer actions given the value ``-inf`` (never chosen) and weight 0."""
+    if len(values) != len(weights):
+        raise ValueError(f"values, weights: {len(values)} and {len(weights)} targets")
+    amax = max((np.asarray(v).size for v in values), default=1)
+    V = np.full((len(values), amax), -np.inf)
+    W = np.zeros((len(values), amax), dtype=np.int64)
+    for k, (v, w) in enumerate(zip(values, weights, strict=True)):
+        v = np.asarray(v, dtype=float)
+        w = np.asarray(w)
+        if v.shape != w.shape or v.ndim != 1 or v.size == 0:
+            raise ValueError(f"values[{k}], weights[{k}]: need one value and one weight per action")
+        if not np.issubdtype(w.dtype, np.integer):
+            raise ValueError(f"weights[{k}]: must be non-negative integers")
+        V[k, :v.size] = v
+        W[k, :w.size] = w
+    return V, W
+
+
+def solve_knapsack(values: Sequence[np.ndarray], weights: Sequence[np.ndarray], capacity: int,
+                   method: str = "auto") -> tuple[float, tuple[int, ...]]:
     """``(optimum, joint action)`` of the multiple-choice knapsack (module docstring).
 
     ``values[k]`` and ``weights[k]`` have one entry per action of target ``k`` (weights
-    non-negative integers); ``capacity`` a non-negative integer.
+    non-negative integers); ``capacity`` a non-negative integer. ``method``: :data:`METHODS`
+    (``"auto"`` picks the tree unless it would cost more, see the module docstring).
     """
+    if method == "reference":
+        return solve_knapsack_reference(values, weights, capacity)
+    V, W = padded(values, weights)
+    return solve_padded(V, W, capacity, method)
+
+
+def _checked(V: np.ndarray, W: np.ndarray, capacity: int, method: str) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """``(V, W, C, tree)``: the arrays checked, ``V`` set to ``-inf`` where an action is heavier than
+    the capacity, and whether the tree runs (module docstring)."""
+    C = int(capacity)
+    if C < 0:
+        raise ValueError(f"capacity: must be >= 0, got {capacity}")
+    if method not in METHODS:
+        raise ValueError(f"method: one of {', '.join(METHODS)}, got {method!r}")
+    V = np.asarray(V, dtype=float)
+    W = np.asarray(W)
+    if V.ndim != 2 or V.shape != W.shape or V.shape[1] == 0:
+        raise ValueError(f"values, weights: need two K x A arrays of one shape, got {V.shape} and {W.shape}")
+    if not np.issubdtype(W.dtype, np.integer) or np.any(W < 0):
+        raise ValueError("weights: must be non-negative integers")
+    if np.any(np.isnan(V)):
+        raise ValueError(f"values[{int(np.argwhere(np.isnan(V))[0, 0])}]: NaN")
+    if np.any(V == np.inf):
+        raise ValueError(f"values[{int(np.argwhere(V == np.inf)[0, 0])}]: +inf")
+    V = np.where(W <= C, V, -np.inf)  # an action heavier than the capacity is never within it
+    W = np.minimum(W, C + 1).astype(np.int64)
+    tree = V.shape[0] > 0 and (method == "tree" or (method == "auto" and _tree_pays(V.shape[0], V.shape[1],
+                                                                                      int(W.max()), C)))
+    return V, W, C, tree
+
+
+def solve_padded(V: np.ndarray, W: np.ndarray, capacity: int, method: str = "auto") -> tuple[float, tuple[int, ...]]:
+    """:func:`solve_knapsack` for values ``V`` and integer weights ``W`` given as ``K x A`` arrays
+    (:func:`padded`; ``-inf`` values are actions that may not be taken)."""
+    V, W, C, tree = _checked(V, W, capacity, method)
+    if V.shape[0] == 0:
+        return 0.0, ()
+    if not tree:
+        return solve_knapsack_reference(list(V), list(W), C)
+    return _solve_tree(V, W, C)
+
+
+def knapsack_optimum(V: np.ndarray, W: np.ndarray, capacity: int, method: str = "auto") -> float:
+    """The optimum of :func:`solve_padded` without the joint action: the tree's values only (no
+    ties to break, no way back), a few vectorised steps per level. Equal to ``solve_padded(V, W,
+    capacity)[0]`` (the same sums in the same order); ``ValueError`` where that raises."""
+    V, W, C, tree = _checked(V, W, capacity, method)
+    if V.shape[0] == 0:
+        return 0.0
+    if not tree:
+        return solve_knapsack_reference(list(V), list(W), C)[0]
+    val, n = _leaves(V, W, C)[:2]
+    while val.shape[0] > 1:
+        val, n = _merge_values(val, n, C)[:2]
+    return _finite(float(val[0, n - 1]))
+
+
+def _finite(optimum: float) -> float:
+    if not np.isfinite(optimum):
+        raise ValueError("no joint action within the capacity has a finite value")
+    return optimum
+
+
+def _tree_levels(K: int, wmax: int, C: int) -> list[tuple[int, int, int]]:
+    """``(nodes, n, columns)`` per level of the tree: ``n`` capacities per child, ``columns`` computed."""
+    m = 1 << max(K - 1, 0).bit_length()
+    n = min(C, wmax) + 1
+    out = []
+    while m > 1:
+        m //= 2
+        n2 = min(C, 2 * (n - 1)) + 1
+        out.append((m, n, 1 if m == 1 else n2))
+        n = n2
+    return out
+
+
+def _tree_pays(K: int, A: int, wmax: int, C: int) -> bool:
+    """The tree's cost (elements over all levels, and the largest level) against the reference's."""
+    levels = _tree_levels(K, wmax, C)
+    tree = K * A * (min(C, wmax) + 1) + sum(m * n * c for m, n, c in levels)  # the leaves, the levels
+    largest = max((m * n * c for m, n, c in levels), default=0)
+    return largest <= TREE_MAX_LEVEL_ELEMENTS and tree <= TREE_COST_FACTOR * K * (A * (C + 1) + STEP_ELEMENTS)
+
+
+def _dense_rank(node: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Ranks of the pairs ``(first, second)`` in lexicographic order within each ``node`` (equal
+    pairs equal ranks; increasing across nodes, which only the order within a node needs)."""
+    order = np.lexsort((second, first, node))
+    a, b, c = node[order], first[order], second[order]
+    new = np.ones(order.size, dtype=bool)
+    new[1:] = (a[1:] != a[:-1]) | (b[1:] != b[:-1]) | (c[1:] != c[:-1])
+    out = np.empty(order.size, dtype=np.int64)
+    out[order] = np.cumsum(new) - 1
+    return out
+
+
+def _leaves(V: np.ndarray, W: np.ndarray, C: int) -> tuple[np.ndarray, int, np.ndarray]:
+    """The tree's leaves, padded to a power of two (the extra targets: one action of value 0 and
+    weight 0): ``(values, n, actions)``, ``(Kp, n + 1)`` each, for the capacities ``0..n-1``: the
+    best value within each capacity and its action; of equal values the smallest index, which is
+    also the leaf's rank in the tie order. Column ``n`` holds ``-inf`` (actions: 0): where a split
+    would give a half a capacity outside its table, the gather reads it (:func:`_level_offsets`)."""
+    K = V.shape[0]
+    Kp = 1 << max(K - 1, 0).bit_length()
+    n = min(C, int(W.max())) + 1
+    M = np.where(W[:, :, None] <= np.arange(n), V[:, :, None], -np.inf)  # (K, A, n)
+    val = np.zeros((Kp, n + 1))
+    val[:K, :n] = M.max(axis=1)
+    val[:, n] = -np.inf
+    leaf = np.zeros((Kp, n + 1), dtype=np.int64)
+    leaf[:K, :n] = np.argmax(M == val[:K, None, :n], axis=1)
+    return val, n, leaf
+
+
+@functools.lru_cache(maxsize=256)
+def _level_offsets(m: int, n: int, n2: int) -> np.ndarray:
+    """Flat indices into a level's ``(2m, n + 1)`` table: entry ``[j, c, c_L]`` is the later half's
+    (row ``2j + 1``) value at ``c - c_L`` (column ``n``, the ``-inf`` one, where ``c - c_L`` is outside
+    ``0..n-1``), for ``c = 0..n2-1`` (the root, ``m = 1``: ``c = n2 - 1`` only) and ``c_L = 0..n-1``."""
+    cols = np.array([n2 - 1]) if m == 1 else np.arange(n2)
+    cR = cols[:, None] - np.arange(n)[None, :]
+    idx = np.where((cR >= 0) & (cR < n), cR, n)
+    out = (2 * np.arange(m) + 1)[:, None, None] * (n + 1) + idx[None, :, :]
+    out.setflags(write=False)
+    return out
+
+
+def _merge_values(val: np.ndarray, n: int, C: int) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+    """One level up: ``(values, n2, X, offsets)``; ``X[j, c, c_L] = P_L(c_L) + P_R(c - c_L)`` for the
+    pairs of rows ``(2j, 2j + 1)`` of ``val`` and the parents' best values ``max_{c_L} X`` (with
+    their ``-inf`` column)."""
+    m = val.shape[0] // 2
+    n2 = min(C, 2 * (n - 1)) + 1
+    offsets = _level_offsets(m, n, n2)
+    X = np.take(val, offsets)
+    X += val[0::2, None, :n]
+    cols = offsets.shape[1]
+    out = np.empty((m, cols + 1))
+    X.max(axis=2, out=out[:, :cols])
+    out[:, cols] = -np.inf
+    return out, (1 if m == 1 else n2), X, offsets
+
+
+def _solve_tree(V: np.ndarray, W: np.ndarray, C: int) -> tuple[float, tuple[int, ...]]:
+    """The tree of the module docstring (``V`` already ``-inf`` above the capacity)."""
+    val, n, leaf = _leaves(V, W, C)
+    K, Kp = V.shape[0], val.shape[0]
+    rank = leaf.copy()
+    rank[:, n] = _NO_RANK
+    splits: list[np.ndarray] = []
+    root = n - 1  # the capacity of the root's column (a lone leaf: its last)
+    while val.shape[0] > 1:
+        m = val.shape[0] // 2
+        root = min(C, 2 * (n - 1))
+        parent, n2, X, offsets = _merge_values(val, n, C)
+        # Of the best splits, the one whose later half ranks first, then its earlier half.
+        tied = X == parent[:, :-1, None]
+        kR = np.where(tied, np.take(rank, offsets), _NO_RANK)
+        tied &= kR == kR.min(axis=2)[:, :, None]
+        split = np.argmin(np.where(tied, rank[0::2, None, :n], _NO_RANK), axis=2)  # (m, columns): c_L
+        splits.append(split)
+        if m > 1:  # the parents' ranks: their joint actions (later half, earlier half) in that order
+            rows = np.arange(m)[:, None] * (2 * (n + 1))
+            first = np.take(rank, rows + (n + 1) + (np.arange(n2)[None, :] - split))
+            second = np.take(rank, rows + split)
+            rank = np.empty((m, n2 + 1), dtype=np.int64)
+            rank[:, :n2] = _dense_rank(np.repeat(np.arange(m), n2), first.ravel(), second.ravel()).reshape(m, n2)
+            rank[:, n2] = _NO_RANK
+        val, n = parent, n2
+    optimum = _finite(float(val[0, 0 if splits else root]))
+    # Back down the tree: every node's capacity, split into its halves'.
+    caps = np.array([root], dtype=np.int64)
+    for level, split in enumerate(reversed(splits)):
+        left = split[np.arange(split.shape[0]), 0 if level == 0 else caps]
+        caps = np.stack([left, caps - left], axis=1).ravel()
+    actions = leaf[np.arange(Kp), caps][:K]
+    return optimum, tuple(int(a) for a in actions)
+
+
+def solve_knapsack_reference(values: Sequence[np.ndarray], weights: Sequence[np.ndarray], capacity: int
+                             ) -> tuple[float, tuple[int, ...]]:
+    """The target-by-target dynamic programme (module docstring): the tree's reference."""
     C = int(capacity)
     if C < 0:
         raise ValueError(f"capacity: must be >= 0, got {capacity}")
