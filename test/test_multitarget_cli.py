@@ -22,6 +22,7 @@ import pytest
 
 from pomdp_planner.bench.multitarget import BOUND_CASES, REGRET_CASES, MultiBenchConfig, run_multitarget_bench
 from pomdp_planner.cli import main
+from pomdp_planner.cli.simulate_targets import _Row, bound_line
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.multitarget.policies import make_joint_policy
 from pomdp_planner.core.multitarget.problem import make_problem
@@ -94,6 +95,27 @@ def test_simulate_targets_text_and_json():
     assert all(s["effort"] <= 1.5 and s["within_budget"] for s in data["steps"])
     assert all({"lambda", "dual_bound", "gap", "priorities"} <= set(s) for s in data["steps"])
     assert data["summary"]["budget_violations"] == 0
+
+
+def test_every_bound_in_the_text_output_names_its_depth():
+    """Fixed depth: the header names the lookahead (depth and decisions) and every row's depth
+    column is that depth. Anytime: the header says the depth varies (the deepest completed within
+    the time budget) and every row's depth column is its decision's own depth."""
+    code, out, err = run_cli("simulate", "--targets", "perimeter_s3,perimeter_s3", "--budget", "2", "--steps", "3",
+                             "--option", "search=exhaustive")
+    assert code == 0, err
+    assert "upper bound on the optimal value of the depth-2 joint lookahead (3 decisions" in out
+    header = next(line.split() for line in out.splitlines() if line.startswith("step"))
+    rows = [line.split() for line in out.splitlines() if line[:4].strip().isdigit()]
+    depth = header.index("depth") + 1  # the priorities take K = 2 cells
+    assert len(rows) == 3 and all(r[depth] == "2" for r in rows)
+    problem = make_problem([PERIMETER, TRACKING], budget=1, discount=0.95)
+    policy = make_joint_policy("lagrangian", problem, time_budget=0.02, max_depth=4)
+    line = _Row(problem, 5)
+    assert "deepest depth completed within the time budget of 0.02 s" in bound_line(policy.planner)
+    steps, _ = simulate_targets(problem, policy, 5, seed=1)
+    for st in steps:
+        assert line.line(st).split()[depth] == str(st.decision.depth)
 
 
 def test_target_models_resolve_like_every_model_argument():

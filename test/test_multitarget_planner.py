@@ -23,7 +23,7 @@ from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.multitarget.dual import lambda_ceiling
-from pomdp_planner.core.multitarget.planner import MultiTargetPlanner
+from pomdp_planner.core.multitarget.planner import DEFAULT_JOINT_DEPTH, MultiTargetPlanner
 from pomdp_planner.core.multitarget.policies import joint_policy_names, make_joint_policy
 from pomdp_planner.core.multitarget.problem import make_problem
 
@@ -186,6 +186,18 @@ def test_beliefs_are_validated_once_at_the_boundary(monkeypatch):
         assert len(dec.prices) > 1 and singles == [] and len(rows) == 2  # two groups: one check each
         rows.clear()
     assert planner.evaluate(_beliefs(problem, 4), 0.5, 2).gap >= -1e-9 and singles == [] and len(rows) == 2
+
+
+def test_every_joint_policy_looks_ahead_to_one_default_depth():
+    """The planner, the fixed price, the equal split and the exact joint planner compare like with
+    like unless told otherwise: one default depth."""
+    problem = make_problem([PERIMETER, TRACKING], budget=1, discount=0.95)
+    depths = {"lagrangian": make_joint_policy("lagrangian", problem).planner.depth,
+              "fixed_price": make_joint_policy("fixed_price", problem, price=0.5).planner.depth,
+              "equal_split": make_joint_policy("equal_split", problem).depth,
+              "exact_joint": make_joint_policy("exact_joint", problem).planner.depth,
+              "library": MultiTargetPlanner(problem).depth}
+    assert set(depths.values()) == {DEFAULT_JOINT_DEPTH}, depths
 
 
 def test_bad_input_names_the_field():

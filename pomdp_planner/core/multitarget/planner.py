@@ -87,6 +87,9 @@ PRICE_RANGE = (0.0, 1e9)
 #: Most evaluations of ``U(lambda)`` (each one search per target) per depth, and the default.
 MAX_EVALUATIONS_RANGE = (2, 200)
 DEFAULT_EVALUATIONS = 12
+#: The lookahead depth of every joint policy unless one is given (the planner, the fixed price, the
+#: equal split and the exact joint planner alike, so their bounds and values compare like with like).
+DEFAULT_JOINT_DEPTH = 2
 
 
 @dataclass(frozen=True)
@@ -236,7 +239,8 @@ class MultiTargetPlanner:
     """Per-epoch decisions for a :class:`~.problem.MultiTargetProblem` (module docstring).
 
     ``search``: :data:`SEARCH_MODES` (``"bnb"``: prune where the gate allows, ``"exhaustive"``:
-    never prune; only then is the dual bound guaranteed). ``depth``: the fixed depth (default 3),
+    never prune; only then is the dual bound guaranteed). ``depth``: the fixed depth (default
+    :data:`DEFAULT_JOINT_DEPTH`),
     or ``time_budget`` seconds for the anytime search up to ``max_depth``. ``max_evaluations``:
     evaluations of ``U(lambda)`` per depth. ``price``: a fixed price (no search for it; the
     baseline "per-target search at an a-priori price"). ``variant``, ``constant``,
@@ -244,7 +248,7 @@ class MultiTargetPlanner:
     depth; ``memory_budget`` per search; ``clock`` for deadlines (injectable).
     """
 
-    def __init__(self, problem: MultiTargetProblem, *, search: str = "bnb", depth: int = 3,
+    def __init__(self, problem: MultiTargetProblem, *, search: str = "bnb", depth: int = DEFAULT_JOINT_DEPTH,
                  time_budget: float | None = None, max_depth: int = 10,
                  max_evaluations: int = DEFAULT_EVALUATIONS, price: float | None = None,
                  variant: str = "tight", constant: str = DEFAULT_CONSTANT, prune_without_guarantee: bool = False,
@@ -274,6 +278,9 @@ class MultiTargetPlanner:
         self._members = tuple(np.array(g, dtype=np.intp) for g in self._groups)
         # Every target's efforts as one K x max_k A_k table (the knapsack's), integer units and effort.
         width = max(m.A for m in problem.models)
+        self._capacity = problem.knapsack_capacity
+        self._binds = problem.budget_binds
+        self._ceilings: dict[int, float] = {}  # per depth
         self._units = np.zeros((problem.K, width), dtype=np.int64)
         self._effort_table = np.zeros((problem.K, width))
         for k, (u, e) in enumerate(zip(problem.units, self.efforts, strict=True)):
@@ -393,7 +400,7 @@ class MultiTargetPlanner:
         return self._joint(stacks, ev, depth, ((ev.lam, ev.upper),), None)
 
     def _decide_at(self, stacks: list[np.ndarray], depth: int, lam0: float, deadline: float | None) -> JointDecision:
-        if not self.problem.budget_binds:
+        if not self._binds:
             return self._independent(stacks, depth, deadline)
         if self.fixed_price is not None:
             ev = self._evaluate(stacks, self.fixed_price, depth, deadline)
@@ -404,7 +411,10 @@ class MultiTargetPlanner:
             seen[lam] = self._evaluate(stacks, lam, depth, deadline)
             return seen[lam].upper
 
-        ceiling = lambda_ceiling(self.problem.models, list(self.efforts), depth)
+        ceiling = self._ceilings.get(depth)
+        if ceiling is None:  # one term per group of targets with one model and one list of efforts
+            ceiling = self._ceilings[depth] = lambda_ceiling([self.problem.models[g[0]] for g in self._groups],
+                                                             [self.efforts[g[0]] for g in self._groups], depth)
         found = minimise_convex(upper, ceiling, lam0, self.max_evaluations)
         return self._joint(stacks, seen[found.x], depth, found.evaluations, deadline)
 
@@ -425,7 +435,7 @@ class MultiTargetPlanner:
                                                      checked=True)
             V[idx, :Q.shape[1]] = Q + lam * self.efforts[k0]
             top[idx] = Q.max(axis=1)
-        knap = knapsack_optimum(V, self._units, p.knapsack_capacity)
+        knap = knapsack_optimum(V, self._units, self._capacity)
         B, g = float(p.budget), p.gamma
         upper = knap + lam * B * horizon_sum(g, 1, depth)
         lagrangian = float(sum(top.tolist())) + lam * B * horizon_sum(g, 0, depth)
@@ -435,7 +445,7 @@ class MultiTargetPlanner:
                deadline: float | None) -> JointDecision:
         """The decision of one evaluation: its joint action (the knapsack's, ties as
         :mod:`.knapsack` breaks them), with the lower bound of that joint action."""
-        _, actions = solve_padded(ev.values, self._units, self.problem.knapsack_capacity)
+        _, actions = solve_padded(ev.values, self._units, self._capacity)
         lower, shares = self._lower_bounds(stacks, actions, depth, deadline)
         scale = self.problem.scale
         bounds: list[tuple[int, int] | None] = [None] * self.problem.K
@@ -451,8 +461,12 @@ class MultiTargetPlanner:
                         for k, (a, s) in enumerate(zip(actions, self.setups, strict=True)))
         total = float(sum(lower))
         return JointDecision(actions, ev.lam, ev.upper, ev.lagrangian, total, ev.upper - total,
-                             self.bound_guaranteed, self.problem.budget, self.problem.effort_of(actions),
-                             self.problem.budget_binds, depth, targets, tuple(prices))
+                             self.bound_guaranteed, self.problem.budget, self._effort(actions),
+                             self._binds, depth, targets, tuple(prices))
+
+    def _effort(self, actions: Sequence[int]) -> Fraction:
+        """``sum_k e_k(a_k)``, exactly (integer units over the common denominator)."""
+        return Fraction(int(self._units[np.arange(self.problem.K), np.asarray(actions)].sum()), self.problem.scale)
 
     def _independent(self, stacks: list[np.ndarray], depth: int, deadline: float | None) -> JointDecision:
         """A budget that cannot bind: K independent searches, price 0, gap 0 (module docstring)."""
@@ -496,6 +510,6 @@ class MultiTargetPlanner:
                                                     checked=True).max(axis=1)
                 items[idx, j] = heads + model.gamma * np.bincount(owner, weights=weights * cont, minlength=n)
             levels[idx, :group_levels.size] = group_levels
-        _, choice = solve_padded(items, levels, p.knapsack_capacity)
+        _, choice = solve_padded(items, levels, self._capacity)
         rows = np.arange(p.K)
         return items[rows, choice].tolist(), levels[rows, choice]
