@@ -153,7 +153,7 @@ def test_bad_multitarget_input_is_one_line_naming_the_field(argv, field):
 
 def test_bench_json_has_the_figures_with_zero_violations():
     tiny = MultiBenchConfig(bound_beliefs=3, bound_prices=1, episodes=2, steps=3, scaling_targets=(2, 4),
-                            scaling_decisions=1, time_budget=0.05,
+                            scaling_decisions=1, time_budget=0.05, tie_episodes=1,
                             bound_cases=(BOUND_CASES[0],), regret_cases=(REGRET_CASES[1],))
     result = run_multitarget_bench(tiny)
     assert result["budget_violations"] == 0
@@ -165,7 +165,19 @@ def test_bench_json_has_the_figures_with_zero_violations():
     assert set(regret) >= {"lagrangian (bnb)", "greedy", "round_robin", "equal_split", "fixed_price"}
     assert all(len(r["ci"]) == 2 for r in regret.values())
     assert set(result["decision_ms"]) == {"2", "4"}
+    assert all(r["decision_cpu_ms"] > 0 and r["decision_wall_ms"] > 0 for r in result["scaling"])
+    assert result["machine"]["cores"] >= 1 and len(result["machine"]["load_average"]) == 3
+    case = result["regret"][0]
+    assert [(p["first"], p["second"]) for p in case["paired"]] == [
+        ("fixed_price", "lagrangian (exhaustive)"), ("lagrangian (lower-bound ties)", "lagrangian (exhaustive)"),
+        ("lagrangian (lower-bound ties)", "fixed_price")]
+    returns = {label: row["return"]["mean"] for label, row in case["policies"].items()}
+    assert case["paired"][0]["difference"]["mean"] == pytest.approx(returns["fixed_price"]
+                                                                    - returns["lagrangian (exhaustive)"])
+    assert case["ties"]["decisions"] == 1 * 3 and case["ties"]["differing"] >= 0
     json.dumps(result)
+    only = run_multitarget_bench(tiny, parts=("scaling",))
+    assert "scaling" in only and "regret" not in only and "bounds" not in only
 
 
 def test_bench_command_line_refuses_bad_options(tmp_path):
@@ -173,3 +185,7 @@ def test_bench_command_line_refuses_bad_options(tmp_path):
     assert code == 2 and "--episodes" in err
     code, _, err = run_cli("bench", "multitarget", "--quick", "--json", str(tmp_path / "missing" / "x.json"))
     assert code == 2 and "--json" in err
+    code, _, err = run_cli("bench", "multitarget", "--quick", "--only", "scaling,nope")
+    assert code == 2 and "--only" in err
+    code, _, err = run_cli("bench", "multitarget", "--quick", "--only", "bounds", "--plot", str(tmp_path / "p.png"))
+    assert code == 2 and "--plot" in err

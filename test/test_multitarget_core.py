@@ -22,6 +22,7 @@ from pomdp_planner.core.multitarget.dual import lambda_ceiling, minimise_convex,
 from pomdp_planner.core.multitarget.knapsack import (
     _tree_pays,
     knapsack_optimum,
+    near_optimal,
     padded,
     solve_knapsack,
     solve_knapsack_reference,
@@ -176,6 +177,26 @@ def test_the_tree_runs_where_it_pays_and_the_reference_elsewhere():
     weights = [np.array([10**5, 40000, 0]), np.array([10**5, 70000, 0])] * 2
     want = (8.0, (0, 2, 0, 0))  # (0, 0, 0, 2) ties: the last target takes the smallest action
     assert solve_knapsack(values, weights, 300000) == solve_knapsack_reference(values, weights, 300000) == want
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.data())
+def test_near_optimal_joint_actions_are_exactly_those_within_the_tolerance(data):
+    values, weights, capacity = draw_problem(data)
+    tolerance = data.draw(st.sampled_from([0.0, 0.5, 1.0, 2.5]))
+    try:
+        best, first = reverse_lexicographic_optimum(values, weights, capacity)
+    except ValueError:
+        return
+    if not np.isfinite(best):
+        return
+    want = {j for j in itertools.product(*(range(len(v)) for v in values))
+            if sum(int(weights[k][a]) for k, a in enumerate(j)) <= capacity
+            and sum(values[k][a] for k, a in enumerate(j)) >= best - tolerance}
+    V, W = padded(values, weights)
+    got = near_optimal(V, W, capacity, tolerance, 10**6)
+    assert got[0] == first and len(set(got)) == len(got) and set(got) == want
+    assert near_optimal(V, W, capacity, tolerance, 2) == got[:2]  # the limit keeps the search's first ones
 
 
 def test_knapsack_refuses_an_impossible_capacity():

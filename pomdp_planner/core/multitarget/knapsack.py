@@ -261,6 +261,50 @@ def _solve_tree(V: np.ndarray, W: np.ndarray, C: int) -> tuple[float, tuple[int,
     return optimum, tuple(int(a) for a in actions)
 
 
+def near_optimal(V: np.ndarray, W: np.ndarray, capacity: int, tolerance: float, limit: int
+                 ) -> list[tuple[int, ...]]:
+    """The joint actions within ``capacity`` whose value is at least the optimum minus ``tolerance``,
+    at most ``limit`` of them: the first is the optimum the tie rule picks (exact arithmetic), the
+    others follow in the order of a depth-first search from the last target that tries each
+    target's actions from the least loss to the greatest (ties: index order). ``V``, ``W`` as in
+    :func:`solve_padded`.
+
+    The reference's tables ``T_k(c)`` (the best value of the first ``k`` targets within ``c``) make
+    the search exact: a partial choice of the last targets is continued only while its value plus
+    the best completion, ``T_k(c)``, stays within the tolerance, so every joint action the search
+    reaches qualifies and every qualifying one is reached (until ``limit``). ``O(K A C)`` for the
+    tables, ``O(limit K A)`` steps for the search."""
+    V, W, C, _ = _checked(V, W, capacity, "reference")
+    K, A = V.shape
+    if K == 0:
+        return [()]
+    c = np.arange(C + 1)
+    T = np.zeros((K + 1, C + 1))
+    for k in range(K):
+        shifted = c[None, :] - W[k][:, None]
+        T[k + 1] = np.where(shifted >= 0, T[k][np.maximum(shifted, 0)] + V[k][:, None], -np.inf).max(axis=0)
+    _finite(float(T[K, C]))
+    rows_V, rows_W, table = V.tolist(), W.tolist(), T.tolist()
+    out: list[tuple[int, ...]] = []
+    stack: list[tuple[int, int, float, tuple[int, ...]]] = [(K, C, 0.0, ())]  # (targets left, capacity, loss, tail)
+    while stack and len(out) < limit:
+        k, cap, loss, tail = stack.pop()
+        if k == 0:
+            out.append(tail)
+            continue
+        best = table[k][cap]
+        follow = []
+        for a in range(A):
+            w, v = rows_W[k - 1][a], rows_V[k - 1][a]
+            if w > cap or v == -np.inf:
+                continue
+            extra = best - (table[k - 1][cap - w] + v)
+            if loss + extra <= tolerance:
+                follow.append((extra, a, (k - 1, cap - w, loss + max(extra, 0.0), (a, *tail))))
+        stack.extend(item for _, _, item in sorted(follow, reverse=True))  # popped: the least loss first
+    return out
+
+
 def solve_knapsack_reference(values: Sequence[np.ndarray], weights: Sequence[np.ndarray], capacity: int
                              ) -> tuple[float, tuple[int, ...]]:
     """The target-by-target dynamic programme (module docstring): the tree's reference."""

@@ -77,7 +77,7 @@ from ..options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_tim
 from ..policies import search_guards
 from ..search import DEFAULT_MEMORY_BUDGET, DeadlineExceeded, next_depth_cannot_finish
 from .dual import horizon_sum, lambda_ceiling, minimise_convex
-from .knapsack import knapsack_optimum, solve_padded
+from .knapsack import knapsack_optimum, near_optimal, solve_padded
 from .problem import MultiTargetProblem
 
 #: How the per-target searches run: branch-and-bound where the gate allows it, or exhaustive.
@@ -90,6 +90,14 @@ DEFAULT_EVALUATIONS = 12
 #: The lookahead depth of every joint policy unless one is given (the planner, the fixed price, the
 #: equal split and the exact joint planner alike, so their bounds and values compare like with like).
 DEFAULT_JOINT_DEPTH = 2
+#: How the joint action is chosen among the knapsack's near-ties at the chosen price (class docstring).
+TIE_BREAKS = ("knapsack", "lower_bound")
+DEFAULT_TIE_BREAK = "knapsack"
+#: Joint actions within this much of the knapsack's optimum count as tied (``tie_break="lower_bound"``).
+DEFAULT_TIE_TOLERANCE = 1e-3
+TIE_TOLERANCE_RANGE = (0.0, 1e9)
+#: Most tied joint actions whose lower bounds are compared.
+TIE_CANDIDATES = 16
 
 
 @dataclass(frozen=True)
@@ -240,12 +248,20 @@ class MultiTargetPlanner:
 
     ``search``: :data:`SEARCH_MODES` (``"bnb"``: prune where the gate allows, ``"exhaustive"``:
     never prune; only then is the dual bound guaranteed). ``depth``: the fixed depth (default
-    :data:`DEFAULT_JOINT_DEPTH`),
-    or ``time_budget`` seconds for the anytime search up to ``max_depth``. ``max_evaluations``:
-    evaluations of ``U(lambda)`` per depth. ``price``: a fixed price (no search for it; the
-    baseline "per-target search at an a-priori price"). ``variant``, ``constant``,
-    ``prune_without_guarantee`` go to the gate; ``no_limit`` lifts the tree-size guard of a fixed
-    depth; ``memory_budget`` per search; ``clock`` for deadlines (injectable).
+    :data:`DEFAULT_JOINT_DEPTH`), or ``time_budget`` seconds for the anytime search up to
+    ``max_depth``. ``max_evaluations``: evaluations of ``U(lambda)`` per depth. ``price``: a fixed
+    price (no search for it; the baseline "per-target search at an a-priori price"). ``variant``,
+    ``constant``, ``prune_without_guarantee`` go to the gate; ``no_limit`` lifts the tree-size
+    guard of a fixed depth; ``memory_budget`` per search; ``clock`` for deadlines (injectable).
+
+    ``tie_break``: :data:`TIE_BREAKS`. ``"knapsack"``: the knapsack's optimum at the chosen price
+    (its tie rule, :mod:`.knapsack`). ``"lower_bound"``: of the joint actions whose knapsack value
+    is within ``tie_tolerance`` of the optimum (at most :data:`TIE_CANDIDATES`), the one with the
+    greatest lower bound (the value of its fixed-share continuation; ties: the knapsack's).
+    At the price that minimises the bound the knapsack's best joint actions are often near-ties
+    (the price sits where the relaxed problem is indifferent between them), and their true values
+    can differ far more than their knapsack values. Neither rule changes the dual bound; the gap
+    is always that of the joint action chosen (``dual_bound - lower_bound``).
     """
 
     def __init__(self, problem: MultiTargetProblem, *, search: str = "bnb", depth: int = DEFAULT_JOINT_DEPTH,
@@ -253,8 +269,11 @@ class MultiTargetPlanner:
                  max_evaluations: int = DEFAULT_EVALUATIONS, price: float | None = None,
                  variant: str = "tight", constant: str = DEFAULT_CONSTANT, prune_without_guarantee: bool = False,
                  no_limit: bool = False, memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                 clock: Callable[[], float] = time.perf_counter):
+                 clock: Callable[[], float] = time.perf_counter, tie_break: str = DEFAULT_TIE_BREAK,
+                 tie_tolerance: float = DEFAULT_TIE_TOLERANCE):
         check_choice(search, SEARCH_MODES, "search")
+        self.tie_break = check_choice(tie_break, TIE_BREAKS, "tie_break")
+        self.tie_tolerance = check_number(tie_tolerance, "tie_tolerance", *TIE_TOLERANCE_RANGE)
         self.problem = problem
         self.search_mode = search
         self.clock = clock
@@ -446,7 +465,12 @@ class MultiTargetPlanner:
         """The decision of one evaluation: its joint action (the knapsack's, ties as
         :mod:`.knapsack` breaks them), with the lower bound of that joint action."""
         _, actions = solve_padded(ev.values, self._units, self._capacity)
-        lower, shares = self._lower_bounds(stacks, actions, depth, deadline)
+        candidates = [actions]
+        if self.tie_break == "lower_bound" and self.tie_tolerance > 0.0:
+            candidates += [a for a in near_optimal(ev.values, self._units, self._capacity, self.tie_tolerance,
+                                                   TIE_CANDIDATES) if a != actions]
+        best, lower, shares = self._lower_bounds(stacks, candidates, depth, deadline)
+        actions = candidates[best]
         scale = self.problem.scale
         bounds: list[tuple[int, int] | None] = [None] * self.problem.K
         for stack, members in zip(stacks, self._groups, strict=True):
@@ -481,35 +505,47 @@ class MultiTargetPlanner:
         return JointDecision(actions, 0.0, total, total, total, 0.0, self.bound_guaranteed, self.problem.budget,
                              self.problem.effort_of(actions), False, depth, targets, ((0.0, total),))
 
-    def _lower_bounds(self, stacks: list[np.ndarray], actions: tuple[int, ...], depth: int,
-                      deadline: float | None) -> tuple[list[float], np.ndarray]:
-        """The value of the best fixed-share continuation after ``actions`` (module docstring):
-        per target and share level ``beta`` (an effort of the target), the root action followed by
-        the target's own depth ``d - 1`` search on its model restricted to ``e_k <= beta`` (the
-        children of every target of a group in one batch); the shares by a knapsack
-        (``sum_k beta_k <= B``). Returns the per-target values and shares (in units)."""
+    def _lower_bounds(self, stacks: list[np.ndarray], candidates: Sequence[tuple[int, ...]], depth: int,
+                      deadline: float | None) -> tuple[int, list[float], np.ndarray]:
+        """The value of the best fixed-share continuation after each candidate joint action (module
+        docstring): per target, action and share level ``beta`` (an effort of the target), the root
+        action followed by the target's own depth ``d - 1`` search on its model restricted to
+        ``e_k <= beta`` (the children of every target of a group, for every action some candidate
+        gives it, in one batch); the shares by a knapsack (``sum_k beta_k <= B``). Returns the index
+        of the candidate with the greatest value (ties: the first), and its per-target values and
+        shares (in units)."""
         p = self.problem
+        chosen = np.asarray(candidates, dtype=np.intp).reshape(len(candidates), p.K)
         width = max(np.unique(u).size for u in p.units)
-        items = np.full((p.K, width), -np.inf)
+        items = np.full((len(candidates), p.K, width), -np.inf)
         levels = np.zeros((p.K, width), dtype=np.int64)
-        chosen = np.asarray(actions, dtype=np.intp)
         for stack, members, idx in zip(stacks, self._groups, self._members, strict=True):
             model = p.models[members[0]]
             n = len(members)
-            acts = chosen[idx]
+            keys, pair = np.unique(np.arange(n)[None, :] * model.A + chosen[:, idx], return_inverse=True)
+            rows, acts = keys // model.A, keys % model.A  # every (target, action) some candidate needs
             tau, eta = posteriors_all(model, stack)  # (n, A, Z, S), (n, A, Z)
-            tau, eta = tau[np.arange(n), acts], eta[np.arange(n), acts]  # the chosen action's branches
+            tau, eta = tau[rows, acts], eta[rows, acts]  # their branches
             possible = eta > ETA_MIN
-            children, weights = tau[possible], eta[possible]  # in (target, observation) order
-            owner = np.repeat(np.arange(n), possible.sum(axis=1))
-            heads = model.rho(stack)[np.arange(n), acts]
+            children, weights = tau[possible], eta[possible]  # in (pair, observation) order
+            owner = np.repeat(np.arange(keys.size), possible.sum(axis=1))
+            heads = model.rho(stack)[rows, acts]
             group_levels = np.unique(p.units[members[0]])
+            values = np.empty((keys.size, group_levels.size))
             for j, level in enumerate(group_levels):
                 setup, _ = self._restricted.get(members[0], int(level))
                 cont = setup.planner.q_values_batch(children, depth - 1, setup.pruning, deadline=deadline,
                                                     checked=True).max(axis=1)
-                items[idx, j] = heads + model.gamma * np.bincount(owner, weights=weights * cont, minlength=n)
+                values[:, j] = heads + model.gamma * np.bincount(owner, weights=weights * cont, minlength=keys.size)
+            items[:, idx, :group_levels.size] = values[pair.reshape(len(candidates), n)]
             levels[idx, :group_levels.size] = group_levels
-        _, choice = solve_padded(items, levels, self._capacity)
-        rows = np.arange(p.K)
-        return items[rows, choice].tolist(), levels[rows, choice]
+        target_rows = np.arange(p.K)
+        best: tuple[float, int, list[float], np.ndarray] | None = None
+        for i in range(len(candidates)):
+            _, choice = solve_padded(items[i], levels, self._capacity)
+            lower = items[i, target_rows, choice].tolist()
+            total = float(sum(lower))
+            if best is None or total > best[0]:
+                best = (total, i, lower, levels[target_rows, choice])
+        assert best is not None
+        return best[1], best[2], best[3]

@@ -28,12 +28,22 @@ import numpy as np
 
 from ..belief import start_belief, uniform_belief
 from ..bounds import BOUND_VARIANTS, DEFAULT_CONSTANT, check_constant, check_variant
-from ..checks import check_choice, parse_flag
+from ..checks import check_choice, check_number, parse_flag
 from ..options import MAX_DEPTH_RANGE, check_depth
 from ..policies import table_entry
 from .joint_exact import ExactJointPlanner
 from .knapsack import solve_knapsack
-from .planner import DEFAULT_JOINT_DEPTH, SEARCH_MODES, JointDecision, MultiTargetPlanner, RestrictedPlanners
+from .planner import (
+    DEFAULT_JOINT_DEPTH,
+    DEFAULT_TIE_BREAK,
+    DEFAULT_TIE_TOLERANCE,
+    SEARCH_MODES,
+    TIE_BREAKS,
+    TIE_TOLERANCE_RANGE,
+    JointDecision,
+    MultiTargetPlanner,
+    RestrictedPlanners,
+)
 from .problem import MultiTargetProblem
 
 
@@ -147,7 +157,13 @@ def _planner(problem: MultiTargetProblem, opts: Mapping[str, Any], price: float 
     return MultiTargetPlanner(problem, search=_search(opts), depth=opts.get("depth", DEFAULT_JOINT_DEPTH),
                               time_budget=opts.get("time_budget"), max_depth=opts.get("max_depth", 10),
                               max_evaluations=opts.get("max_evaluations", 12), price=price,
-                              no_limit=_flag(opts, "no_limit"), **_gate(opts))
+                              no_limit=_flag(opts, "no_limit"), **_ties(opts), **_gate(opts))
+
+
+def _ties(opts: Mapping[str, Any]) -> dict[str, Any]:
+    return {"tie_break": check_choice(opts.get("tie_break", DEFAULT_TIE_BREAK), TIE_BREAKS, "option tie_break"),
+            "tie_tolerance": check_number(opts.get("tie_tolerance", DEFAULT_TIE_TOLERANCE), "option tie_tolerance",
+                                          *TIE_TOLERANCE_RANGE)}
 
 
 def _fixed_price(problem: MultiTargetProblem, opts: Mapping[str, Any]) -> PlannerPolicy:
@@ -172,7 +188,7 @@ class JointPolicyEntry:
 
 
 _PLANNER_OPTIONS = ("search", "depth", "time_budget", "max_depth", "max_evaluations", "no_limit", "variant",
-                    "constant", "prune_without_guarantee")
+                    "constant", "prune_without_guarantee", "tie_break", "tie_tolerance")
 
 #: Every joint policy ``simulate --targets`` knows: name -> :class:`JointPolicyEntry`.
 JOINT_POLICIES: dict[str, JointPolicyEntry] = {
@@ -180,7 +196,7 @@ JOINT_POLICIES: dict[str, JointPolicyEntry] = {
         lambda p, o: PlannerPolicy(_planner(p, o, None)),
         "per-target search at a price, exact knapsack, price minimising the dual bound (options: search=bnb|"
         f"exhaustive, depth={DEFAULT_JOINT_DEPTH} | time_budget=S, max_depth, max_evaluations, no_limit=1, variant, "
-        "constant, prune_without_guarantee=1)", _PLANNER_OPTIONS),
+        "constant, prune_without_guarantee=1, tie_break=knapsack|lower_bound, tie_tolerance)", _PLANNER_OPTIONS),
     "fixed_price": JointPolicyEntry(
         _fixed_price, "as lagrangian, at one price fixed before the run (option price; default: lagrangian's "
         "price at the initial beliefs; and lagrangian's options)", (*_PLANNER_OPTIONS, "price")),
