@@ -38,7 +38,6 @@ actions that may not be taken; if no joint action has a finite value the knapsac
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -133,10 +132,10 @@ def knapsack_optimum(V: np.ndarray, W: np.ndarray, capacity: int, method: str = 
         return 0.0
     if not tree:
         return solve_knapsack_reference(list(V), list(W), C)[0]
-    val, n = _leaves(V, W, C)[:2]
+    val = _leaves(V, W, C)[0]
     while val.shape[0] > 1:
-        val, n = _merge_values(val, n, C)[:2]
-    return _finite(float(val[0, n - 1]))
+        val = _merge_values(val, C)[0]
+    return _finite(float(val[0, -1]))
 
 
 def _finite(optimum: float) -> float:
@@ -180,82 +179,70 @@ def _dense_rank(node: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.n
 
 def _leaves(V: np.ndarray, W: np.ndarray, C: int) -> tuple[np.ndarray, int, np.ndarray]:
     """The tree's leaves, padded to a power of two (the extra targets: one action of value 0 and
-    weight 0): ``(values, n, actions)``, ``(Kp, n + 1)`` each, for the capacities ``0..n-1``: the
-    best value within each capacity and its action; of equal values the smallest index, which is
-    also the leaf's rank in the tie order. Column ``n`` holds ``-inf`` (actions: 0): where a split
-    would give a half a capacity outside its table, the gather reads it (:func:`_level_offsets`)."""
+    weight 0): ``(values, n, actions)``, ``(Kp, n)`` each, for the capacities ``0..n-1``: the best
+    value within each capacity and its action; of equal values the smallest index, which is also
+    the leaf's rank in the tie order."""
     K = V.shape[0]
     Kp = 1 << max(K - 1, 0).bit_length()
     n = min(C, int(W.max())) + 1
     M = np.where(W[:, :, None] <= np.arange(n), V[:, :, None], -np.inf)  # (K, A, n)
-    val = np.zeros((Kp, n + 1))
-    val[:K, :n] = M.max(axis=1)
-    val[:, n] = -np.inf
-    leaf = np.zeros((Kp, n + 1), dtype=np.int64)
-    leaf[:K, :n] = np.argmax(M == val[:K, None, :n], axis=1)
+    val = np.zeros((Kp, n))
+    val[:K] = M.max(axis=1)
+    leaf = np.zeros((Kp, n), dtype=np.int64)
+    leaf[:K] = np.argmax(M == val[:K, None, :], axis=1)
     return val, n, leaf
 
 
-@functools.lru_cache(maxsize=256)
-def _level_offsets(m: int, n: int, n2: int) -> np.ndarray:
-    """Flat indices into a level's ``(2m, n + 1)`` table: entry ``[j, c, c_L]`` is the later half's
-    (row ``2j + 1``) value at ``c - c_L`` (column ``n``, the ``-inf`` one, where ``c - c_L`` is outside
-    ``0..n-1``), for ``c = 0..n2-1`` (the root, ``m = 1``: ``c = n2 - 1`` only) and ``c_L = 0..n-1``."""
-    cols = np.array([n2 - 1]) if m == 1 else np.arange(n2)
-    cR = cols[:, None] - np.arange(n)[None, :]
-    idx = np.where((cR >= 0) & (cR < n), cR, n)
-    out = (2 * np.arange(m) + 1)[:, None, None] * (n + 1) + idx[None, :, :]
-    out.setflags(write=False)
-    return out
+def _skewed(first: np.ndarray, second: np.ndarray, fill: float | int, columns: int, add: bool) -> np.ndarray:
+    """``D[j, c_L, c] = first[j, c_L] + second[j, c - c_L]`` (or ``second[j, c - c_L]`` alone if not
+    ``add``; ``fill`` where ``c - c_L`` is outside ``0..n-1``) for ``c = 0..columns-1``: the table of
+    pairs ``(c_L, c_R)`` with row ``c_L`` shifted right by ``c_L`` (a view of one padded array), so the
+    pairs ``c_L + c_R = c`` of a max-plus convolution stand in column ``c``."""
+    m, n = first.shape
+    Y = np.empty((m, n, 2 * n), dtype=second.dtype)
+    Y[:, :, n:] = fill
+    if add:
+        np.add(first[:, :, None], second[:, None, :], out=Y[:, :, :n])
+    else:
+        Y[:, :, :n] = second[:, None, :]
+    return Y.reshape(m, 2 * n * n)[:, :n * (2 * n - 1)].reshape(m, n, 2 * n - 1)[:, :, :columns]
 
 
-def _merge_values(val: np.ndarray, n: int, C: int) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
-    """One level up: ``(values, n2, X, offsets)``; ``X[j, c, c_L] = P_L(c_L) + P_R(c - c_L)`` for the
-    pairs of rows ``(2j, 2j + 1)`` of ``val`` and the parents' best values ``max_{c_L} X`` (with
-    their ``-inf`` column)."""
-    m = val.shape[0] // 2
-    n2 = min(C, 2 * (n - 1)) + 1
-    offsets = _level_offsets(m, n, n2)
-    X = np.take(val, offsets)
-    X += val[0::2, None, :n]
-    cols = offsets.shape[1]
-    out = np.empty((m, cols + 1))
-    X.max(axis=2, out=out[:, :cols])
-    out[:, cols] = -np.inf
-    return out, (1 if m == 1 else n2), X, offsets
+def _merge_values(val: np.ndarray, C: int) -> tuple[np.ndarray, np.ndarray]:
+    """One level up: ``(parents, X)``, ``X[j, c_L, c] = P_L(c_L) + P_R(c - c_L)`` for the pairs of rows
+    ``(2j, 2j + 1)`` of ``val`` and the capacities ``c = 0..min(C, 2n - 2)``, ``parents = max_{c_L} X``."""
+    n = val.shape[1]
+    X = _skewed(val[0::2], val[1::2], -np.inf, min(C, 2 * (n - 1)) + 1, add=True)
+    return X.max(axis=1), X
 
 
 def _solve_tree(V: np.ndarray, W: np.ndarray, C: int) -> tuple[float, tuple[int, ...]]:
     """The tree of the module docstring (``V`` already ``-inf`` above the capacity)."""
     val, n, leaf = _leaves(V, W, C)
     K, Kp = V.shape[0], val.shape[0]
-    rank = leaf.copy()
-    rank[:, n] = _NO_RANK
+    rank = leaf
     splits: list[np.ndarray] = []
-    root = n - 1  # the capacity of the root's column (a lone leaf: its last)
     while val.shape[0] > 1:
         m = val.shape[0] // 2
-        root = min(C, 2 * (n - 1))
-        parent, n2, X, offsets = _merge_values(val, n, C)
+        parent, X = _merge_values(val, C)
+        n2 = parent.shape[1]
+        rL, rR = rank[0::2], rank[1::2]
         # Of the best splits, the one whose later half ranks first, then its earlier half.
-        tied = X == parent[:, :-1, None]
-        kR = np.where(tied, np.take(rank, offsets), _NO_RANK)
-        tied &= kR == kR.min(axis=2)[:, :, None]
-        split = np.argmin(np.where(tied, rank[0::2, None, :n], _NO_RANK), axis=2)  # (m, columns): c_L
+        tied = X == parent[:, None, :]
+        kR = np.where(tied, _skewed(rL, rR, _NO_RANK, n2, add=False), _NO_RANK)
+        tied &= kR == kR.min(axis=1)[:, None, :]
+        split = np.argmin(np.where(tied, rL[:, :, None], _NO_RANK), axis=1)  # (m, n2): c_L
         splits.append(split)
         if m > 1:  # the parents' ranks: their joint actions (later half, earlier half) in that order
-            rows = np.arange(m)[:, None] * (2 * (n + 1))
-            first = np.take(rank, rows + (n + 1) + (np.arange(n2)[None, :] - split))
-            second = np.take(rank, rows + split)
-            rank = np.empty((m, n2 + 1), dtype=np.int64)
-            rank[:, :n2] = _dense_rank(np.repeat(np.arange(m), n2), first.ravel(), second.ravel()).reshape(m, n2)
-            rank[:, n2] = _NO_RANK
+            first = np.take_along_axis(rR, np.arange(n2)[None, :] - split, axis=1)
+            second = np.take_along_axis(rL, split, axis=1)
+            rank = _dense_rank(np.repeat(np.arange(m), n2), first.ravel(), second.ravel()).reshape(m, n2)
         val, n = parent, n2
-    optimum = _finite(float(val[0, 0 if splits else root]))
+    optimum = _finite(float(val[0, n - 1]))  # the root at its capacity (its last column)
     # Back down the tree: every node's capacity, split into its halves'.
-    caps = np.array([root], dtype=np.int64)
-    for level, split in enumerate(reversed(splits)):
-        left = split[np.arange(split.shape[0]), 0 if level == 0 else caps]
+    caps = np.array([n - 1], dtype=np.int64)
+    for split in reversed(splits):
+        left = split[np.arange(split.shape[0]), caps]
         caps = np.stack([left, caps - left], axis=1).ravel()
     actions = leaf[np.arange(Kp), caps][:K]
     return optimum, tuple(int(a) for a in actions)
