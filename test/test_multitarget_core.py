@@ -159,6 +159,9 @@ def test_tree_equals_reference_on_many_targets(data):
         assert got[0] == pytest.approx(want[0], rel=1e-12, abs=1e-12)
         assert sum(values[k][a] for k, a in enumerate(got[1])) == pytest.approx(want[0], rel=1e-12, abs=1e-12)
     assert sum(int(weights[k][a]) for k, a in enumerate(got[1])) <= capacity
+    value, path = solve_padded(V, W, capacity, "tree", ties=False)  # any optimum: the root's path only
+    assert value == got[0] and sum(int(weights[k][a]) for k, a in enumerate(path)) <= capacity
+    assert sum(values[k][a] for k, a in enumerate(path)) == pytest.approx(value, rel=1e-12, abs=1e-12)
 
 
 def test_identical_targets_tie_as_documented():

@@ -542,7 +542,7 @@ class MultiTargetPlanner:
         target_rows = np.arange(p.K)
         best: tuple[float, int, list[float], np.ndarray] | None = None
         for i in range(len(candidates)):
-            _, choice = solve_padded(items[i], levels, self._capacity)
+            _, choice = solve_padded(items[i], levels, self._capacity, ties=False)  # any best shares
             lower = items[i, target_rows, choice].tolist()
             total = float(sum(lower))
             if best is None or total > best[0]:
