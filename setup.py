@@ -34,6 +34,7 @@ NODE_EXECUTABLES = {
     "measurement_adapter": "pomdp_planner.nodes.measurement_adapter:main",
     "sensor_manager": "pomdp_planner.nodes.sensor_manager:main",
     "run_recorder": "pomdp_planner.nodes.run_recorder:main",
+    "belief_visualizer": "pomdp_planner.nodes.belief_visualizer:main",
 }
 
 HERE = Path(__file__).resolve().parent
