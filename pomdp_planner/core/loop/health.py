@@ -1,6 +1,7 @@
 """A loop's health: its counters, the stall watch of each input, the writers of each input stream,
 the node's ROS time, throttled warnings, and the report rule every node's diagnostics follow
-(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report").
+(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report"), and the
+console line for each change of a node's level (:class:`HealthChanges`).
 
 Times are passed in (``now``, seconds on a monotonic clock); nothing here reads a clock.
 """
@@ -298,3 +299,28 @@ class LoopHealth:
         if self.clock is not None:
             all_values.update(self.clock.values(now))
         return Report(level, "; ".join(texts) or idle, all_values)
+
+
+class HealthChanges:
+    """The console side of the rule "Report": a node logs each change of its diagnostics' level
+    once, as its report changes it (OK -> WARN or ERROR, WARN <-> ERROR, and back to OK with how
+    long it was not), not on every report at the same level. Starts at OK."""
+
+    def __init__(self):
+        self.level = Level.OK
+        self.since: float | None = None  # when the level last left OK
+
+    def update(self, level: Level, message: str, now: float) -> Log | None:
+        """The line for a report at ``level`` with ``message`` at ``now``, or ``None`` if the level
+        did not change."""
+        if level == self.level:
+            return None
+        before, self.level = self.level, level
+        if level == Level.OK:
+            took = "" if self.since is None else f" after {now - self.since:.1f} s"
+            self.since = None
+            return Log("info", f"health OK again{took} (was {before.name})")
+        if before == Level.OK:
+            self.since = now
+        text = f"health {level.name}: {message}" if message else f"health {level.name}"
+        return Log("error" if level == Level.ERROR else "warning", text)
