@@ -4,11 +4,12 @@
 [--keep-logs] [--record FILE]`` starts ``target_simulator``, ``belief_filter`` and ``planner`` as separate
 processes (the installed console scripts next to this Python if present, as ``ros2 run`` would
 start them, else ``python -m pomdp_planner.nodes.<name>``) with ``config/<node>_<model>.yaml``, on
-this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and a ROS domain of its own
-(``ROS_DOMAIN_ID``, random unless ``--domain-id``). ``--model`` is one of the shipped parameter
-sets (``processes.PARAMETER_SETS``): ``s3``, ``s8`` (the paper's tracking models) or
-``perimeter_s3``, ``perimeter_s8`` (greedy loses there and lookahead pays; the default, what
-``make demo`` runs, because there the planner searches and differs from greedy).
+this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) in the ROS domain ``--domain-id``,
+else the exported ``ROS_DOMAIN_ID``, else a random one in 1..101 (:func:`choose_domain_id`).
+``--model`` is one of the shipped parameter sets (``processes.PARAMETER_SETS``): ``s3``, ``s8``
+(the paper's tracking models) or ``perimeter_s3``, ``perimeter_s8`` (greedy loses there and
+lookahead pays; the default, what ``make demo`` runs, because there the planner searches and
+differs from greedy).
 
 A legend says what the columns mean on the model (its priorities, the bounds, "certified"). A
 monitor node pairs the loop's topics into rows by the run recorder's rule
@@ -179,6 +180,30 @@ def compare_with_greedy(model: POMDP, planner: dict, steps: int, seed: int) -> s
             f"for both; one run, not an average): planner {ours:.4f}, greedy {greedy:.4f}")
 
 
+#: ROS domain IDs a DDS participant may use (the ROS 2 docs' range for Linux).
+DOMAIN_ID_RANGE = (0, 232)
+
+
+def choose_domain_id(given: int | None, env: dict[str, str]) -> tuple[int, str]:
+    """The demo's ROS domain and where it comes from: ``--domain-id`` (``given``), else the
+    environment's ``ROS_DOMAIN_ID`` when set (non-empty), else a random one in 1..101 (a domain of
+    its own, away from 0, the default of every other ROS program). A value outside
+    :data:`DOMAIN_ID_RANGE` is an :class:`OptionError` naming where it came from."""
+    lo, hi = DOMAIN_ID_RANGE
+    if given is not None:
+        value, source = given, "--domain-id"
+    elif env.get("ROS_DOMAIN_ID", "").strip():
+        text = env["ROS_DOMAIN_ID"].strip()
+        if not text.isdigit():
+            raise OptionError(f"ROS_DOMAIN_ID: must be an integer {lo}..{hi}, got {text!r}")
+        value, source = int(text), "ROS_DOMAIN_ID"
+    else:
+        return random.randint(1, 101), "random"
+    if not lo <= value <= hi:
+        raise OptionError(f"{source}: must be an integer {lo}..{hi}, got {value}")
+    return value, source
+
+
 def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, keep_logs: bool = False,
         out=sys.stdout, record: str | os.PathLike | None = None) -> int:
     """Run the demo (module docstring); node logs go to a temporary directory, removed at the end
@@ -201,7 +226,7 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
 
 def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, log_dir: Path,
          keep_logs: bool, out, record: Path | None, written: list[int]) -> int:
-    domain_id = random.randint(1, 101) if domain_id is None else domain_id
+    domain_id, source = choose_domain_id(domain_id, dict(os.environ))
     os.environ.update(ros_env(domain_id))
     model_path = parameter_set_model(model_key)
     planner_params = dict(parameter_set_values(model_key, "planner"))
@@ -218,8 +243,9 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
         writer = open_run_record(record, "--record", model.name, model.S, model.A, planner_params["time_budget"])
         written.append(0)
     summary = RunSummary(model)
+    where = {"random": "a random domain", "ROS_DOMAIN_ID": "from the environment", "--domain-id": "--domain-id"}
     print(f"pomdp_planner demo: {model.describe()}; three processes on ROS_DOMAIN_ID={domain_id} "
-          f"(localhost only){f'; node logs in {log_dir}' if keep_logs else ''}", file=out)
+          f"({where[source]}; localhost only){f'; node logs in {log_dir}' if keep_logs else ''}", file=out)
     header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'bounds':>8} " \
              f"{'greedy':>6} {'depth':>5} {'certified':>9} {'latency ms':>10}"
     code = 0
@@ -284,7 +310,8 @@ def main(argv=None) -> int:
                         help="shipped parameter set config/<node>_<model>.yaml: s3, s8 (the paper's tracking "
                              "models), perimeter_s3, perimeter_s8 (models where lookahead pays; the default)")
     parser.add_argument("--time-budget", type=float, default=None, help="planner time_budget override (s)")
-    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: random 1..101)")
+    parser.add_argument("--domain-id", type=int, default=None,
+                        help="ROS_DOMAIN_ID (default: the exported ROS_DOMAIN_ID, else a random one in 1..101)")
     parser.add_argument("--keep-logs", action="store_true",
                         help="keep the nodes' log files and the run record run.csv (printed at the end; default: "
                              "removed with their directory)")
@@ -293,11 +320,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.steps < 1:
         parser.error("--steps: must be at least 1")
-    if args.record is not None:
-        try:
+    try:
+        choose_domain_id(args.domain_id, dict(os.environ))
+        if args.record is not None:
             check_output_file(args.record, "--record", stdout=False)
-        except OptionError as exc:
-            parser.error(str(exc))
+    except OptionError as exc:
+        parser.error(str(exc))
     return run(args.steps, args.model, args.time_budget, args.domain_id, args.keep_logs, record=args.record)
 
 
