@@ -1,13 +1,15 @@
 """A loop's health: its counters, the stall watch of each input, the writers of each input stream,
 the node's ROS time, throttled warnings, and the report rule every node's diagnostics follow
-(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report"), and the
-console line for each change of a node's level (:class:`HealthChanges`).
+(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report"), the
+console line for each change of a node's level (:class:`HealthChanges`), and the period of an
+input (:class:`PeriodWatch`: the rule "Pace").
 
 Times are passed in (``now``, seconds on a monotonic clock); nothing here reads a clock.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
@@ -324,3 +326,36 @@ class HealthChanges:
             self.since = now
         text = f"health {level.name}: {message}" if message else f"health {level.name}"
         return Log("error" if level == Level.ERROR else "warning", text)
+
+
+#: Intervals a :class:`PeriodWatch` keeps, and how many it needs before it says a period.
+PERIOD_WINDOW = 20
+PERIOD_MIN_INTERVALS = 10
+
+
+class PeriodWatch:
+    """The period of an input (rule "Pace"): the median of the last :data:`PERIOD_WINDOW` intervals
+    between its arrivals (``None`` until :data:`PERIOD_MIN_INTERVALS` are known). A median, so a
+    burst (a history replayed at a join) or one pause does not move it."""
+
+    def __init__(self, window: int = PERIOD_WINDOW, min_intervals: int = PERIOD_MIN_INTERVALS):
+        self.min_intervals = min_intervals
+        self._last: float | None = None
+        self._intervals: deque[float] = deque(maxlen=window)
+
+    def arrived(self, now: float) -> None:
+        if self._last is not None:
+            self._intervals.append(now - self._last)
+        self._last = now
+
+    @property
+    def intervals(self) -> int:
+        """How many intervals the period is the median of."""
+        return len(self._intervals)
+
+    def period(self) -> float | None:
+        if len(self._intervals) < self.min_intervals:
+            return None
+        ordered = sorted(self._intervals)
+        n = len(ordered)
+        return ordered[n // 2] if n % 2 else (ordered[n // 2 - 1] + ordered[n // 2]) / 2
