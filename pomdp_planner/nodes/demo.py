@@ -29,7 +29,8 @@ return ``sum_t gamma^t rho(b_t, a_t)`` of the planner's policy (the core's ``bnb
 planner's parameters) beside greedy's over as many steps, both simulated by the core
 (``core.simulate``) from the simulator's seed, so with the same random numbers. ``--record FILE``
 writes the table's rows as a run record (``core/io/run_record.py``; ``pomdp-planner plot FILE -o
-run.png`` draws it), and says where at the end. The nodes' logs go to a temporary directory,
+run.png`` draws it; a FILE ending in ``.mcap`` is a rosbag2 bag with the loop's topics and readings,
+``core/io/run_bag.py``), and says where at the end. The nodes' logs go to a temporary directory,
 removed at the end unless ``--keep-logs`` (which prints where they are, and records the run into
 ``run.csv`` there unless ``--record``). Exit code 0 if all three processes exited cleanly (code 0,
 no traceback).
@@ -66,16 +67,20 @@ from std_msgs.msg import Int64MultiArray
 from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file
-from ..core.io.run_record import RunRecordError, open_run_record
+from ..core.io.run_bag import open_run_output, write_row
+from ..core.io.run_record import RunRecordError
 from ..core.loop.recorder_loop import RecorderLoop, RecordRow
 from ..core.loop.run_summary import RowFacts, RunSummary
 from ..core.model import POMDP
 from ..core.policies import make_policy
 from ..core.simulate import simulate
+from .messages import MessageError, decode_observation
 from .processes import PARAMETER_SETS, parameter_set_model, parameter_set_values, ros_env, start_nodes, stop_nodes
 from .qos import RECORDER_QOS
 from .run_recorder import RunInputs
 
+#: Readings kept for rows still to come (the oldest forgotten first).
+READINGS_KEPT = 1000
 #: Seconds a row of the table waits for its plan_info or true state when their topic has not moved
 #: past it (the first row waits for the simulator, started last, to publish its initial state).
 ROW_TIMEOUT = 30.0
@@ -98,9 +103,20 @@ class Monitor:
         self.loop = RecorderLoop(self.model.S, self.model.A, now=time.monotonic(), row_timeout=ROW_TIMEOUT,
                                  expect_true_state=True)
         self.inputs = RunInputs(self.node, self.loop, lambda out: self.rows.extend(out.rows))
+        #: the readings of the loop by epoch, (priority, z): a bag keeps each with its row (--record x.mcap)
+        self.observations: dict[int, tuple[int, int]] = {}
         self.subs = {**self.inputs.subscriptions,
-                     "observation": self.node.create_subscription(Int64MultiArray, "observation", lambda msg: None,
-                                                                  RECORDER_QOS)}
+                     "observation": self.node.create_subscription(Int64MultiArray, "observation",
+                                                                  self._on_observation, RECORDER_QOS)}
+
+    def _on_observation(self, msg: Int64MultiArray) -> None:
+        try:
+            obs = decode_observation(msg, self.model.A, self.model.Z)
+        except MessageError:
+            return
+        self.observations[obs.epoch] = (obs.priority, obs.observation)
+        while len(self.observations) > READINGS_KEPT:  # bounded: readings of rows never shown
+            del self.observations[next(iter(self.observations))]
 
     def matched(self, topic: str) -> bool:
         """Whether the monitor's subscription to ``topic`` has matched a publisher."""
@@ -240,7 +256,7 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
     model = monitor.model
     writer = None
     if record is not None:
-        writer = open_run_record(record, "--record", model.name, model.S, model.A, planner_params["time_budget"])
+        writer = open_run_output(record, "--record", model.name, model.S, model.A, planner_params["time_budget"])
         written.append(0)
     summary = RunSummary(model)
     where = {"random": "a random domain", "ROS_DOMAIN_ID": "from the environment", "--domain-id": "--domain-id"}
@@ -273,7 +289,8 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
                 print(table_row(summary.add(row)), file=out, flush=True)
                 if writer is not None:
                     try:
-                        writer.write(row.epoch, row.belief, row.priority, **row.record_fields())
+                        write_row(writer, row.epoch, row.belief, row.priority, info=row.info,
+                                  observation=monitor.observations.pop(row.epoch, None), **row.record_fields())
                         written[0] += 1
                     except RunRecordError as exc:  # a full disk: the file ends on its last whole row
                         print(f"demo: {exc}; recording stopped", file=sys.stderr)
@@ -321,7 +338,8 @@ def main(argv=None) -> int:
                         help="keep the nodes' log files and the run record run.csv (printed at the end; default: "
                              "removed with their directory)")
     parser.add_argument("--record", default=None, metavar="FILE",
-                        help="write the table's rows as a run record (CSV; pomdp-planner plot FILE draws it)")
+                        help="write the table's rows as a run record (CSV; a name ending in .mcap: a rosbag2 MCAP "
+                             "bag); pomdp-planner plot FILE draws it")
     args = parser.parse_args(argv)
     if args.steps < 1:
         parser.error("--steps: must be at least 1")
