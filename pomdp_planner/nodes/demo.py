@@ -67,7 +67,7 @@ from std_msgs.msg import Int64MultiArray
 from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file
-from ..core.io.run_bag import open_run_output, write_row
+from ..core.io.run_bag import RunBagWriter, open_run_output, write_row
 from ..core.io.run_record import RunRecordError
 from ..core.loop.recorder_loop import RecorderLoop, RecordRow
 from ..core.loop.run_summary import RowFacts, RunSummary
@@ -79,7 +79,7 @@ from .processes import PARAMETER_SETS, parameter_set_model, parameter_set_values
 from .qos import RECORDER_QOS
 from .run_recorder import RunInputs
 
-#: Readings kept for rows still to come (the oldest forgotten first).
+#: Readings waiting to be written into a bag (the oldest forgotten first; the demo writes them at once).
 READINGS_KEPT = 1000
 #: Seconds a row of the table waits for its plan_info or true state when their topic has not moved
 #: past it (the first row waits for the simulator, started last, to publish its initial state).
@@ -103,8 +103,8 @@ class Monitor:
         self.loop = RecorderLoop(self.model.S, self.model.A, now=time.monotonic(), row_timeout=ROW_TIMEOUT,
                                  expect_true_state=True)
         self.inputs = RunInputs(self.node, self.loop, lambda out: self.rows.extend(out.rows))
-        #: the readings of the loop by epoch, (priority, z): a bag keeps each with its row (--record x.mcap)
-        self.observations: dict[int, tuple[int, int]] = {}
+        #: the loop's readings (epoch, priority, z) not yet written into a bag (--record x.mcap)
+        self.observations: deque[tuple[int, int, int]] = deque(maxlen=READINGS_KEPT)
         self.subs = {**self.inputs.subscriptions,
                      "observation": self.node.create_subscription(Int64MultiArray, "observation",
                                                                   self._on_observation, RECORDER_QOS)}
@@ -114,9 +114,7 @@ class Monitor:
             obs = decode_observation(msg, self.model.A, self.model.Z)
         except MessageError:
             return
-        self.observations[obs.epoch] = (obs.priority, obs.observation)
-        while len(self.observations) > READINGS_KEPT:  # bounded: readings of rows never shown
-            del self.observations[next(iter(self.observations))]
+        self.observations.append((obs.epoch, obs.priority, obs.observation))
 
     def matched(self, topic: str) -> bool:
         """Whether the monitor's subscription to ``topic`` has matched a publisher."""
@@ -289,14 +287,21 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
                 print(table_row(summary.add(row)), file=out, flush=True)
                 if writer is not None:
                     try:
-                        write_row(writer, row.epoch, row.belief, row.priority, info=row.info,
-                                  observation=monitor.observations.pop(row.epoch, None), **row.record_fields())
+                        write_row(writer, row.epoch, row.belief, row.priority, info=row.info, **row.record_fields())
                         written[0] += 1
                     except RunRecordError as exc:  # a full disk: the file ends on its last whole row
                         print(f"demo: {exc}; recording stopped", file=sys.stderr)
                         writer.close()
                         writer = None
                 last_progress = time.monotonic()
+            if isinstance(writer, RunBagWriter):  # a bag keeps the loop's readings as they come
+                try:
+                    while monitor.observations:
+                        writer.observation(*monitor.observations.popleft())
+                except RunRecordError as exc:
+                    print(f"demo: {exc}; recording stopped", file=sys.stderr)
+                    writer.close()
+                    writer = None
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
             if dead or time.monotonic() - last_progress > 60.0:
                 print(f"demo: {'process(es) ' + ', '.join(dead) + ' exited' if dead else 'no progress for 60 s'}; "

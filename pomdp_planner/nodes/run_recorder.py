@@ -149,9 +149,7 @@ class RunRecorderNode(ParameterNode):
                                  epoch_window=value("epoch_window").value,
                                  expect_true_state=value("expect_true_state").value)
         self.inputs = RunInputs(self, self.loop, self._emit)
-        #: A bag also keeps the reading that made each belief (for replay): epoch -> (priority, z)
-        self.observations: dict[int, tuple[int, int]] = {}
-        if is_bag(path):
+        if is_bag(path):  # a bag also keeps the loop's readings, as they come (for replay)
             self.create_subscription(Int64MultiArray, "observation", self._on_observation, RECORDER_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -164,10 +162,7 @@ class RunRecorderNode(ParameterNode):
             return
         try:
             for row in out.rows:
-                write_row(self.writer, row.epoch, row.belief, row.priority, info=row.info,
-                          observation=self.observations.pop(row.epoch, None), **row.record_fields())
-                for old in [e for e in self.observations if e <= row.epoch]:  # readings of rows never written
-                    del self.observations[old]
+                write_row(self.writer, row.epoch, row.belief, row.priority, info=row.info, **row.record_fields())
                 self.last_row = row.epoch
         except InputError as exc:  # a full disk (the rows are valid: the loop checked their parts)
             ends = "no row" if self.last_row is None else f"the row of epoch {self.last_row}"
@@ -177,15 +172,21 @@ class RunRecorderNode(ParameterNode):
 
     @callback
     def _on_observation(self, msg: Int64MultiArray) -> None:
-        """A reading of the loop, kept for its row of a bag (only recorded: a malformed one is left out)."""
+        """A reading of the loop, written into the bag as it comes (only recorded: a malformed one is
+        left out; the rows' rules do not use it)."""
         try:
             obs = decode_observation(msg, self.model.A, self.model.Z)
         except MessageError:
             return
         with self.inputs.lock:
-            self.observations[obs.epoch] = (obs.priority, obs.observation)
-            while len(self.observations) > self.loop.max_pending_rows + 1:
-                del self.observations[next(iter(self.observations))]
+            if self.writer is None:
+                return
+            try:
+                self.writer.observation(obs.epoch, obs.priority, obs.observation)
+            except InputError as exc:
+                self.write_error = f"{exc}; recording stopped"
+                self.get_logger().error(self.write_error)
+                self._close_file()
 
     def _close_file(self) -> None:
         writer, self.writer = self.writer, None

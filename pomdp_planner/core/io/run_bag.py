@@ -15,7 +15,8 @@ run_record     ``std_msgs/msg/String``      the run record itself (:mod:`.run_re
 belief         ``std_msgs/msg/Float64MultiArray``  row ``t``'s belief, layout ``[("state", S), ("epoch=t", 1)]``
 action         ``std_msgs/msg/Int64MultiArray``    ``[t + 1, priority]``, label ``epoch,action_priority``
 true_state     ``std_msgs/msg/Int64MultiArray``    ``[t, state]`` where known
-observation    ``std_msgs/msg/Int64MultiArray``    ``[t, priority, z]``: the reading that made belief ``t``, where known
+observation    ``std_msgs/msg/Int64MultiArray``    ``[t, priority, z]``: the reading that made belief ``t`` (a
+                                            simulation: with its row; a node: as it came)
 plan_info      ``std_msgs/msg/Float64MultiArray``  the planner's record of the decision, where the writer has it
 ============== ============================ ===================================================
 
@@ -43,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import OptionError, short_repr
+from ..errors import short_repr
 from ..loop.health import Log
 from ..loop.planner_loop import PlanInfo
 from ..loop.recorder_loop import RecorderLoop
@@ -68,7 +69,7 @@ LOOP_DEPTH = 100
 SIMULATED_PERIOD = 0.1
 
 
-class RunBagError(OptionError):
+class RunBagError(RunRecordError):
     """A bag that cannot be written or read: one line naming the file."""
 
 
@@ -198,6 +199,12 @@ class RunBagWriter:
         if info is not None:
             self._write("plan_info", later, m.plan_info(info))
         self.rows += 1
+
+    def observation(self, epoch: int, priority: int, z: int, stamp_ns: int | None = None) -> None:
+        """A reading of the loop (``[epoch, priority, z]``) as it comes, apart from the rows (a node
+        that records the loop's topics as they arrive)."""
+        self._write("observation", self.clock() if stamp_ns is None else int(stamp_ns),
+                    self.msgs.record(OBSERVATION_LABEL, (epoch, priority, z)))
 
     def close(self) -> None:
         """End the bag: its index and metadata, then the file at ``path``."""
