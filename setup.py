@@ -133,6 +133,7 @@ setup(
         # docs/benchmarks.md, "Optional extras": plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
         "plot": ["matplotlib"],  # pomdp-planner plot
+        "bag": ["rosbags>=0.10"],  # run records as rosbag2 MCAP bags (--record x.mcap, plot and replay of bags)
         "bench": ["pomdp-py"],
     },
     zip_safe=False,  # PEP 561: a typed package is not zip-safe

@@ -163,7 +163,7 @@ class RunBagWriter:
                           for name, msgtype in TOPIC_TYPES.items()}
         except (OSError, rosbag2.WriterError) as exc:
             raise RunBagError(f"{self.where}: {getattr(exc, 'strerror', None) or exc}") from None
-        self._write("run_record", self.clock(), self.msgs.text(self._take_text()))
+        self._head = self._take_text()  # the record's first line and header: written with the first row's time
         self.rows = 0
 
     def _take_text(self) -> str:
@@ -189,6 +189,9 @@ class RunBagWriter:
         t = self.clock() if stamp_ns is None else int(stamp_ns)
         later = t + (0 if latency is None or not math.isfinite(latency) else int(latency * 1e9))
         m = self.msgs
+        if self._head:
+            self._write("run_record", t, m.text(self._head))
+            self._head = ""
         self._write("run_record", t, m.text(self._take_text()))
         if true_state is not None:
             self._write("true_state", t, m.record(TRUE_STATE_LABEL, (epoch, true_state)))
@@ -209,6 +212,8 @@ class RunBagWriter:
     def close(self) -> None:
         """End the bag: its index and metadata, then the file at ``path``."""
         try:
+            if self._head:  # a record without rows
+                self._write("run_record", self.clock(), self.msgs.text(self._head))
             self.bag.close()
             inner = self._partial / f"{self._partial.name}.mcap"
             os.replace(inner, self.path)
@@ -307,8 +312,11 @@ def read_run_bag(path: str | os.PathLike, *, namespace: str | None = None, num_a
     finally:
         reader.close()
     _loop_samples(bag, stream)
-    if text:
-        bag.record = read_run_record(where, text="".join(text))
+    if text:  # the first line and header, then the rows in epoch order (messages of one time may come in any order)
+        head = [x for x in text if x.startswith("#")]
+        rows = sorted((x for x in text if not x.startswith("#")), key=lambda x: int(x.split(",", 1)[0] or -1)
+                      if x.split(",", 1)[0].isdigit() else -1)
+        bag.record = read_run_record(where, text="".join(head + rows))
     else:
         bag.record = _paired_record(where, stream, bag, num_actions)
     return bag
