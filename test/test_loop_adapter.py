@@ -413,5 +413,5 @@ def test_actions_slower_than_the_sensor_are_one_warning():
     assert loop.health.counts["surplus_readings"] == 40
     assert len(lines) == 1, lines
     # warned as the median of the last 20 action intervals (0.1 s, then 0.3 s) passed 1.5 x 0.1 s
-    assert lines[0].startswith("actions come every 0.2 s, measurement readings every 0.1 s (medians)")
+    assert lines[0].startswith("actions come every 0.2 s, measurement readings every 0.1 s (median, mean)")
     assert "keep the planner's time_budget below the sensor period" in lines[0]

@@ -448,7 +448,8 @@ def test_a_time_budget_over_the_belief_period_is_one_warning_once_beliefs_are_sk
         if k % 2:
             loop.decided(loop.take(now), Searched(stub(), True, True), now + 0.01)
     assert len(lines) == 1, lines
-    assert lines[0].startswith("time_budget 0.2 s exceeds the period of the beliefs (0.1 s, the median of the last 16)")
+    assert lines[0].startswith("time_budget 0.2 s exceeds the period of the beliefs (0.1 s, the mean of the last 16 "
+                               "intervals)")
     assert "keep time_budget below the sensor period" in lines[0]
     loop.set_params({"time_budget": 0.3})
     for k in range(4):

@@ -189,7 +189,8 @@ class AdapterLoop:
         self.line = EpochLine(live.epoch_window, now=now)
         self.action_watch = InputWatch("action", "action", started=now)
         self.sensor_watch = InputWatch(input_name, "reading", started=now)
-        self.reading_pace, self.action_pace = PeriodWatch(), PeriodWatch()  # rule "Pace"
+        # rule "Pace": a sensor's bursts must not shorten its period, a planner's pause not lengthen the actions'
+        self.reading_pace, self.action_pace = PeriodWatch("mean"), PeriodWatch("median")
         self._pace_warned = False
         self.health = LoopHealth(COUNTERS, PROBLEMS, [self.sensor_watch, self.action_watch], live.stall)
         self.resender = Resender(live.resend_period)
@@ -242,16 +243,16 @@ class AdapterLoop:
 
     def _check_pace(self) -> None:
         """Rule "Pace": actions slower than the sensor's readings (the median period of the actions
-        over :data:`PACE_FACTOR` times the readings') is one warning: the decisions (the planner's
-        ``time_budget`` and its overhead) take longer than the sensor period."""
+        over :data:`PACE_FACTOR` times the readings' mean period) is one warning: the decisions (the
+        planner's ``time_budget`` and its overhead) take longer than the sensor period."""
         readings, actions = self.reading_pace.period(), self.action_pace.period()
         if self._pace_warned or readings is None or actions is None or actions <= PACE_FACTOR * readings:
             return
         self._pace_warned = True
         self.health.log("warning", f"actions come every {actions:.3g} s, {self.input_name} readings every "
-                        f"{readings:.3g} s (medians): a decision takes longer than the sensor period and the readings "
-                        "in between are not used (surplus_readings); keep the planner's time_budget below the "
-                        "sensor period")
+                        f"{readings:.3g} s (median, mean): a decision takes longer than the sensor period and the "
+                        "readings in between are not used (surplus_readings); keep the planner's time_budget below "
+                        "the sensor period")
 
     def rejected_measurement(self, problem: str, now: float) -> AdapterOutput:
         """A sensor message that could not be decoded (``problem``, e.g. a wrong layout)."""

@@ -334,11 +334,16 @@ PERIOD_MIN_INTERVALS = 10
 
 
 class PeriodWatch:
-    """The period of an input (rule "Pace"): the median of the last :data:`PERIOD_WINDOW` intervals
-    between its arrivals (``None`` until :data:`PERIOD_MIN_INTERVALS` are known). A median, so a
-    burst (a history replayed at a join) or one pause does not move it."""
+    """The period of an input (rule "Pace") over its last :data:`PERIOD_WINDOW` intervals between
+    arrivals (``None`` until :data:`PERIOD_MIN_INTERVALS` are known): ``how="mean"`` (the window's
+    span over its intervals: a rate, which a burst of samples does not move, a pause lengthens) or
+    ``"median"`` (which one pause does not move, a burst shortens). Each caller takes the one whose
+    error cannot raise a false warning."""
 
-    def __init__(self, window: int = PERIOD_WINDOW, min_intervals: int = PERIOD_MIN_INTERVALS):
+    def __init__(self, how: str = "mean", window: int = PERIOD_WINDOW, min_intervals: int = PERIOD_MIN_INTERVALS):
+        if how not in ("mean", "median"):
+            raise ValueError(f"how: mean or median, got {how!r}")
+        self.how = how
         self.min_intervals = min_intervals
         self._last: float | None = None
         self._intervals: deque[float] = deque(maxlen=window)
@@ -356,6 +361,8 @@ class PeriodWatch:
     def period(self) -> float | None:
         if len(self._intervals) < self.min_intervals:
             return None
+        if self.how == "mean":
+            return sum(self._intervals) / len(self._intervals)
         ordered = sorted(self._intervals)
         n = len(ordered)
         return ordered[n // 2] if n % 2 else (ordered[n // 2 - 1] + ordered[n // 2]) / 2

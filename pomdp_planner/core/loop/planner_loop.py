@@ -170,7 +170,7 @@ class PlannerLoop:
         self._planner_key: tuple[str, str] | None = None
         self._refused_setups: set[tuple[str, str]] = set()  # run-time choices the gate refused
         self.health = LoopHealth(COUNTERS, PROBLEMS, [InputWatch("belief", "belief", started=now)], live.stall)
-        self.pace = PeriodWatch()  # the period of new beliefs (rule "Pace")
+        self.pace = PeriodWatch("mean")  # the period of new beliefs (rule "Pace"; a burst does not shorten it)
         self._pace_warned: float | None = None  # the time_budget warned about
         bounds_warning = self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
         self.assumptions = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
@@ -326,7 +326,7 @@ class PlannerLoop:
             return
         self._pace_warned = budget
         self.health.log("warning", f"time_budget {budget:g} s exceeds the period of the beliefs ({period:.3g} s, the "
-                        f"median of the last {self.pace.intervals}): beliefs come faster than decisions and "
+                        f"mean of the last {self.pace.intervals} intervals): beliefs come faster than decisions and "
                         f"are skipped (epoch {skipped} was); keep time_budget below the sensor period")
 
     def rejected_belief(self, problem: str, now: float) -> PlannerOutput:
