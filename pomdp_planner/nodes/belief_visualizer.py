@@ -35,7 +35,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ..core.io.sensors import load_model_file
 from ..core.loop import Log
 from ..core.loop.visual_loop import TRUE_RGBA, GridError, Scene, VisualLoop, grid_shape
-from .diagnostics import array, status
+from .diagnostics import array, log_line, status
 from .inputs import CheckedInputs
 from .messages import MessageError, decode_belief, decode_plan_info, decode_true_state, wire_bounds
 from .params import (
@@ -158,7 +158,7 @@ class BeliefVisualizer(ParameterNode):
     def log(self, logs: Iterable[Log]) -> None:
         logger = self.get_logger()
         for line in logs:
-            (logger.warning if line.level in ("warning", "error") else logger.info)(line.text)
+            log_line(logger, line)
 
     def _call(self, method, *args) -> None:
         with self.lock:

@@ -8,7 +8,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from ..core.loop import Level
+from ..core.loop import Level, Log
 from ..core.loop.health import HealthChanges
 from ..core.loop.parameter_names import unknown_text
 
@@ -55,8 +55,15 @@ def log_health_change(node, st: DiagnosticStatus) -> None:
     line = changes.update(_LEVEL_OF.get(bytes(st.level), Level.ERROR), st.message, time.monotonic())
     if line is None:
         return
-    logger = node.get_logger()
-    if line.level == "info":
+    log_line(node.get_logger(), line)
+
+
+def log_line(logger, line: Log) -> None:
+    """``line`` (a core :class:`~pomdp_planner.core.loop.Log`) to ``logger`` at its level (one call
+    site per severity: rclpy refuses two severities at one site)."""
+    if line.level == "debug":
+        logger.debug(line.text)
+    elif line.level == "info":
         logger.info(line.text)
     elif line.level == "warning":
         logger.warning(line.text)
