@@ -258,9 +258,9 @@ class MultiTargetPlanner:
     (its tie rule, :mod:`.knapsack`). ``"lower_bound"``: of the joint actions whose knapsack value
     is within ``tie_tolerance`` of the optimum (at most :data:`TIE_CANDIDATES`), the one with the
     greatest lower bound (the value of its fixed-share continuation; ties: the knapsack's).
-    At the price that minimises the bound the knapsack's best joint actions are often near-ties
-    (the price sits where the relaxed problem is indifferent between them), and their true values
-    can differ far more than their knapsack values. Neither rule changes the dual bound; the gap
+    At the price that minimises the bound the knapsack's best joint actions can be near-ties (the
+    price sits where the relaxed problem is indifferent between them), and their true values can
+    differ far more than their knapsack values. Neither rule changes the dual bound; the gap
     is always that of the joint action chosen (``dual_bound - lower_bound``).
     """
 
