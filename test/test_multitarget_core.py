@@ -20,6 +20,8 @@ from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.multitarget.dual import lambda_ceiling, minimise_convex, reward_range_bound
 from pomdp_planner.core.multitarget.knapsack import (
+    _checked,
+    _solve_tree,
     _tree_pays,
     knapsack_optimum,
     near_optimal,
@@ -159,6 +161,8 @@ def test_tree_equals_reference_on_many_targets(data):
         assert got[0] == pytest.approx(want[0], rel=1e-12, abs=1e-12)
         assert sum(values[k][a] for k, a in enumerate(got[1])) == pytest.approx(want[0], rel=1e-12, abs=1e-12)
     assert sum(int(weights[k][a]) for k, a in enumerate(got[1])) <= capacity
+    # The path's answer where it finds the only optimum, the ranks' where not: the same joint action.
+    assert _solve_tree(*_checked(V, W, capacity, "tree")[:3]) == got
     value, path = solve_padded(V, W, capacity, "tree", ties=False)  # any optimum: the root's path only
     assert value == got[0] and sum(int(weights[k][a]) for k, a in enumerate(path)) <= capacity
     assert sum(values[k][a] for k, a in enumerate(path)) == pytest.approx(value, rel=1e-12, abs=1e-12)

@@ -115,16 +115,18 @@ def _checked(V: np.ndarray, W: np.ndarray, capacity: int, method: str) -> tuple[
 def solve_padded(V: np.ndarray, W: np.ndarray, capacity: int, method: str = "auto",
                  ties: bool = True) -> tuple[float, tuple[int, ...]]:
     """:func:`solve_knapsack` for values ``V`` and integer weights ``W`` given as ``K x A`` arrays
-    (:func:`padded`; ``-inf`` values are actions that may not be taken). ``ties=False``: any
-    optimal joint action will do (the tree then goes back down the root's path only, taking the
-    first best split of every node on it: deterministic, but not the tie rule), a few times
-    cheaper."""
+    (:func:`padded`; ``-inf`` values are actions that may not be taken). The tree first goes back
+    down the root's path only, taking the first best split of every node on it; where that finds
+    the only optimal joint action (no ties on the path) it is the answer, else the tie rule's
+    ranks are computed for every node. ``ties=False``: any optimal joint action will do (the
+    path's, also where it is not the only one: deterministic, but not the tie rule)."""
     V, W, C, tree = _checked(V, W, capacity, method)
     if V.shape[0] == 0:
         return 0.0, ()
     if not tree:
         return solve_knapsack_reference(list(V), list(W), C)
-    return _solve_tree(V, W, C) if ties else _solve_path(V, W, C)
+    optimum, actions, unique = _solve_path(V, W, C)
+    return (optimum, actions) if unique or not ties else _solve_tree(V, W, C)
 
 
 def knapsack_optimum(V: np.ndarray, W: np.ndarray, capacity: int, method: str = "auto") -> float:
@@ -252,16 +254,20 @@ def _solve_tree(V: np.ndarray, W: np.ndarray, C: int) -> tuple[float, tuple[int,
     return optimum, tuple(int(a) for a in actions)
 
 
-def _solve_path(V: np.ndarray, W: np.ndarray, C: int) -> tuple[float, tuple[int, ...]]:
+def _solve_path(V: np.ndarray, W: np.ndarray, C: int) -> tuple[float, tuple[int, ...], bool]:
     """An optimal joint action by the tree without the tie rule: the values level by level, then
     back down the root's path only, the first best split of each node on it (``m n`` values per
-    level instead of ``m n^2``)."""
+    level instead of ``m n^2``). Also whether that joint action is the only optimal one: every
+    node on the path has one best split and every target one best action within its capacity
+    (another optimal joint action would split some node on the path otherwise, or give some
+    target another action), so the tie rule has nothing to choose."""
     val, n, leaf = _leaves(V, W, C)
     levels = [val]
     while levels[-1].shape[0] > 1:
         levels.append(_merge_values(levels[-1], C)[0])
     optimum = _finite(float(levels[-1][0, -1]))
     caps = np.array([levels[-1].shape[1] - 1], dtype=np.int64)
+    unique = True
     for below in reversed(levels[:-1]):
         m, n = below.shape[0] // 2, below.shape[1]
         left = np.arange(n)[None, :]
@@ -270,8 +276,13 @@ def _solve_path(V: np.ndarray, W: np.ndarray, C: int) -> tuple[float, tuple[int,
         rows = np.arange(m)[:, None]
         X = np.where(ok, below[2 * rows, left] + below[2 * rows + 1, np.clip(right, 0, n - 1)], -np.inf)
         split = np.argmax(X, axis=1)
+        unique = unique and bool(np.all(np.count_nonzero(X == X[rows[:, 0], split][:, None], axis=1) == 1))
         caps = np.stack([split, caps - split], axis=1).ravel()
-    return optimum, tuple(int(a) for a in leaf[np.arange(val.shape[0]), caps][:V.shape[0]])
+    K = V.shape[0]
+    caps = caps[:K]
+    best = val[np.arange(K), caps]
+    unique = unique and bool(np.all(np.count_nonzero((W <= caps[:, None]) & (V == best[:, None]), axis=1) == 1))
+    return optimum, tuple(int(a) for a in leaf[np.arange(K), caps]), unique
 
 
 def near_optimal(V: np.ndarray, W: np.ndarray, capacity: int, tolerance: float, limit: int
