@@ -475,3 +475,32 @@ def test_no_stamp_freezes_the_adapter(events, max_age):
         answered.append(_answer(loop, epoch, now, clock) == [(epoch, 2, 1)])
     assert any(answered), (events, max_age)
     assert all(answered[answered.index(True):])  # and from then on every reading is answered
+
+
+def test_actions_slower_than_the_sensor_are_one_warning():
+    """Rule "Pace": a reading every 0.1 s answering an action every 0.1 s is no warning; once the
+    actions come every 0.3 s (decisions longer than the sensor period) the unused readings in
+    between are one warning naming both periods, and no second one."""
+    loop = joined(1, 2, max_age=0.0)
+    now, epoch, lines = T0 + 1.0, 1, []
+
+    def pace(out):
+        return [line.text for line in out.logs if "a decision takes longer than the sensor period" in line.text]
+
+    for _ in range(15):
+        now += 0.1
+        lines += pace(loop.measurement(1.0, now))  # answers the pending action
+        epoch += 1
+        lines += pace(loop.action(ActionSample(epoch, 2), now + 0.01))
+    assert lines == [] and loop.health.counts["surplus_readings"] == 0
+    for k in range(1, 61):
+        now += 0.1
+        lines += pace(loop.measurement(1.0, now))
+        if k % 3 == 0:
+            epoch += 1
+            lines += pace(loop.action(ActionSample(epoch, 2), now + 0.01))
+    assert loop.health.counts["surplus_readings"] == 40
+    assert len(lines) == 1, lines
+    # warned as the median of the last 20 action intervals (0.1 s, then 0.3 s) passed 1.5 x 0.1 s
+    assert lines[0].startswith("actions come every 0.2 s, measurement readings every 0.1 s (median, mean)")
+    assert "keep the planner's time_budget below the sensor period" in lines[0]

@@ -443,7 +443,7 @@ class Planner:
         return (0, self.model.A - 1) if rb is None else rb
 
     def search(self, belief: np.ndarray, depth: int, use_bounds: bool = True, *, all_root_actions: bool = False,
-               deadline: float | None = None) -> SearchResult:
+               deadline: float | None = None, checked: bool = False) -> SearchResult:
         """Algorithm 1 to ``depth`` action-observation levels (``Search(b, depth + 1)``).
 
         Always searches the full requested depth (also when the root bounds agree; then
@@ -452,11 +452,12 @@ class Planner:
         only), so every Q value is finite; a caller that must compare the root actions under a
         constraint the bounds do not know (the multi-target budget) needs them all.
         ``deadline`` (a reading of :attr:`clock`): checked before every chunk;
-        :class:`DeadlineExceeded` is raised when it has passed.
+        :class:`DeadlineExceeded` is raised when it has passed. ``checked``: the caller has validated
+        ``belief`` (a belief of this model), so it is not validated again.
         """
         depth = check_depth(depth)
         self.check_memory(depth, "depth")
-        b = check_belief(self.model, belief)
+        b = np.asarray(belief, dtype=float) if checked else check_belief(self.model, belief)
         t0 = self.clock()
         bounds = self.bounds if use_bounds else self.trivial
         root = self._root(b, bounds)
@@ -540,26 +541,30 @@ class Planner:
             raise OptionError(f"action_cost: expected {A} finite numbers (one per action), "
                               f"got {short_repr(action_cost)}")
         new = copy.copy(self)
-        new._rT = np.ascontiguousarray(self._rT - c[:, None])
-        # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
-        WT = self._WT.reshape(A, 1 + A, self.model.Z, self.model.S).copy()
-        WT[:, 1:] -= c[None, :, None, None] * WT[:, :1]
-        new._WT = np.ascontiguousarray(WT.reshape(self._WT.shape))
+        # every table that holds r: r itself (the unfused leaf products), r^T (rho, bounds), and
+        # the fused leaf table when there is one
+        new._r = np.ascontiguousarray(self._r - c[None, :])
+        new._rT = np.ascontiguousarray(new._r.T)
+        if self._WT is not None:
+            # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
+            WT = self._WT.reshape(A, 1 + A, self.model.Z, self.model.S).copy()
+            WT[:, 1:] -= c[None, :, None, None] * WT[:, :1]
+            new._WT = np.ascontiguousarray(WT.reshape(self._WT.shape))
         new._bound_cache = None
         return new
 
     def q_values_batch(self, beliefs: np.ndarray, depth: int, use_bounds: bool = True, *,
-                       deadline: float | None = None) -> np.ndarray:
+                       deadline: float | None = None, checked: bool = False) -> np.ndarray:
         """``Q(b, a)`` for every row ``b`` of ``beliefs`` (``n x S``) and every action, ``n x A``: the
         root Q values of :meth:`search` with ``all_root_actions=True``, for ``n`` roots in one
         vectorised pass (the roots are columns of the first level, as every level's beliefs are).
-        ``depth = 0`` gives ``rho(b, a)``. ``deadline`` as in :meth:`search`."""
+        ``depth = 0`` gives ``rho(b, a)``. ``deadline`` and ``checked`` as in :meth:`search`."""
         depth = check_depth(depth, "depth", (0, None))
         B = np.asarray(beliefs, dtype=float)
         if B.ndim != 2 or B.shape[1] != self.model.S:
             raise BeliefError(f"beliefs: expected shape n x {self.model.S}, got {B.shape}")
         BT = np.ascontiguousarray(np.stack([check_belief(self.model, b, field=f"beliefs[{i}]")
-                                            for i, b in enumerate(B)], axis=1) if len(B) else B.T)
+                                            for i, b in enumerate(B)], axis=1) if len(B) and not checked else B.T)
         rhoT = self._rho(BT)
         if depth == 0 or not len(B):
             return np.ascontiguousarray(rhoT.T)

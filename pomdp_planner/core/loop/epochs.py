@@ -8,8 +8,6 @@ seconds on any monotonic clock); nothing reads a clock of its own.
 
 from __future__ import annotations
 
-import statistics
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -232,35 +230,6 @@ class Resender:
         """The node re-sends now (counted in ``resent``; the period starts again)."""
         self.resent += 1
         self.published(now)
-
-
-class BeliefPace:
-    """The pace of a belief stream, to tell a filter that resumed after a pause (rule "Explained
-    epochs"): a belief that runs ahead of the beliefs so far is explained when the stream's writer
-    had sent nothing for at least twice its recent pace (the median of its last
-    :attr:`KEPT` intervals, and at least :attr:`MIN_SILENCE` seconds): a filter deactivated and
-    activated again beside a sensor that kept stepping publishes its newest belief, epochs ahead.
-    The samples that reach a loop are its followed writer's (rule "One writer"), so such a belief
-    is the filter's own, not a stray's; it is planned with one info line."""
-
-    KEPT = 8
-    MIN_SILENCE = 0.05
-
-    def __init__(self) -> None:
-        self.last: float | None = None
-        self._intervals: deque[float] = deque(maxlen=self.KEPT)
-
-    def heard(self, now: float) -> None:
-        """A sample of the stream came at ``now``."""
-        if self.last is not None:
-            self._intervals.append(now - self.last)
-        self.last = now
-
-    def resumed(self, now: float) -> bool:
-        """Whether the stream comes back after a pause (class docstring), judged before :meth:`heard`."""
-        if self.last is None or len(self._intervals) < 3:
-            return False
-        return now - self.last >= max(2 * statistics.median(self._intervals), self.MIN_SILENCE)
 
 
 def off_stream_belief(line: EpochLine, health: LoopHealth, verdict: Verdict, epoch: int, item: Any, *,

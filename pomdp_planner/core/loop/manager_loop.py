@@ -73,8 +73,8 @@ from ..errors import InputError
 from ..model import POMDP
 from ..multitarget.planner import DEFAULT_EVALUATIONS, SEARCH_MODES, JointDecision, MultiTargetPlanner
 from ..multitarget.problem import MultiTargetProblem, format_effort, make_problem
-from .epochs import BeliefPace, EpochLine, JoinWait, Liveness, Resender, off_stream_belief
-from .health import InputWatch, Log, LoopHealth, Report
+from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
+from .health import BeliefPace, InputWatch, Log, LoopHealth, Report
 from .manager_params import TUNABLE, check_params
 from .planner_loop import DECISION_CACHE, apply_changes, checked_params
 from .samples import ActionSample, BeliefSample
