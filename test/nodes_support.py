@@ -25,10 +25,12 @@ import ctypes
 import fcntl
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -316,3 +318,36 @@ def make_harness():
         yield h
     finally:
         h.close()
+
+
+@contextmanager
+def node_process_and_client(name: str, args: list[str], log: Path):
+    """A node executable ``name`` started with ``args`` (output to ``log``) and, in this process, a
+    client node spun by a ``NodeExecutor`` in a thread: yields ``(process, client node, codes)``.
+    On leaving: the process stopped with SIGINT (``codes[name]``: its exit code), the client and
+    its context shut down, and the shared memory a killed process left removed."""
+    from rclpy.context import Context
+
+    from pomdp_planner.nodes.executor import shutdown_executor
+    from pomdp_planner.nodes.processes import node_command
+
+    shm_before = shm_entries()
+    with open(log, "wb") as fh:
+        proc = subprocess.Popen([*node_command(name), *args], stdout=fh, stderr=subprocess.STDOUT,
+                                preexec_fn=die_with_test)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = Node("lifecycle_test_client", context=ctx)
+    executor = NodeExecutor(num_threads=2, context=ctx)
+    executor.add_node(node)
+    threading.Thread(target=executor.spin, daemon=True).start()
+    codes: dict[str, int] = {}
+    try:
+        yield proc, node, codes
+    finally:
+        codes.update(stop_nodes({name: (proc, log)}, timeout=15.0))
+        shutdown_executor(executor)
+        node.destroy_node()
+        ctx.try_shutdown()
+        if codes.get(name, 0) < 0:  # killed: only a killed process leaves segments behind
+            remove_dead_shm(shm_before)

@@ -12,15 +12,12 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import S3, LifecycleClient, die_with_test, rclpy, remove_dead_shm, shm_entries
-from rclpy.context import Context
-from rclpy.node import Node
+from nodes_support import S3, LifecycleClient, die_with_test, node_process_and_client
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from test_nodes_multiprocess import domain  # noqa: F401 (a fixture)
 
-from pomdp_planner.nodes.executor import NodeExecutor, shutdown_executor
-from pomdp_planner.nodes.processes import node_command, stop_nodes
+from pomdp_planner.nodes.processes import node_command
 
 BAD = "no/such/model.yaml"
 
@@ -34,19 +31,8 @@ def rclpy_wait(future, timeout: float = 10.0) -> None:
 
 def test_a_failing_configure_is_one_log_line_and_the_process_stays_configurable(domain, tmp_path):  # noqa: F811
     log = tmp_path / "planner.log"
-    shm_before = shm_entries()
-    with open(log, "wb") as fh:
-        proc = subprocess.Popen([*node_command("planner"), "--ros-args", "-p", f"model_file:={BAD}",
-                                 "-p", "autostart:=false"], stdout=fh, stderr=subprocess.STDOUT,
-                                preexec_fn=die_with_test)
-    procs = {"planner": (proc, log)}
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = Node("lifecycle_test_client", context=ctx)
-    executor = NodeExecutor(num_threads=2, context=ctx)
-    executor.add_node(node)
-    threading.Thread(target=executor.spin, daemon=True).start()
-    try:
+    args = ["--ros-args", "-p", f"model_file:={BAD}", "-p", "autostart:=false"]
+    with node_process_and_client("planner", args, log) as (proc, node, codes):
         lc = LifecycleClient(node, "/planner")
         assert lc.wait_for_services(timeout=30.0), "no lifecycle services"
         assert lc.state() == "unconfigured"
@@ -58,13 +44,6 @@ def test_a_failing_configure_is_one_log_line_and_the_process_stays_configurable(
         rclpy_wait(future)
         assert future.result().results[0].successful
         assert lc.change("configure") and lc.change("activate") and lc.state() == "active"
-    finally:
-        codes = stop_nodes(procs, timeout=15.0)
-        shutdown_executor(executor)
-        node.destroy_node()
-        ctx.try_shutdown()
-        if codes.get("planner", 0) < 0:  # killed: only a killed process leaves segments behind
-            remove_dead_shm(shm_before)
     text = log.read_text(errors="replace")
     assert codes["planner"] == 0 and "Traceback" not in text, text[-2000:]
     failed = [line for line in text.splitlines() if "configure failed" in line and "health ERROR" not in line]

@@ -18,7 +18,6 @@ the belief filter and the sensor manager, in process and (the planner) as a proc
 from __future__ import annotations
 
 import random
-import subprocess
 import sys
 import threading
 from pathlib import Path
@@ -27,8 +26,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from nodes_support import S3, LifecycleClient, die_with_test, make_harness, rclpy, remove_dead_shm, shm_entries
-from rclpy.context import Context
+from nodes_support import S3, LifecycleClient, make_harness, node_process_and_client
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
@@ -36,10 +34,8 @@ from test_nodes_multiprocess import domain  # noqa: F401 (a fixture)
 
 from pomdp_planner.core.loop import transition_request
 from pomdp_planner.nodes.belief_filter import BeliefFilter
-from pomdp_planner.nodes.executor import NodeExecutor, shutdown_executor
 from pomdp_planner.nodes.messages import decode_belief, encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
-from pomdp_planner.nodes.processes import node_command, stop_nodes
 from pomdp_planner.nodes.qos import RECORDER_QOS, STREAM_QOS
 from pomdp_planner.nodes.sensor_manager import SensorManager
 
@@ -242,18 +238,7 @@ def test_two_clients_racing_200_requests_are_all_answered_and_the_loop_resumes(h
 # ------------------------------------------------------------------ a process
 def test_a_planner_process_answers_transitions_its_state_has_not_and_lives(domain, tmp_path):  # noqa: F811
     log = tmp_path / "planner.log"
-    shm_before = shm_entries()
-    with open(log, "wb") as fh:
-        proc = subprocess.Popen([*node_command("planner"), "--ros-args", "-p", f"model_file:={S3}"], stdout=fh,
-                                stderr=subprocess.STDOUT, preexec_fn=die_with_test)
-    procs = {"planner": (proc, log)}
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = Node("lifecycle_test_client", context=ctx)
-    executor = NodeExecutor(num_threads=2, context=ctx)
-    executor.add_node(node)
-    threading.Thread(target=executor.spin, daemon=True).start()
-    try:
+    with node_process_and_client("planner", ["--ros-args", "-p", f"model_file:={S3}"], log) as (proc, node, codes):
         lc = LifecycleClient(node, "/planner")
         assert lc.wait_for_services(timeout=30.0), "no lifecycle services"
         assert lc.state() == "active"
@@ -262,13 +247,6 @@ def test_a_planner_process_answers_transitions_its_state_has_not_and_lives(domai
             assert proc.poll() is None and lc.state() == "active"
         assert lc.request(4) and lc.state() == "inactive" and not lc.request(4) and lc.request(3)
         assert lc.state() == "active" and proc.poll() is None
-    finally:
-        codes = stop_nodes(procs, timeout=15.0)
-        shutdown_executor(executor)
-        node.destroy_node()
-        ctx.try_shutdown()
-        if codes.get("planner", 0) < 0:
-            remove_dead_shm(shm_before)
     text = log.read_text(errors="replace")
     assert codes["planner"] == 0 and "Traceback" not in text and "RCLError" not in text, text[-3000:]
     refused = [line for line in text.splitlines() if "change_state:" in line]

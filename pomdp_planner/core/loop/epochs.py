@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from .health import LoopHealth, StallLimits
+from .health import BeliefPace, LoopHealth, StallLimits
 
 #: Default epoch window: the farthest jump a node acts on (a gap up to it is walked, as one
 #: prediction per epoch, and logged as one line).
@@ -230,6 +230,24 @@ class Resender:
         """The node re-sends now (counted in ``resent``; the period starts again)."""
         self.resent += 1
         self.published(now)
+
+
+def belief_verdict(line: EpochLine, stream: int, pace: BeliefPace, health: LoopHealth, epoch: int, now: float, *,
+                   who: str = "", acted: str = "planned") -> str:
+    """The verdict on a belief of ``epoch`` of the stream followed (``stream``: its newest epoch
+    accepted; ``pace``: when its samples came, updated here): :meth:`EpochLine.classify`, and
+    ``"unexplained"`` for one beyond ``stream + 1`` (rule "Explained epochs") unless its filter
+    resumed after a pause (:class:`~.health.BeliefPace`: explained, one info line). ``who``
+    prefixes the line (the sensor manager's target); ``acted``: what is done to the belief."""
+    verdict = line.classify(epoch)
+    if verdict in ("next", "ahead") and epoch > max(stream, line.position) + 1:
+        if pace.resumed(now):
+            health.log("info", f"{who}belief of epoch {epoch} after {now - pace.last:.2f} s without a belief "
+                       f"(newest: epoch {stream}): the filter resumed (activated again?); {acted}")
+        else:
+            verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
+    pace.heard(now)
+    return verdict
 
 
 def off_stream_belief(line: EpochLine, health: LoopHealth, verdict: Verdict, epoch: int, item: Any, *,

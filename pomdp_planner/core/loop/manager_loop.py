@@ -73,7 +73,7 @@ from ..errors import InputError
 from ..model import POMDP
 from ..multitarget.planner import DEFAULT_EVALUATIONS, SEARCH_MODES, JointDecision, MultiTargetPlanner
 from ..multitarget.problem import MultiTargetProblem, format_effort, make_problem
-from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
+from .epochs import EpochLine, JoinWait, Liveness, Resender, belief_verdict, off_stream_belief
 from .health import BeliefPace, InputWatch, Log, LoopHealth, Report
 from .manager_params import TUNABLE, check_params
 from .planner_loop import DECISION_CACHE, apply_changes, checked_params
@@ -316,15 +316,8 @@ class ManagerLoop:
         """A decoded belief of target ``k``: the newest valid, not-yet-decided one within the window
         goes to its mailbox; every other one is counted (and kept as evidence for the re-sync rule)."""
         ib = self.inboxes[k]
-        verdict = ib.line.classify(bel.epoch)
-        if verdict in ("next", "ahead") and bel.epoch > max(ib.stream, ib.line.position) + 1:
-            if ib.pace.resumed(now):
-                self.health.log("info", f"{ib.name}: belief of epoch {bel.epoch} after {now - ib.pace.last:.2f} s "
-                                f"without a belief (newest: epoch {ib.stream}): the filter resumed (activated "
-                                "again?); decided")
-            else:
-                verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
-        ib.pace.heard(now)
+        verdict = belief_verdict(ib.line, ib.stream, ib.pace, self.health, bel.epoch, now, who=f"{ib.name}: ",
+                                 acted="decided")
         new = verdict in ("join", "next", "ahead")
         ib.watch.arrived(now, new, bel.epoch)
         if new:

@@ -29,7 +29,7 @@ from ..errors import OptionError
 from ..gate import PlannerSetup, build_planner
 from ..model import POMDP, format_bytes, priority_of
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
-from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
+from .epochs import EpochLine, JoinWait, Liveness, Resender, belief_verdict, off_stream_belief
 from .health import BeliefPace, InputWatch, Level, Log, LoopHealth, PeriodWatch, Report
 from .samples import ActionSample, BeliefSample
 
@@ -305,15 +305,7 @@ class PlannerLoop:
         ``planner_ahead``: the planning side has already looked at the mailbox for this sample (a
         node whose planning side reads the topic too), so it is woken if the mailbox got a belief
         since; it is woken anyway after a re-sync."""
-        verdict = self.line.classify(bel.epoch)
-        if verdict in ("next", "ahead") and bel.epoch > max(self._stream, self.line.position) + 1:
-            if self._pace.resumed(now):
-                self.health.log("info", f"belief of epoch {bel.epoch} after {now - self._pace.last:.2f} s without "
-                                f"a belief (newest: epoch {self._stream}): the filter resumed (activated again?); "
-                                "planned")
-            else:
-                verdict = "unexplained"  # the beliefs so far do not lead to it (rule "Explained epochs")
-        self._pace.heard(now)
+        verdict = belief_verdict(self.line, self._stream, self._pace, self.health, bel.epoch, now)
         new = verdict in ("join", "next", "ahead")
         self.health.watches[0].arrived(now, new, bel.epoch)
         if new:
