@@ -17,7 +17,7 @@ import re
 import sys
 from pathlib import Path
 
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 PACKAGE = "pomdp_planner"
 
@@ -111,6 +111,13 @@ def _colcon_bin_forwarders(executables) -> list[tuple[str, list[str]]]:
 
 EXECUTABLES = {**CLI_EXECUTABLES, **NODE_EXECUTABLES}
 
+#: The compiled search kernel (README.md, "Dependencies"): plain C against the CPython API, built
+#: here with the machine's C compiler. A top-level module, so that a source checkout first on
+#: sys.path (the tests' ``pythonpath = .``) never hides the installed build. Optional: without a
+#: compiler the package still installs, and its planners use the numpy reference (with a warning).
+KERNEL = Extension("_pomdp_planner_kernel", sources=["pomdp_planner/core/search_kernel.c"], optional=True,
+                   extra_compile_args=[] if os.name == "nt" else ["-O3", "-fno-trapping-math"])
+
 os.chdir(HERE)  # data_files are relative to this directory
 setup(
     name=PACKAGE,
@@ -125,6 +132,7 @@ setup(
         *_wheel_forwarders(EXECUTABLES),
         *_colcon_bin_forwarders(CLI_EXECUTABLES),
     ],
+    ext_modules=[KERNEL],
     python_requires=">=3.11",
     install_requires=["numpy", "scipy", "clarabel", "PyYAML"],
     extras_require={

@@ -303,21 +303,21 @@ def test_exhaustive_counts_equal_formula(S: int) -> None:
     assert res.percent_pruned == (0.0,) * depth
 
 
-def test_fast_bound_actions_equal_myopic_bounds() -> None:
-    """The planner's column-wise bound actions equal ``MyopicBounds.actions`` (ties included)."""
+def test_fast_bound_actions_equal_myopic_bounds(engine: str) -> None:
+    """The planner's rewards and bound actions equal ``MyopicBounds.actions`` (ties included), with
+    either engine."""
     bounds = model_bounds(_S8)
-    planner = Planner(_S8, bounds)
+    planner = Planner(_S8, bounds, kernel=engine)
     rng = np.random.default_rng(21)
-    B = np.vstack([rng.dirichlet(np.ones(8) * 0.3, size=2000), np.eye(8), np.full((1, 8), 1 / 8)])
-    rhoT, lo, up = planner._rho_bounds(bounds, np.ascontiguousarray(B.T))
-    np.testing.assert_allclose(rhoT, _S8.rho(B).T, rtol=1e-12, atol=1e-12)
+    B = np.vstack([rng.dirichlet(np.ones(8) * 0.3, size=500), np.eye(8), np.full((1, 8), 1 / 8)])
+    np.testing.assert_allclose(planner.q_values_batch(B, 0), _S8.rho(B), rtol=1e-12, atol=1e-12)
     lo_ref, up_ref = bounds.actions(B)
-    np.testing.assert_array_equal(lo, lo_ref)
-    np.testing.assert_array_equal(up, up_ref)
+    got = np.array([planner.root_bounds(b) for b in B])
+    np.testing.assert_array_equal(got[:, 0], lo_ref)
+    np.testing.assert_array_equal(got[:, 1], up_ref)
     flat = POMDP(P=_S3.P, O=_S3.O, r=np.ones((3, 3)), gamma=0.9)  # all actions tie
     tie = MyopicBounds(flat, np.zeros(3), np.zeros(3))
-    _, lo, up = Planner(flat, tie)._rho_bounds(tie, np.full((3, 1), 1 / 3))
-    assert (int(lo[0]), int(up[0])) == (0, 2)
+    assert Planner(flat, tie, kernel=engine).root_bounds(np.full(3, 1 / 3)) == (0, 2)
 
 
 def test_count_nodes_matches_search_and_nested_depths() -> None:
@@ -414,6 +414,15 @@ def test_deadline_is_checked_inside_a_depth_and_interrupted_depths_are_discarded
         res = planner.plan(b, max_depth=3, time_budget=float(budget), use_bounds=False, predict_stop=False)
         readings.append((budget, res.depth, res.deadline_hit))
         reference = planner.search(b, res.depth, use_bounds=False)
+        if res.partial:  # depth 1 interrupted: the root actions it finished, in decreasing rho
+            assert res.depth == 1 and res.deadline_hit
+            searched = np.isfinite(res.q_values)
+            order = np.argsort(-_S8.rho(b), kind="stable")
+            assert searched[order].tolist() == sorted(searched.tolist(), reverse=True) and searched.any()
+            np.testing.assert_array_equal(res.q_values[searched], reference.q_values[searched])
+            assert res.action == int(np.nanargmax(res.q_values))
+            assert res.nodes_expanded[0] < reference.nodes_expanded[0]
+            continue
         np.testing.assert_array_equal(res.q_values, reference.q_values)
         assert res.action == reference.action and res.nodes_expanded == reference.nodes_expanded
         assert res.depth >= 1
