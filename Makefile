@@ -2,8 +2,9 @@
 # only Python 3.11 (+ pip, venv). Both create .venv if missing and install what is missing:
 #   $(DEPS_STAMP) third-party packages from requirements.txt (ROS wheels, numpy, ..., pytest)
 #   $(PKG_STAMP)  the package itself, `pip install .` (not editable: an editable install gets
-#                 no data_files, so `ros2 run` could not see it); redone only when a file of
-#                 the package changes or is added/removed.
+#                 no data_files, so `ros2 run` could not see it), which also compiles the search
+#                 kernel (setup.py); redone only when a file of the package changes or is
+#                 added/removed.
 # A second `make test` therefore installs nothing.
 
 SHELL := /bin/bash
@@ -30,9 +31,11 @@ _ := $(shell printf '%s\n' $(PKG_SOURCES) > $(SOURCE_LIST).new; \
 	cmp -s $(SOURCE_LIST).new $(SOURCE_LIST) && rm -f $(SOURCE_LIST).new || mv -f $(SOURCE_LIST).new $(SOURCE_LIST))
 endif
 
-# For the tests: wrong ROS message field types raise instead of serialising garbage, and the
-# installed-layout test fails (instead of skipping) when the package is not installed.
-TEST_ENV := ROS_PYTHON_CHECK_FIELDS=1 POMDP_PLANNER_REQUIRE_INSTALLED=1
+# For the tests: wrong ROS message field types raise instead of serialising garbage, the
+# installed-layout test fails (instead of skipping) when the package is not installed, and the
+# kernel test fails when the compiled search kernel was not built (so the suite cannot silently
+# test the numpy reference twice).
+TEST_ENV := ROS_PYTHON_CHECK_FIELDS=1 POMDP_PLANNER_REQUIRE_INSTALLED=1 POMDP_PLANNER_REQUIRE_KERNEL=1
 PYTEST_ARGS ?=
 
 DEMO_ARGS ?=

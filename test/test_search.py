@@ -128,10 +128,10 @@ _S8 = tracking(8)
 @pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_matches_naive_reference_random_models(uncertainty: str, seed: int, fused: bool) -> None:
+def test_matches_naive_reference_random_models(uncertainty: str, seed: int, fused: bool, engine: str) -> None:
     model = random_model(seed, S=3, A=3, Z=3, uncertainty=uncertainty)
     bounds = random_bounds(model, seed)
-    planner = Planner(model, bounds, fused=fused)
+    planner = Planner(model, bounds, fused=fused, kernel=engine)
     rng = np.random.default_rng(seed)
     for depth in (1, 2, 3):
         b = rng.dirichlet(np.ones(model.S))
@@ -342,13 +342,15 @@ def perfect_sensor_model(uncertainty: str) -> POMDP:
 
 
 def test_custom_uncertainty_uses_the_generic_path() -> None:
-    """An uncertainty function the planner does not know is evaluated from explicit posteriors."""
+    """An uncertainty function the planner does not know is evaluated from explicit posteriors (by
+    the numpy engine: the kernel values Shannon, Renyi-2 and none)."""
     from pomdp_planner.core.uncertainty import RENYI2, Uncertainty
 
     custom = Uncertainty("my_renyi", RENYI2.value, RENYI2.gradient)
     m = tracking(3)
     mc = POMDP(P=m.P, O=m.O, r=m.r, gamma=m.gamma, uncertainty=custom, w=m.w)
     b = np.array([0.3, 0.3, 0.4])
+    assert Planner(mc).kernel == "numpy"
     r1, r2 = Planner(m).search(b, 3, use_bounds=False), Planner(mc).search(b, 3, use_bounds=False)
     np.testing.assert_allclose(r2.q_values, r1.q_values, rtol=1e-11)
     assert r1.nodes_expanded == r2.nodes_expanded
@@ -356,9 +358,9 @@ def test_custom_uncertainty_uses_the_generic_path() -> None:
 
 @pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
-def test_zero_probability_branches_are_skipped(uncertainty: str, fused: bool) -> None:
+def test_zero_probability_branches_are_skipped(uncertainty: str, fused: bool, engine: str) -> None:
     model = perfect_sensor_model(uncertainty)
-    planner = Planner(model, fused=fused)
+    planner = Planner(model, fused=fused, kernel=engine)
     for b in (np.array([0.5, 0.5, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([1.0, 1e-250, 0.0]) / (1 + 1e-250)):
         with np.errstate(divide="raise", invalid="raise", over="raise"):
             res = planner.search(b, 3, use_bounds=False)
@@ -371,11 +373,11 @@ def test_zero_probability_branches_are_skipped(uncertainty: str, fused: bool) ->
 
 
 @pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
-def test_tiny_eta_leaves_use_the_safe_path(fused: bool) -> None:
+def test_tiny_eta_leaves_use_the_safe_path(fused: bool, engine: str) -> None:
     """eta ~ 1e-200 at the leaves (u_s^2 underflows): values stay finite and exact."""
     model = perfect_sensor_model("renyi2")
     b = np.array([0.5, 0.5 - 1e-200, 1e-200])
-    res = Planner(model, fused=fused).search(b, 2, use_bounds=False)
+    res = Planner(model, fused=fused, kernel=engine).search(b, 2, use_bounds=False)
     _, Q, nodes = reference_search(model, b, 2, None)
     np.testing.assert_allclose(res.q_values, Q, rtol=1e-12, atol=1e-12)
     assert res.nodes_expanded[-1] == nodes
