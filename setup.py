@@ -123,7 +123,8 @@ setup(
     name=PACKAGE,
     version=_version(),
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"], exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["py.typed"]},  # PEP 561: the package is typed
+    # PEP 561: the package is typed; the C yardstick of `bench search` (compiled when it runs)
+    package_data={PACKAGE: ["py.typed", "bench/*.c"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -51,6 +51,8 @@
 #define ETA_SKIP 1e-300
 #define ETA_FUSED_MIN 1e-100
 #define TIE_RTOL 1e-12
+/* Columns of one accumulator tile of the matrix-vector products (gemv_rows). */
+#define TILE 8
 
 enum { KIND_NONE = 0, KIND_RENYI2 = 1, KIND_SHANNON = 2 };
 enum { DONE = 0, INTERRUPTED = 1, FAILED = -1 };
@@ -90,7 +92,7 @@ typedef struct {
     const double *OT;  /* A x Z x S */
     const double *X;   /* A x S x Z: O^2 (Renyi) or O log O (Shannon); NULL for none */
     const double *W;   /* A x S x Kw: the fused leaf table (leaf_products), or NULL */
-    Py_ssize_t Kw;
+    Py_ssize_t Kw, Zp, nblk; /* Kw = nblk Zp: its blocks, each Z columns padded to Zp (a multiple of TILE) */
     const double *MT;  /* S x NM: [r | Cg^T | Ch^T] (NM = 3 A) or r (NM = A): node_info's products */
     Py_ssize_t NM;
     /* CSR */
@@ -167,7 +169,9 @@ static Py_ssize_t buffer_items(PyObject *obj)
  * observations). OT: dense O transposed (A*Z*S), None with CSR O. X: O^2 / O log O in O's layout
  * (a buffer of A*S*Z for dense O, the values on O's pattern for CSR O), None for kind none.
  * Cg, Ch: None (no bounds) or A*S each. W: None or the fused leaf table of dense O (A*S*Kw,
- * Kw = (A + 1) Z, + Z for Renyi, + 2 Z for Shannon: leaf_products). MT: S*3A (with bounds) or
+ * Kw = nblk Zp: blocks O, O r_0, ..., O r_{A-1}, then X (Renyi, Shannon) and O (Shannon), each
+ * of Z columns zero-padded to Zp, Z rounded up to a multiple of TILE: leaf_products). MT: S*3A
+ * (with bounds) or
  * S*A: [r | Cg^T | Ch^T].
  */
 static PyObject *tables_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
@@ -233,7 +237,9 @@ static PyObject *tables_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
             goto fail;
         if (kind != KIND_NONE && !(self->X = take_view(self, X, "d", A * S * Z, "X")))
             goto fail;
-        self->Kw = (A + 1) * Z + (kind == KIND_RENYI2 ? Z : kind == KIND_SHANNON ? 2 * Z : 0);
+        self->Zp = (Z + TILE - 1) / TILE * TILE;
+        self->nblk = A + 1 + (kind != KIND_NONE) + (kind == KIND_SHANNON);
+        self->Kw = self->nblk * self->Zp;
         if (W != Py_None && !(self->W = take_view(self, W, "d", A * S * self->Kw, "W")))
             goto fail;
     }
@@ -363,22 +369,69 @@ static int check_deadline(Search *c, int level)
 
 /* ----------------------------------------------------------------- prediction, observation */
 
-/* ba = b P[a] (Eq. 1); zero entries of b cost nothing. */
+/*
+ * y[0..m) = sum_i x[i] M[i ld + 0..m): a vector times the rows of a matrix, in tiles of TILE
+ * columns whose sums stay in registers (GCC and clang vector types; elsewhere plain loops), the
+ * sums over i in order.
+ */
+#if defined(__GNUC__)
+typedef double v4d __attribute__((vector_size(32)));
+
+/* An unaligned load of 4 doubles (a statement expression: no vector crosses a call). */
+#define load4(p) __extension__({ v4d v_; memcpy(&v_, (p), sizeof(v_)); v_; })
+
+INLINE void gemv_rows(const double *restrict x, Py_ssize_t n, const double *restrict M, Py_ssize_t ld,
+                      Py_ssize_t m, double *restrict y)
+{
+    Py_ssize_t q = 0;
+    for (; q + TILE <= m; q += TILE) {
+        v4d a0 = {0.0, 0.0, 0.0, 0.0}, a1 = a0;
+        const double *r = M + q;
+        for (Py_ssize_t i = 0; i < n; i++, r += ld) {
+            v4d xi = {x[i], x[i], x[i], x[i]};
+            a0 += xi * load4(r);
+            a1 += xi * load4(r + 4);
+        }
+        memcpy(y + q, &a0, sizeof(a0));
+        memcpy(y + q + 4, &a1, sizeof(a1));
+    }
+    for (; q + 4 <= m; q += 4) {
+        v4d a0 = {0.0, 0.0, 0.0, 0.0};
+        const double *r = M + q;
+        for (Py_ssize_t i = 0; i < n; i++, r += ld) {
+            v4d xi = {x[i], x[i], x[i], x[i]};
+            a0 += xi * load4(r);
+        }
+        memcpy(y + q, &a0, sizeof(a0));
+    }
+    for (; q < m; q++) {
+        double acc = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            acc += x[i] * M[i * ld + q];
+        y[q] = acc;
+    }
+}
+#else
+INLINE void gemv_rows(const double *restrict x, Py_ssize_t n, const double *restrict M, Py_ssize_t ld,
+                      Py_ssize_t m, double *restrict y)
+{
+    for (Py_ssize_t q = 0; q < m; q++) {
+        double acc = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            acc += x[i] * M[i * ld + q];
+        y[q] = acc;
+    }
+}
+#endif
+
+/* ba = b P[a] (Eq. 1). */
 INLINE void predict(const Tables *t, const double *b, Py_ssize_t a, double *restrict ba)
 {
     Py_ssize_t S = t->S;
-    memset(ba, 0, S * sizeof(double));
     if (!t->p_sparse) {
-        const double *P = t->P + a * S * S;
-        for (Py_ssize_t i = 0; i < S; i++) {
-            double bi = b[i];
-            if (bi == 0.0)
-                continue;
-            const double *row = P + i * S;
-            for (Py_ssize_t j = 0; j < S; j++)
-                ba[j] += bi * row[j];
-        }
+        gemv_rows(b, S, t->P + a * S * S, S, S, ba);
     } else {
+        memset(ba, 0, S * sizeof(double));
         const int64_t *p = t->Pp + a * (S + 1);
         for (Py_ssize_t i = 0; i < S; i++) {
             double bi = b[i];
@@ -405,6 +458,10 @@ INLINE void observe(const Tables *t, const double *restrict ba, Py_ssize_t a, do
     if (sq)
         memset(sq, 0, Z * sizeof(double));
     int kind = t->kind;
+    if (!t->o_sparse && !lin) {
+        gemv_rows(ba, S, t->O + a * S * Z, Z, Z, eta);
+        return;
+    }
     if (!t->o_sparse) {
         const double *O = t->O + a * S * Z, *X = t->X ? t->X + a * S * Z : NULL;
         for (Py_ssize_t s = 0; s < S; s++) {
@@ -468,8 +525,9 @@ INLINE void posterior(const Tables *t, const double *restrict ba, Py_ssize_t a, 
     Py_ssize_t S = t->S;
     if (!t->o_sparse) {
         const double *ot = t->OT + (a * t->Z + z) * S;
+        double inv = 1.0 / eta;
         for (Py_ssize_t s = 0; s < S; s++)
-            out[s] = ba[s] * ot[s] / eta;
+            out[s] = ba[s] * ot[s] * inv;
     } else {
         const int64_t *p = t->Op + a * (S + 1);
         for (Py_ssize_t s = 0; s < S; s++) {
@@ -494,12 +552,13 @@ INLINE double uncertainty(const Tables *t, const double *b)
     if (t->kind == KIND_RENYI2) {
         for (Py_ssize_t s = 0; s < S; s++)
             f += b[s] * b[s];
-        return -log(f);
+        return -klog(f);
     }
     if (t->kind == KIND_SHANNON) {
-        for (Py_ssize_t s = 0; s < S; s++)
-            if (b[s] > 0.0)
-                f -= b[s] * log(b[s]);
+        for (Py_ssize_t s = 0; s < S; s++) {
+            double x = b[s] > 0.0 ? b[s] : 1.0;
+            f -= b[s] * klog(x);
+        }
         return f;
     }
     return 0.0;
@@ -538,15 +597,7 @@ INLINE void node_info(const Search *c, const double *restrict b, double *restric
     int bounded = c->use_bounds && t->Cg != NULL;
     Py_ssize_t nm = bounded ? NM : A;
     double f = t->kind == KIND_NONE ? 0.0 : uncertainty(t, b);
-    memset(work, 0, nm * sizeof(double));
-    for (Py_ssize_t s = 0; s < S; s++) {
-        double bs = b[s];
-        if (bs == 0.0)
-            continue;
-        const double *m = t->MT + s * NM;
-        for (Py_ssize_t k = 0; k < nm; k++)
-            work[k] += bs * m[k];
-    }
+    gemv_rows(b, S, t->MT, NM, nm, work);
     for (Py_ssize_t a = 0; a < A; a++)
         rho[a] = work[a] - c->cost[a] - t->w[a] * f;
     if (!bounded) {
@@ -576,43 +627,49 @@ INLINE int allows(const Level *L, Py_ssize_t p, Py_ssize_t a)
 /* Parents whose leaves are valued together (their logarithms in one loop). */
 #define LEAF_BLOCK 32
 
-/*
- * The observation sums of one predicted belief ba under action a into y (file comment):
- * y[0..Z) = eta, y[(1 + a') Z + z] = u . r_a', and, valuing (not counting), y[(A + 1) Z + z] =
- * sum_s u_s^2 (Renyi) or sum_s u_s log u_s (Shannon). With the fused table W[a][s] = [O | O r_0 |
- * ... | O r_{A-1} | X | O] (Shannon's last block takes the coefficient ba_s log ba_s), one
- * product per block; without it (large models, CSR O) observe() above.
- */
-INLINE void leaf_products(const Tables *t, const double *restrict ba, Py_ssize_t a, double *restrict y,
-                                 int count_only)
+/* Columns of one parent's observation sums (leaf_products): the fused table's, or (A + 2) Z. */
+static inline Py_ssize_t leaf_y(const Tables *t)
 {
-    Py_ssize_t S = t->S, A = t->A, Z = t->Z, K = (A + 1) * Z;
+    return t->W != NULL ? t->Kw : (t->A + 2) * t->Z;
+}
+
+/*
+ * The observation sums of one predicted belief ba under action a into y, in blocks of ``ys``
+ * columns (file comment): y[z] = eta_z, y[(1 + a') ys + z] = u . r_a', and, valuing (not
+ * counting), y[(A + 1) ys + z] = sum_s u_s^2 (Renyi) or sum_s u_s log u_s (Shannon; with the fused
+ * table in two blocks, (A + 1) and (A + 2), to be added). With the fused table W[a] (rows s:
+ * [O | O r_0 | ... | O r_{A-1} | X (| O)], blocks padded to Zp) one matrix-vector product per
+ * block, with the coefficients ba_s, then ba_s^2 (Renyi X = O^2) or ba_s (Shannon X = O log O) and
+ * ba_s log ba_s (Shannon's second O); without it (large models, CSR O) observe() above. Returns
+ * ys. work: 2 S doubles.
+ */
+INLINE Py_ssize_t leaf_products(const Tables *t, const double *restrict ba, Py_ssize_t a, double *restrict y,
+                                int count_only, double *restrict work)
+{
+    Py_ssize_t S = t->S, A = t->A, Z = t->Z;
     int kind = t->kind;
     if (t->W == NULL || count_only) {
-        observe(t, ba, a, y, count_only ? NULL : y + Z, count_only || kind == KIND_NONE ? NULL : y + K);
-        return;
+        observe(t, ba, a, y, count_only ? NULL : y + Z, count_only || kind == KIND_NONE ? NULL : y + (A + 1) * Z);
+        return Z;
     }
-    Py_ssize_t Kw = t->Kw;
+    Py_ssize_t Zp = t->Zp, Kw = t->Kw;
     const double *W = t->W + a * S * Kw;
-    Py_ssize_t Ky = kind == KIND_NONE ? K : K + Z;
-    memset(y, 0, Ky * sizeof(double));
-    for (Py_ssize_t s = 0; s < S; s++) {
-        double c = ba[s];
-        if (c == 0.0)
-            continue;
-        const double *w = W + s * Kw;
-        for (Py_ssize_t k = 0; k < K; k++)
-            y[k] += c * w[k];
-        if (kind == KIND_RENYI2) {
-            double c2 = c * c;
-            for (Py_ssize_t z = 0; z < Z; z++)
-                y[K + z] += c2 * w[K + z];
-        } else if (kind == KIND_SHANNON) {
-            double cl = c * log(c);
-            for (Py_ssize_t z = 0; z < Z; z++)
-                y[K + z] += c * w[K + z] + cl * w[K + Z + z];
-        }
+    for (Py_ssize_t k = 0; k <= A; k++)
+        gemv_rows(ba, S, W + k * Zp, Kw, Zp, y + k * Zp);
+    if (kind == KIND_NONE)
+        return Zp;
+    double *cx = work, *cl = work + S;
+    if (kind == KIND_RENYI2) {
+        for (Py_ssize_t s = 0; s < S; s++)
+            cx[s] = ba[s] * ba[s];
+        gemv_rows(cx, S, W + (A + 1) * Zp, Kw, Zp, y + (A + 1) * Zp);
+    } else {
+        for (Py_ssize_t s = 0; s < S; s++)
+            cl[s] = ba[s] * klog(ba[s] > 0.0 ? ba[s] : 1.0);
+        gemv_rows(ba, S, W + (A + 1) * Zp, Kw, Zp, y + (A + 1) * Zp);
+        gemv_rows(cl, S, W + (A + 2) * Zp, Kw, Zp, y + (A + 2) * Zp);
     }
+    return Zp;
 }
 
 /*
@@ -623,15 +680,15 @@ INLINE void leaf_products(const Tables *t, const double *restrict ba, Py_ssize_t
 HOT static int64_t leaf_step(Search *c, Level *L, Py_ssize_t s0, Py_ssize_t s1, Py_ssize_t a)
 {
     const Tables *t = c->t;
-    Py_ssize_t S = t->S, A = t->A, Z = t->Z, K = (A + 1) * Z, Ky = K + Z;
+    Py_ssize_t S = t->S, A = t->A, Z = t->Z, Ky = leaf_y(t);
     int kind = t->kind;
     double gamma = t->gamma;
     const double *cost = c->cost, *w = t->w;
     double *BA = c->block, *Y = BA + LEAF_BLOCK * S, *E = Y + LEAF_BLOCK * Ky, *LG = E + LEAF_BLOCK * Z;
-    double *M = LG + LEAF_BLOCK * Z, *TZ = M + Z, *tau = TZ + Z;
+    double *M = LG + LEAF_BLOCK * Z, *TZ = M + Z, *tau = TZ + Z, *work = tau + S;
     Py_ssize_t idx[LEAF_BLOCK];
     int64_t leaves = 0;
-    Py_ssize_t p = s0;
+    Py_ssize_t p = s0, ys = Z;
     for (;;) {
         Py_ssize_t nb = 0;
         for (; p < s1 && nb < LEAF_BLOCK; p++)
@@ -642,7 +699,7 @@ HOT static int64_t leaf_step(Search *c, Level *L, Py_ssize_t s0, Py_ssize_t s1, 
         for (Py_ssize_t j = 0; j < nb; j++) {
             double *ba = BA + j * S, *y = Y + j * Ky;
             predict(t, L->B + idx[j] * S, a, ba);
-            leaf_products(t, ba, a, y, c->count_only);
+            ys = leaf_products(t, ba, a, y, c->count_only, work);
             memcpy(E + j * Z, y, Z * sizeof(double));
         }
         if (c->count_only) {
@@ -650,10 +707,12 @@ HOT static int64_t leaf_step(Search *c, Level *L, Py_ssize_t s0, Py_ssize_t s1, 
                 leaves += E[i] > ETA_SKIP;
             continue;
         }
+        Py_ssize_t xo = (A + 1) * ys; /* the uncertainty sums; Shannon's fused second block at xo + ys */
+        int two = kind == KIND_SHANNON && t->W != NULL;
         /* the block's logarithms in one vectorised loop (a dummy 1 where eta is too small) */
         if (kind == KIND_RENYI2) {
             for (Py_ssize_t j = 0; j < nb; j++) {
-                const double *sq = Y + j * Ky + K, *e = E + j * Z;
+                const double *sq = Y + j * Ky + xo, *e = E + j * Z;
                 double *lg = LG + j * Z;
                 for (Py_ssize_t z = 0; z < Z; z++)
                     lg[z] = e[z] >= ETA_FUSED_MIN ? sq[z] / (e[z] * e[z]) : 1.0;
@@ -673,14 +732,14 @@ HOT static int64_t leaf_step(Search *c, Level *L, Py_ssize_t s0, Py_ssize_t s1, 
                     TZ[z] = e[z] * lg[z];
             else if (kind == KIND_SHANNON)
                 for (Py_ssize_t z = 0; z < Z; z++)
-                    TZ[z] = y[K + z] - e[z] * lg[z];
+                    TZ[z] = y[xo + z] + (two ? y[xo + ys + z] : 0.0) - e[z] * lg[z];
             else
                 for (Py_ssize_t z = 0; z < Z; z++)
                     TZ[z] = 0.0;
             for (Py_ssize_t z = 0; z < Z; z++)
-                M[z] = y[Z + z] - cost[0] * e[z] + w[0] * TZ[z];
+                M[z] = y[ys + z] - cost[0] * e[z] + w[0] * TZ[z];
             for (Py_ssize_t k = 1; k < A; k++) {
-                const double *lin = y + (k + 1) * Z;
+                const double *lin = y + (k + 1) * ys;
                 double ck = cost[k], wk = w[k];
                 for (Py_ssize_t z = 0; z < Z; z++) {
                     double v = lin[z] - ck * e[z] + wk * TZ[z];
@@ -728,8 +787,8 @@ HOT static int64_t leaf_step(Search *c, Level *L, Py_ssize_t s0, Py_ssize_t s1, 
 /* Scratch doubles of a leaf step (leaf_step's layout). */
 static size_t leaf_scratch(const Tables *t)
 {
-    size_t S = t->S, A = t->A, Z = t->Z;
-    return LEAF_BLOCK * (S + (A + 2) * Z + 2 * Z) + 2 * Z + S;
+    size_t S = t->S, Z = t->Z;
+    return LEAF_BLOCK * (S + leaf_y(t) + 2 * Z) + 2 * Z + 3 * S;
 }
 
 /* --------------------------------------------------------------------------- the search */
@@ -1177,6 +1236,7 @@ PyMODINIT_FUNC PyInit__pomdp_planner_kernel(void)
     Py_INCREF(&TablesType);
     if (PyModule_AddObject(m, "Tables", (PyObject *)&TablesType) < 0
         || PyModule_AddIntConstant(m, "KERNEL_VERSION", KERNEL_VERSION) < 0
+        || PyModule_AddIntConstant(m, "TILE", TILE) < 0
         || PyModule_AddObject(m, "ETA_SKIP", PyFloat_FromDouble(ETA_SKIP)) < 0
         || PyModule_AddObject(m, "ETA_FUSED_MIN", PyFloat_FromDouble(ETA_FUSED_MIN)) < 0
         || PyModule_AddObject(m, "TIE_RTOL", PyFloat_FromDouble(TIE_RTOL)) < 0) {

@@ -130,8 +130,8 @@ class KernelEngine:
 
     ``P``/``O``: the model's dense arrays unless given as :class:`CSRRows`. ``fused``: build the
     fused leaf table of dense ``O`` (``W[a][s] = [O | O r_0 | ... | O r_{A-1} | X (| O)]``,
-    ``A S Z (A + 2)`` floats, ``A + 3`` blocks for Shannon; search_kernel.c, leaf_products):
-    one product per leaf parent and action instead of ``A + 2``.
+    ``A + 2`` blocks, ``A + 3`` for Shannon, of ``Z`` columns padded to a multiple of the kernel's
+    tile; search_kernel.c, leaf_products): one matrix-vector product per block.
     """
 
     def __init__(self, model: POMDP, bounds: Any, fused: bool, P: CSRRows | None = None, O: CSRRows | None = None):
@@ -164,17 +164,18 @@ class KernelEngine:
                 X = np.where(Od > 0.0, Od, 1.0)
                 np.log(X, out=X)
                 X *= Od
-            if fused:  # filled in place: no temporaries beside the table
+            if fused:  # blocks of Z columns padded to a multiple of TILE; filled in place
+                Zp = -(-Z // mod.TILE) * mod.TILE
                 blocks = A + 1 + (kind != "none") + (kind == "shannon")
-                W = np.empty((A, S, blocks * Z))
+                W = np.zeros((A, S, blocks * Zp))
                 W[:, :, :Z] = Od
                 for a in range(A):  # one S x Z temporary at a time
                     for k in range(A):
-                        W[a, :, (k + 1) * Z:(k + 2) * Z] = Od[a] * r[:, k:k + 1]
+                        W[a, :, (k + 1) * Zp:(k + 1) * Zp + Z] = Od[a] * r[:, k:k + 1]
                 if X is not None:
-                    W[:, :, (A + 1) * Z:(A + 2) * Z] = X
+                    W[:, :, (A + 1) * Zp:(A + 1) * Zp + Z] = X
                 if kind == "shannon":
-                    W[:, :, (A + 2) * Z:] = Od
+                    W[:, :, (A + 2) * Zp:(A + 2) * Zp + Z] = Od
         else:
             o_arg = (O.indptr, O.indices, dense(O.data))
             if kind == "renyi2":
