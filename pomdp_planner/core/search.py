@@ -422,6 +422,8 @@ class Planner:
         self.fused = uses_fused_table(S, A, Z, fused)
         self._leaf_chunk, self._expand_chunk, _ = chunk_sizes(S, A, Z, chunk_bytes)
         self._cost = np.zeros(A)
+        self._priced = False  # whether _cost holds a non-zero price
+        self._A = A
         self._checked_depths: set[int] = set()
         self._complete = [1]
         self._reference: ReferenceEngine | None = None
@@ -560,6 +562,7 @@ class Planner:
         new = copy.copy(self)
         new._cost = self._cost + c
         new._cost.setflags(write=False)
+        new._priced = bool(new._cost.any())
         return new
 
     def q_values_batch(self, beliefs: np.ndarray, depth: int, use_bounds: bool = True, *,
@@ -611,6 +614,8 @@ class Planner:
     # --------------------------------------------------------------- internals
     def _depth(self, depth: int, name: str) -> int:
         """``depth`` checked (an integer >= 1 whose search fits the memory budget)."""
+        if type(depth) is int and depth in self._checked_depths:  # checked before
+            return depth
         depth = check_depth(depth, name)
         self._check_memory_once(depth, name)
         return depth
@@ -642,13 +647,13 @@ class Planner:
         actions in decreasing ``rho`` (one root only). ``check``: the roots are checked and
         normalised by the belief rule first (:func:`~.belief.check_belief`; its error names
         ``field``, with the row for several roots): the kernel checks and normalises ``B`` in place."""
-        n, A = B.shape[0], self.model.A
+        n, A = B.shape[0], self._A
         cost = self._cost
         k = self._kernel
         if k is not None:
             Q = None if count_only else np.empty((n, A))
             args = [k.tables, B, n, depth, bool(use_bounds) and k.has_bounds, all_root, rho_order and n == 1,
-                    cost if cost.any() else None, self._leaf_chunk, self._expand_chunk, deadline,
+                    cost if self._priced else None, self._leaf_chunk, self._expand_chunk, deadline,
                     None if search_kernel.native_clock(self.clock) else self.clock, first_free, count_only,
                     BELIEF_ATOL if check else None, Q]
             status, index, sizes, lo, up = k.mod.search(*args)
@@ -689,7 +694,7 @@ class Planner:
 
     def _is_certified(self, rb: tuple[int, int] | None) -> bool:
         """Guaranteed root bounds agree (Proposition 1), or there is only one action."""
-        return self.model.A == 1 or (rb is not None and self.guaranteed and rb[0] == rb[1])
+        return self._A == 1 or (rb is not None and self.guaranteed and rb[0] == rb[1])
 
     def _complete_nodes(self, depth: int) -> list[int]:
         """:func:`complete_tree_nodes` for depths ``0..depth`` (cached)."""
@@ -703,12 +708,7 @@ class Planner:
                 partial: bool = False) -> SearchResult:
         q.setflags(write=False)
         expanded = tuple(itertools.accumulate(sizes))[1:]
-        complete = self._complete_nodes(depth)
-        return SearchResult(
-            action=action, priority=int(priority_of(action)), q_values=q, depth=depth,
-            nodes_expanded=expanded, nodes_pruned=tuple(complete[i + 1] - e for i, e in enumerate(expanded)),
-            certified=self._is_certified(rb), root_bounds=rb, time_used=float(t), deadline_hit=hit,
-            value=float(q[action]), level_sizes=tuple(sizes), used_bounds=rb is not None,
-            depth_times=times, predicted_stop=predicted, guaranteed=self.guaranteed and rb is not None,
-            partial=partial,
-        )
+        pruned = tuple([c - e for c, e in zip(self._complete_nodes(depth)[1:], expanded, strict=True)])
+        return SearchResult(action, int(priority_of(action)), q, depth, expanded, pruned, self._is_certified(rb), rb,
+                            float(t), hit, float(q[action]), tuple(sizes), rb is not None, times, predicted,
+                            self.guaranteed and rb is not None, partial)
