@@ -708,7 +708,7 @@ class Planner:
                 partial: bool = False) -> SearchResult:
         q.setflags(write=False)
         expanded = tuple(itertools.accumulate(sizes))[1:]
-        pruned = tuple([c - e for c, e in zip(self._complete_nodes(depth)[1:], expanded, strict=True)])
+        pruned = tuple([c - e for c, e in zip(self._complete_nodes(depth)[1:depth + 1], expanded, strict=True)])
         return SearchResult(action, int(priority_of(action)), q, depth, expanded, pruned, self._is_certified(rb), rb,
                             float(t), hit, float(q[action]), tuple(sizes), rb is not None, times, predicted,
                             self.guaranteed and rb is not None, partial)
