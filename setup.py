@@ -36,7 +36,7 @@ NODE_EXECUTABLES = {
     "run_recorder": "pomdp_planner.nodes.run_recorder:main",
 }
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).absolute().parent  # not resolved: colcon --symlink-install builds in a tree of symlinks
 FORWARDER_DIR = Path("build") / "ros_forwarders"  # generated, never committed
 FORWARDER = """#!/bin/sh
 # Forwarder for `ros2 run` after a pip install: runs <prefix>/bin/<this file's name>.
