@@ -32,8 +32,9 @@ typedef struct {
     double gamma;
     const double *P, *O, *w;
     double *rT;  /* A x S */
-    double *W;   /* A x S x (A + 1) Z: [O[a][s][z] | O[a][s][z] r[s][a']] */
-    double *X;   /* A x S x Z: O^2 or O log O */
+    int Zp;      /* Z rounded up to a multiple of 8 (the blocks of W and X) */
+    double *W;   /* A x S x (A + 1) Zp: [O[a][s][z] | O[a][s][z] r[s][a']], zero-padded */
+    double *X;   /* A x S x Zp: O^2 or O log O, zero-padded */
     double *OT;  /* A x Z x S */
 } Model;
 
@@ -73,17 +74,32 @@ static void rho(const Model *m, const double *b, double *out)
     }
 }
 
+/* y[0..m) = sum_i x[i] M[i ld + 0..m), columns in register tiles of 8 (m a multiple of 8 or not). */
+typedef double v8d __attribute__((vector_size(64)));
+
+static inline void gemv(const double *restrict x, int n, const double *restrict M, int ld, int m, double *restrict y)
+{
+    int q = 0;
+    for (; q + 8 <= m; q += 8) {
+        v8d acc = {0};
+        for (int i = 0; i < n; i++) {
+            v8d r;
+            memcpy(&r, M + (size_t)i * ld + q, sizeof(r));
+            acc += x[i] * r;
+        }
+        memcpy(y + q, &acc, sizeof(acc));
+    }
+    for (; q < m; q++) {
+        double acc = 0.0;
+        for (int i = 0; i < n; i++)
+            acc += x[i] * M[(size_t)i * ld + q];
+        y[q] = acc;
+    }
+}
+
 static void predict(const Model *m, const double *b, int a, double *ba)
 {
-    int S = m->S;
-    const double *P = m->P + (size_t)a * S * S;
-    for (int j = 0; j < S; j++)
-        ba[j] = 0.0;
-    for (int i = 0; i < S; i++) {
-        double bi = b[i];
-        for (int j = 0; j < S; j++)
-            ba[j] += bi * P[i * S + j];
-    }
+    gemv(b, m->S, m->P + (size_t)a * m->S * m->S, m->S, m->S, ba);
 }
 
 /* Children of n beliefs B: C (n A Z x S at most), their parent key (i A + a) and eta. */
@@ -118,82 +134,75 @@ static long expand(const Model *m, const double *B, long n, double *C, long *key
 /* QL[i A + a] = sum_z eta V(leaf) for the leaf parents B (n x S); returns the number of leaves. */
 static long leaves(const Model *m, const double *B, long n, double *QL)
 {
-    int S = m->S, A = m->A, Z = m->Z, K = (A + 1) * Z;
+    int S = m->S, A = m->A, Z = m->Z, Zp = m->Zp, K = (A + 1) * Zp;
     size_t per = (size_t)A * Z;
-    double *Y = malloc(sizeof(double) * BLOCK * A * K), *T = malloc(sizeof(double) * BLOCK * per);
+    double *Y = malloc(sizeof(double) * BLOCK * A * K), *T = malloc(sizeof(double) * BLOCK * A * Zp);
     double *L = malloc(sizeof(double) * BLOCK * per), *BA = malloc(sizeof(double) * BLOCK * A * S);
     double *Eb = malloc(sizeof(double) * BLOCK * per);
-    double ba2[4096], lb[4096];
+    double ba2[4096], lb[4096], tz[4096], best[4096];
     long count = 0;
     for (long i0 = 0; i0 < n; i0 += BLOCK) {
         int nb = n - i0 < BLOCK ? (int)(n - i0) : BLOCK;
         for (int i = 0; i < nb; i++)
             for (int a = 0; a < A; a++) {
-                double *ba = BA + ((size_t)i * A + a) * S;
+                size_t ia = (size_t)i * A + a;
+                double *ba = BA + ia * S, *y = Y + ia * K, *t = T + ia * Zp;
                 predict(m, B + (i0 + i) * S, a, ba);
-                double *y = Y + ((size_t)i * A + a) * K, *t = T + ((size_t)i * A + a) * Z;
-                const double *W = m->W + (size_t)a * S * K, *X = m->X ? m->X + (size_t)a * S * Z : NULL;
-                for (int k = 0; k < K; k++)
-                    y[k] = 0.0;
-                for (int s = 0; s < S; s++)
-                    for (int k = 0; k < K; k++)
-                        y[k] += ba[s] * W[s * K + k];
-                for (int z = 0; z < Z; z++)
-                    t[z] = 0.0;
-                memcpy(Eb + ((size_t)i * A + a) * Z, y, sizeof(double) * Z);
+                gemv(ba, S, m->W + (size_t)a * S * K, K, K, y); /* eta and u . r_a' for every a' */
                 if (m->kind == 1) {
                     for (int s = 0; s < S; s++)
                         ba2[s] = ba[s] * ba[s];
-                    for (int s = 0; s < S; s++)
-                        for (int z = 0; z < Z; z++)
-                            t[z] += ba2[s] * X[s * Z + z];
+                    gemv(ba2, S, m->X + (size_t)a * S * Zp, Zp, Zp, t);
                 } else if (m->kind == 2) {
                     for (int s = 0; s < S; s++)
                         lb[s] = ba[s] > 0.0 ? ba[s] * log(ba[s]) : 0.0;
-                    const double *O = m->O + (size_t)a * S * Z;
-                    for (int s = 0; s < S; s++)
-                        for (int z = 0; z < Z; z++)
-                            t[z] += lb[s] * O[s * Z + z] + ba[s] * X[s * Z + z];
+                    gemv(ba, S, m->X + (size_t)a * S * Zp, Zp, Zp, t);
+                    gemv(lb, S, m->W + (size_t)a * S * K, K, Zp, ba2); /* sum_s ba log ba O */
+                    for (int z = 0; z < Zp; z++)
+                        t[z] += ba2[z];
                 }
+                memcpy(Eb + ia * Z, y, sizeof(double) * Z);
+                double *arg = L + ia * Z; /* the logarithms' arguments (1 where eta is too small) */
+                for (int z = 0; z < Z; z++)
+                    arg[z] = y[z] >= ETA_FUSED_MIN ? (m->kind == 1 ? t[z] / (y[z] * y[z]) : y[z]) : 1.0;
             }
         /* the block's logarithms in one loop */
         long nl = (long)nb * per;
-        if (m->kind == 1)
+        if (m->kind != 0)
             for (long j = 0; j < nl; j++)
-                L[j] = log(Eb[j] >= ETA_FUSED_MIN ? T[j] / (Eb[j] * Eb[j]) : 1.0);
-        else if (m->kind == 2)
-            for (long j = 0; j < nl; j++)
-                L[j] = log(Eb[j] >= ETA_FUSED_MIN ? Eb[j] : 1.0);
+                L[j] = log(L[j]);
         for (int i = 0; i < nb; i++)
             for (int a = 0; a < A; a++) {
                 size_t ia = (size_t)i * A + a;
-                const double *y = Y + ia * K, *t = T + ia * Z, *l = L + ia * Z;
+                const double *y = Y + ia * K, *t = T + ia * Zp, *l = L + ia * Z, *e = Eb + ia * Z;
+                for (int z = 0; z < Z; z++)
+                    tz[z] = m->kind == 1 ? e[z] * l[z] : (m->kind == 2 ? t[z] - e[z] * l[z] : 0.0);
+                for (int z = 0; z < Z; z++)
+                    best[z] = y[Zp + z] + m->w[0] * tz[z];
+                for (int k = 1; k < A; k++)
+                    for (int z = 0; z < Z; z++) {
+                        double v = y[(k + 1) * Zp + z] + m->w[k] * tz[z];
+                        best[z] = v > best[z] ? v : best[z];
+                    }
                 double total = 0.0;
                 for (int z = 0; z < Z; z++) {
-                    double e = y[z];
-                    if (!(e > ETA_SKIP))
+                    double ez = e[z];
+                    if (!(ez > ETA_SKIP))
                         continue;
                     count++;
-                    double best;
-                    if (m->kind != 0 && e < ETA_FUSED_MIN) {
+                    if (m->kind != 0 && ez < ETA_FUSED_MIN) { /* from the normalised posterior */
                         double tau[4096], rr[4096];
                         const double *ba = BA + ia * S, *ot = m->OT + ((size_t)a * Z + z) * S;
                         for (int s = 0; s < S; s++)
-                            tau[s] = ba[s] * ot[s] / e;
+                            tau[s] = ba[s] * ot[s] / ez;
                         rho(m, tau, rr);
-                        best = rr[0];
+                        double bz = rr[0];
                         for (int k = 1; k < A; k++)
-                            best = rr[k] > best ? rr[k] : best;
-                        total += e * best;
+                            bz = rr[k] > bz ? rr[k] : bz;
+                        total += ez * bz;
                         continue;
                     }
-                    double tz = m->kind == 1 ? e * l[z] : (m->kind == 2 ? t[z] - e * l[z] : 0.0);
-                    best = -INFINITY;
-                    for (int k = 0; k < A; k++) {
-                        double v = y[(k + 1) * Z + z] + m->w[k] * tz;
-                        best = v > best ? v : best;
-                    }
-                    total += best;
+                    total += best[z];
                 }
                 QL[(i0 + i) * A + a] = total;
             }
@@ -211,11 +220,11 @@ static long leaves(const Model *m, const double *B, long n, double *QL)
 int expectimax(int S, int A, int Z, double gamma, int kind, const double *P, const double *O, const double *r,
                const double *w, const double *b0, int depth, int reps, double *Q, long long *nodes, double *seconds)
 {
-    Model m = {S, A, Z, kind, gamma, P, O, w, NULL, NULL, NULL, NULL};
-    int K = (A + 1) * Z;
+    int Zp = (Z + 7) / 8 * 8, K = (A + 1) * Zp;
+    Model m = {S, A, Z, kind, gamma, P, O, w, NULL, Zp, NULL, NULL, NULL};
     m.rT = malloc(sizeof(double) * A * S);
-    m.W = malloc(sizeof(double) * (size_t)A * S * K);
-    m.X = kind ? malloc(sizeof(double) * (size_t)A * S * Z) : NULL;
+    m.W = calloc((size_t)A * S * K, sizeof(double));
+    m.X = kind ? calloc((size_t)A * S * Zp, sizeof(double)) : NULL;
     m.OT = malloc(sizeof(double) * (size_t)A * Z * S);
     for (int s = 0; s < S; s++)
         for (int a = 0; a < A; a++)
@@ -226,11 +235,11 @@ int expectimax(int S, int A, int Z, double gamma, int kind, const double *P, con
                 double o = O[((size_t)a * S + s) * Z + z];
                 m.W[((size_t)a * S + s) * K + z] = o;
                 for (int k = 0; k < A; k++)
-                    m.W[((size_t)a * S + s) * K + (k + 1) * Z + z] = o * r[s * A + k];
+                    m.W[((size_t)a * S + s) * K + (k + 1) * Zp + z] = o * r[s * A + k];
                 if (kind == 1)
-                    m.X[((size_t)a * S + s) * Z + z] = o * o;
+                    m.X[((size_t)a * S + s) * Zp + z] = o * o;
                 else if (kind == 2)
-                    m.X[((size_t)a * S + s) * Z + z] = o > 0.0 ? o * log(o) : 0.0;
+                    m.X[((size_t)a * S + s) * Zp + z] = o > 0.0 ? o * log(o) : 0.0;
                 m.OT[((size_t)a * Z + z) * S + s] = o;
             }
     /* level sizes of the complete tree bound the arrays */

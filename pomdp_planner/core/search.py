@@ -227,10 +227,10 @@ def search_memory_estimate(S: int, A: int, Z: int, depth: int, chunk_bytes: int 
 
 def fused_table_bytes(S: int, A: int, Z: int) -> int:
     """Bytes of the fused leaf table, at most ``A (A + 3) Z' S`` floats (``Z'``: ``Z`` rounded up to
-    a multiple of 8): the kernel's ``[O | O r_a' | X (| O)]`` (:mod:`.search_kernel`; ``A + 3``
+    a multiple of 4): the kernel's ``[O | O r_a' | X (| O)]`` (:mod:`.search_kernel`; ``A + 3``
     blocks for Shannon, ``A + 2`` for Renyi, each padded to ``Z'`` columns) or the numpy engine's
     ``WT`` (``A + 1`` blocks of ``Z``, :mod:`.search_reference`, "Leaf tables")."""
-    return 8 * A * (A + 3) * (-(-Z // 8) * 8) * S
+    return 8 * A * (A + 3) * (-(-Z // 4) * 4) * S
 
 
 def uses_fused_table(S: int, A: int, Z: int, fused: bool | None = None) -> bool:

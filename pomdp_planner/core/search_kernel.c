@@ -51,8 +51,10 @@
 #define ETA_SKIP 1e-300
 #define ETA_FUSED_MIN 1e-100
 #define TIE_RTOL 1e-12
-/* Columns of one accumulator tile of the matrix-vector products (gemv_rows). */
+/* Columns of one accumulator tile of the matrix-vector products (gemv_rows): 8, or 4 at the end;
+ * the fused leaf table's blocks and the reward and bound products are padded to a multiple of 4. */
 #define TILE 8
+#define PAD 4
 
 enum { KIND_NONE = 0, KIND_RENYI2 = 1, KIND_SHANNON = 2 };
 enum { DONE = 0, INTERRUPTED = 1, FAILED = -1 };
@@ -170,8 +172,8 @@ static Py_ssize_t buffer_items(PyObject *obj)
  * (a buffer of A*S*Z for dense O, the values on O's pattern for CSR O), None for kind none.
  * Cg, Ch: None (no bounds) or A*S each. W: None or the fused leaf table of dense O (A*S*Kw,
  * Kw = nblk Zp: blocks O, O r_0, ..., O r_{A-1}, then X (Renyi, Shannon) and O (Shannon), each
- * of Z columns zero-padded to Zp, Z rounded up to a multiple of TILE: leaf_products). MT: S*3A
- * (with bounds) or
+ * of Z columns zero-padded to Zp, Z rounded up to a multiple of PAD: leaf_products). MT: S*NM,
+ * NM = 3A (with bounds) or A rounded up to a multiple of PAD, zero-padded:
  * S*A: [r | Cg^T | Ch^T].
  */
 static PyObject *tables_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
@@ -237,13 +239,13 @@ static PyObject *tables_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
             goto fail;
         if (kind != KIND_NONE && !(self->X = take_view(self, X, "d", A * S * Z, "X")))
             goto fail;
-        self->Zp = (Z + TILE - 1) / TILE * TILE;
+        self->Zp = (Z + PAD - 1) / PAD * PAD;
         self->nblk = A + 1 + (kind != KIND_NONE) + (kind == KIND_SHANNON);
         self->Kw = self->nblk * self->Zp;
         if (W != Py_None && !(self->W = take_view(self, W, "d", A * S * self->Kw, "W")))
             goto fail;
     }
-    self->NM = self->Cg ? 3 * A : A;
+    self->NM = ((self->Cg ? 3 * A : A) + PAD - 1) / PAD * PAD;
     if (!(self->MT = take_view(self, MT, "d", S * self->NM, "MT")))
         goto fail;
     return (PyObject *)self;
@@ -595,7 +597,7 @@ INLINE void node_info(const Search *c, const double *restrict b, double *restric
     const Tables *t = c->t;
     Py_ssize_t S = t->S, A = t->A, NM = t->NM;
     int bounded = c->use_bounds && t->Cg != NULL;
-    Py_ssize_t nm = bounded ? NM : A;
+    Py_ssize_t nm = bounded ? NM : (A + PAD - 1) / PAD * PAD;
     double f = t->kind == KIND_NONE ? 0.0 : uncertainty(t, b);
     gemv_rows(b, S, t->MT, NM, nm, work);
     for (Py_ssize_t a = 0; a < A; a++)
@@ -1236,7 +1238,7 @@ PyMODINIT_FUNC PyInit__pomdp_planner_kernel(void)
     Py_INCREF(&TablesType);
     if (PyModule_AddObject(m, "Tables", (PyObject *)&TablesType) < 0
         || PyModule_AddIntConstant(m, "KERNEL_VERSION", KERNEL_VERSION) < 0
-        || PyModule_AddIntConstant(m, "TILE", TILE) < 0
+        || PyModule_AddIntConstant(m, "PAD", PAD) < 0
         || PyModule_AddObject(m, "ETA_SKIP", PyFloat_FromDouble(ETA_SKIP)) < 0
         || PyModule_AddObject(m, "ETA_FUSED_MIN", PyFloat_FromDouble(ETA_FUSED_MIN)) < 0
         || PyModule_AddObject(m, "TIE_RTOL", PyFloat_FromDouble(TIE_RTOL)) < 0) {

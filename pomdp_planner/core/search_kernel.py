@@ -147,10 +147,12 @@ class KernelEngine:
 
         r = dense(model.r)
         Cg = Ch = None
-        MT = r
+        parts = [r]
         if isinstance(bounds, MyopicBounds):
             Cg, Ch = dense(transform_matrix(model, bounds.g)), dense(transform_matrix(model, bounds.h))
-            MT = np.concatenate([r, Cg.T, Ch.T], axis=1)  # (S, 3A): one product gives r^T b, C_g b, C_h b
+            parts += [Cg.T, Ch.T]  # one product gives r^T b, C_g b, C_h b
+        pad = -(-A * len(parts) // mod.PAD) * mod.PAD - A * len(parts)  # zero columns: the kernel's tiles
+        MT = np.concatenate([*parts, np.zeros((S, pad))], axis=1)
         self.sparse = (P is not None, O is not None)
         p_arg: Any = dense(model.P) if P is None else (P.indptr, P.indices, dense(P.data))
         X = W = OT = None
@@ -164,8 +166,8 @@ class KernelEngine:
                 X = np.where(Od > 0.0, Od, 1.0)
                 np.log(X, out=X)
                 X *= Od
-            if fused:  # blocks of Z columns padded to a multiple of TILE; filled in place
-                Zp = -(-Z // mod.TILE) * mod.TILE
+            if fused:  # blocks of Z columns padded to a multiple of PAD; filled in place
+                Zp = -(-Z // mod.PAD) * mod.PAD
                 blocks = A + 1 + (kind != "none") + (kind == "shannon")
                 W = np.zeros((A, S, blocks * Zp))
                 W[:, :, :Z] = Od
