@@ -34,6 +34,7 @@ NODE_EXECUTABLES = {
     "measurement_adapter": "pomdp_planner.nodes.measurement_adapter:main",
     "sensor_manager": "pomdp_planner.nodes.sensor_manager:main",
     "run_recorder": "pomdp_planner.nodes.run_recorder:main",
+    "belief_visualizer": "pomdp_planner.nodes.belief_visualizer:main",
 }
 
 HERE = Path(__file__).absolute().parent  # not resolved: colcon --symlink-install builds in a tree of symlinks
@@ -141,6 +142,7 @@ setup(
         # docs/benchmarks.md, "Optional extras": plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
         "plot": ["matplotlib"],  # pomdp-planner plot
+        "bag": ["rosbags>=0.10"],  # run records as rosbag2 MCAP bags (--record x.mcap, plot and replay of bags)
         "bench": ["pomdp-py"],
     },
     zip_safe=False,  # PEP 561: a typed package is not zip-safe

@@ -437,3 +437,47 @@ def test_a_decision_cut_inside_depth_one_is_sent_and_reported_as_partial():
     assert loop.health.counts["budget_exhausted"] == 1
     values = loop.report(T0 + 1.0).values
     assert values["last.partial"] is True and values["last.deadline_hit"] is True
+
+
+def _pace_lines(out) -> list[str]:
+    return [line.text for line in out.logs if "exceeds the period of the beliefs" in line.text]
+
+
+def test_a_time_budget_over_the_belief_period_is_one_warning_once_beliefs_are_skipped():
+    """Rule "Pace": beliefs every 0.1 s, each planned before the next comes (a loop that waits for
+    its actions), are no warning whatever the budget; beliefs skipped while time_budget exceeds
+    their period are one warning (again after time_budget changes), none when it does not."""
+    loop = make(time_budget=0.2)
+    joined(loop, 0)
+    now, epoch, lines = T0 + 1.0, 0, []
+    for _ in range(15):  # every belief planned: no warning, though 0.2 s > 0.1 s
+        epoch, now = epoch + 1, now + 0.1
+        lines += _pace_lines(loop.belief(bel(epoch), now))
+        out = loop.decided(loop.take(now), Searched(stub(), True, True), now + 0.01)
+        lines += _pace_lines(out)
+    assert lines == []
+    for k in range(10):  # now only every second belief is planned: the others are skipped
+        epoch, now = epoch + 1, now + 0.1
+        lines += _pace_lines(loop.belief(bel(epoch), now))
+        if k % 2:
+            loop.decided(loop.take(now), Searched(stub(), True, True), now + 0.01)
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("time_budget 0.2 s exceeds the period of the beliefs (0.1 s, the mean of the last 16 "
+                               "intervals)")
+    assert "keep time_budget below the sensor period" in lines[0]
+    loop.set_params({"time_budget": 0.3})
+    for k in range(4):
+        epoch, now = epoch + 1, now + 0.1
+        lines += _pace_lines(loop.belief(bel(epoch), now))
+        if k % 2:
+            loop.decided(loop.take(now), Searched(stub(), True, True), now + 0.01)
+    assert len(lines) == 2 and lines[1].startswith("time_budget 0.3 s exceeds")
+    quick = make(time_budget=0.05)
+    joined(quick, 0)
+    now, lines = T0 + 1.0, []
+    for e in range(1, 30):  # skipped beliefs, but the budget fits in their period: no warning
+        now += 0.1
+        lines += _pace_lines(quick.belief(bel(e), now))
+        if e % 3 == 0:
+            quick.decided(quick.take(now), Searched(stub(), True, True), now + 0.01)
+    assert lines == []
