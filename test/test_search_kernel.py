@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_search import FakeClock  # one unit per reading: both engines read it at the same steps
 
 from pomdp_planner.core import search_kernel
 from pomdp_planner.core.belief import check_belief
@@ -177,17 +178,6 @@ def test_impossible_branches_and_tiny_eta() -> None:
 
 
 # ------------------------------------------------------------------------------ deadlines
-class CountingClock:
-    """Advances one unit per reading (both engines read it at the same steps)."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        self.t += 1.0
-        return self.t
-
-
 @pytest.mark.parametrize("name", ["tracking_s8_info", "perimeter_s3"])
 def test_deadlines_stop_both_engines_at_the_same_step(name: str) -> None:
     """Over a sweep of budgets (in clock readings), the anytime search returns the same depth,
@@ -199,7 +189,7 @@ def test_deadlines_stop_both_engines_at_the_same_step(name: str) -> None:
     for budget in range(1, 400, 3):
         out = []
         for kernel in ("c", "numpy"):
-            clock = CountingClock()
+            clock = FakeClock()
             planner = Planner(model, bounds, kernel=kernel, clock=clock, chunk_bytes=2048)
             out.append((planner.plan(b, 4, float(budget), use_bounds=budget % 2 == 0, predict_stop=False), clock.t))
         (rk, tk), (rr, tr) = out
@@ -216,7 +206,7 @@ def test_a_fixed_depth_search_under_a_deadline_raises_at_the_same_reading() -> N
     for deadline in (0.5, 3.5, 20.5):
         readings = []
         for kernel in ("c", "numpy"):
-            clock = CountingClock()
+            clock = FakeClock()
             with pytest.raises(DeadlineExceeded):
                 Planner(model, kernel=kernel, clock=clock, chunk_bytes=2048).search(b, 3, False, deadline=deadline)
             readings.append(clock.t)

@@ -163,6 +163,22 @@ static Py_ssize_t buffer_items(PyObject *obj)
     return n;
 }
 
+/* CSR rows per action (a tuple indptr, indices, data; module comment of tables_new) of a matrix
+ * with ``ncol`` columns and S rows per action, into the views; returns the non-zeros or -1. */
+static Py_ssize_t take_csr(Tables *self, PyObject *csr, Py_ssize_t ncol, const char *name, const int64_t **indptr,
+                           const int64_t **indices, const double **data)
+{
+    PyObject *p, *i, *x;
+    if (!PyArg_ParseTuple(csr, "OOO", &p, &i, &x))
+        return -1;
+    Py_ssize_t A = self->A, S = self->S, nnz = buffer_items(i);
+    if (nnz < 0 || !(*indptr = take_view(self, p, "q", A * (S + 1), name))
+        || !(*indices = take_view(self, i, "q", nnz, name)) || !(*data = take_view(self, x, "d", nnz, name))
+        || !csr_valid(*indptr, *indices, A, S, ncol, nnz, name))
+        return -1;
+    return nnz;
+}
+
 /*
  * Tables(S, A, Z, gamma, kind, w, r, rT, Cg, Ch, P, O, OT, X, W, MT)
  *
@@ -208,28 +224,15 @@ static PyObject *tables_new(PyTypeObject *type, PyObject *args, PyObject *kwds)
                           || !(self->Ch = take_view(self, Ch, "d", A * S, "Ch"))))
         goto fail;
     if (PyTuple_Check(P)) {
-        PyObject *pp, *pi, *px;
-        if (!PyArg_ParseTuple(P, "OOO", &pp, &pi, &px))
-            goto fail;
-        Py_ssize_t nnz = buffer_items(pi);
-        if (nnz < 0 || !(self->Pp = take_view(self, pp, "q", A * (S + 1), "P indptr"))
-            || !(self->Pi = take_view(self, pi, "q", nnz, "P indices"))
-            || !(self->Px = take_view(self, px, "d", nnz, "P data"))
-            || !csr_valid(self->Pp, self->Pi, A, S, S, nnz, "P"))
+        if (take_csr(self, P, S, "P", &self->Pp, &self->Pi, &self->Px) < 0)
             goto fail;
         self->p_sparse = 1;
     } else if (!(self->P = take_view(self, P, "d", A * S * S, "P"))) {
         goto fail;
     }
     if (PyTuple_Check(O)) {
-        PyObject *op, *oi, *ox;
-        if (!PyArg_ParseTuple(O, "OOO", &op, &oi, &ox))
-            goto fail;
-        Py_ssize_t nnz = buffer_items(oi);
-        if (nnz < 0 || !(self->Op = take_view(self, op, "q", A * (S + 1), "O indptr"))
-            || !(self->Oi = take_view(self, oi, "q", nnz, "O indices"))
-            || !(self->Ox = take_view(self, ox, "d", nnz, "O data"))
-            || !csr_valid(self->Op, self->Oi, A, S, Z, nnz, "O"))
+        Py_ssize_t nnz = take_csr(self, O, Z, "O", &self->Op, &self->Oi, &self->Ox);
+        if (nnz < 0)
             goto fail;
         if (kind != KIND_NONE && !(self->Xx = take_view(self, X, "d", nnz, "X")))
             goto fail;
