@@ -295,8 +295,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="model file (repeatable; default: the shipped S = 8 tracking models, natural and "
                         "steeper, and S = 3)")
     p.add_argument("--engine-model", action="append", default=None, metavar="MODEL",
-                   help="model file of the engine comparison (repeatable; default: tracking_s8_info, "
-                        "tracking_s8_natural, perimeter_s8, perimeter_s3)")
+                   help="model file of the engine comparison (repeatable; default: the --model files, else "
+                        "tracking_s8_info, tracking_s8_natural, perimeter_s8, perimeter_s3)")
     p.add_argument("--no-engines", action="store_true",
                    help="leave out the engine comparison (kernel, numpy reference, C yardstick)")
 
@@ -307,8 +307,8 @@ def config_from_args(args: argparse.Namespace) -> BenchConfig:
                                "constant": args.constant,
                                "prune_without_guarantee": args.prune_without_guarantee,
                                "engines": not args.no_engines}
-    if args.engine_model:
-        changes["engine_models"] = tuple(args.engine_model)
+    if args.engine_model or args.model:  # the engines measure the models asked for
+        changes["engine_models"] = tuple(args.engine_model or args.model)
     if args.beliefs is not None:
         if not 1 <= args.beliefs <= MAX_BELIEFS:
             raise ValueError(f"--beliefs: must be in 1..{MAX_BELIEFS}, got {args.beliefs}")
