@@ -4,8 +4,9 @@
 #                 exact versions of constraints.txt (the lock: what the test suite last passed with;
 #                 `make lock` refreshes it in a fresh venv, only if the whole suite passes there)
 #   $(PKG_STAMP)  the package itself, `pip install .` (not editable: an editable install gets
-#                 no data_files, so `ros2 run` could not see it); redone only when a file of
-#                 the package changes or is added/removed.
+#                 no data_files, so `ros2 run` could not see it), which also compiles the search
+#                 kernel (setup.py); redone only when a file of the package changes or is
+#                 added/removed.
 # A second `make test` therefore installs nothing.
 
 SHELL := /bin/bash
@@ -37,9 +38,12 @@ CONSTRAINTS := constraints.txt
 UNLOCKED ?=
 LOCK_VENV := .venv-lock
 
-# For the tests: wrong ROS message field types raise instead of serialising garbage, and the
-# installed-layout test fails (instead of skipping) when the package is not installed.
-TEST_ENV := ROS_PYTHON_CHECK_FIELDS=1 POMDP_PLANNER_REQUIRE_INSTALLED=1 $(if $(UNLOCKED),POMDP_PLANNER_UNLOCKED=1)
+# For the tests: wrong ROS message field types raise instead of serialising garbage, the
+# installed-layout test fails (instead of skipping) when the package is not installed, and the
+# kernel test fails when the compiled search kernel was not built (so the suite cannot silently
+# test the numpy reference twice).
+TEST_ENV := ROS_PYTHON_CHECK_FIELDS=1 POMDP_PLANNER_REQUIRE_INSTALLED=1 POMDP_PLANNER_REQUIRE_KERNEL=1 \
+	$(if $(UNLOCKED),POMDP_PLANNER_UNLOCKED=1)
 PYTEST_ARGS ?=
 
 DEMO_ARGS ?=

@@ -46,10 +46,10 @@ def bel(epoch, b=B):
     return BeliefSample(epoch, np.asarray(b, dtype=float))
 
 
-def stub(priority=2, certified=False, depth=1, deadline_hit=False) -> SearchResult:
+def stub(priority=2, certified=False, depth=1, deadline_hit=False, partial=False) -> SearchResult:
     return SearchResult(action=priority - 1, priority=priority, q_values=np.zeros(3), depth=depth,
                         nodes_expanded=(3,) * depth, nodes_pruned=(1,) * depth, certified=certified,
-                        root_bounds=None, time_used=0.001, deadline_hit=deadline_hit)
+                        root_bounds=None, time_used=0.001, deadline_hit=deadline_hit, partial=partial)
 
 
 def joined(loop, epoch=0, now=T0):
@@ -452,6 +452,20 @@ def test_a_model_too_large_for_even_depth_1_is_refused_at_construction(monkeypat
     monkeypatch.setattr(search, "search_memory_estimate", lambda *args: 2**40)  # 1 TiB per search
     with pytest.raises(OptionError, match=r"^max_depth: a search of depth 1 needs about"):
         PlannerLoop(S3, PARAMS, LIVE, now=T0)
+
+
+def test_a_decision_cut_inside_depth_one_is_sent_and_reported_as_partial():
+    """The budget ended inside depth 1: the best root action searched by then is published, the
+    decision counts as budget-exhausted and the report says it was partial."""
+    loop = make(time_budget=0.05, deadline_slack=0.02)
+    loop.belief(bel(0), T0)
+    job = loop.take(T0 + JOIN_DELAY)
+    out = loop.decided(job, Searched(stub(priority=3, deadline_hit=True, partial=True), True, True),
+                       T0 + JOIN_DELAY + 0.06)
+    assert out.actions == [ActionSample(1, 3)] and out.plan_info.deadline_hit
+    assert loop.health.counts["budget_exhausted"] == 1
+    values = loop.report(T0 + 1.0).values
+    assert values["last.partial"] is True and values["last.deadline_hit"] is True
 
 
 def _pace_lines(out) -> list[str]:

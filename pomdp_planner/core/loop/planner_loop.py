@@ -494,7 +494,8 @@ class PlannerLoop:
                 "last.pruned_percent": float(r.percent_pruned[-1]) if r.percent_pruned else 0.0,
                 **({"last.certified": lp["certified"]} if lp["guaranteed"] else {}),
                 "last.time_used": float(r.time_used), "last.latency": float(lp["latency"]),
-                "last.deadline_hit": bool(r.deadline_hit), "last.time_budget": lp["time_budget"],
+                "last.deadline_hit": bool(r.deadline_hit), "last.partial": bool(r.partial),
+                "last.time_budget": lp["time_budget"],
                 "last.max_depth": lp["max_depth"], "last.use_bounds": lp["use_bounds_effective"],
                 "last.bound_variant": lp["bound_variant"], "last.bound_constant": lp["bound_constant"],
             })
