@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pomdp_planner.cli import main, plan
-from pomdp_planner.core import search_time
+from pomdp_planner.core import search_kernel, search_time
 from pomdp_planner.core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT, sample_beliefs, solve_bounds
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
@@ -151,8 +151,10 @@ def test_a_long_default_search_is_announced_and_one_beyond_the_limit_refused(mon
     monkeypatch.setattr(search_time, "ANNOUNCE_SECONDS", 0.0)
     assert main(["plan", model, "--belief", "uniform"]) == 0
     out, err = capsys.readouterr()
-    expected = search_time.search_seconds(3, 3, 3, 3)
-    assert expected == complete_tree_nodes(3, 3, 3) * (search_time.NODE_SECONDS + 3 * search_time.STATE_SECONDS)
+    engine = "compiled" if search_kernel.load()[0] is not None else "numpy"
+    expected = search_time.search_seconds(3, 3, 3, 3, engine)
+    node, state = search_time.ENGINE_SECONDS[engine]
+    assert expected == complete_tree_nodes(3, 3, 3) * (node + 3 * state)
     assert err.splitlines() == [
         f"pomdp-planner plan: a search of depth 3 on this model (S=3, A=3, Z=3) is expected to take up to about "
         f"{expected:.0f} s (820 belief nodes in the complete tree; branch-and-bound prunes some); --time-budget S "
@@ -168,8 +170,10 @@ def test_a_long_default_search_is_announced_and_one_beyond_the_limit_refused(mon
 
 
 def test_the_expected_time_tells_seconds_from_minutes_on_the_model_that_ran_98_s():
-    """S = 60, A = 8, Z = 60 at the default depth 3 (a 98 s search, unannounced, before): announced;
-    at depth 2 (0.1-0.2 s) not."""
-    assert ANNOUNCE_SECONDS < search_seconds(60, 8, 60, 3) < MAX_SEARCH_SECONDS
-    assert "is expected to take up to about 78 s (1.11e+08 belief nodes" in search_notice(60, 8, 60, 3, "--depth")
-    assert search_notice(60, 8, 60, 2, "--depth") == ""
+    """S = 60, A = 8, Z = 60 at the default depth 3 (98 s with the numpy search, 21 s with the
+    compiled kernel, unannounced before): announced on either engine; at depth 2 (0.04-0.14 s) not."""
+    for engine, text in (("numpy", "78 s"), ("compiled", "29 s")):
+        assert ANNOUNCE_SECONDS < search_seconds(60, 8, 60, 3, engine) < MAX_SEARCH_SECONDS
+        assert f"is expected to take up to about {text} (1.11e+08 belief nodes" in search_notice(
+            60, 8, 60, 3, "--depth", engine=engine)
+        assert search_notice(60, 8, 60, 2, "--depth", engine=engine) == ""

@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..core import search_kernel
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.checks import integer
 from ..core.gate import MAX_SETUP_SECONDS, build_planner
@@ -122,7 +123,9 @@ def run(args: argparse.Namespace) -> int:
             check_tree_size(A, Z, depth, "--depth", hint="use --time-budget S (anytime search, stopped in time) "
                             "or --no-limit")
         check_search_memory(S, A, Z, depth, memory, "--depth")
-        notice = search_notice(S, A, Z, depth, "--depth", limit=None if args.no_limit else MAX_SEARCH_SECONDS,
+        engine = "compiled" if search_kernel.load()[0] is not None else "numpy"
+        notice = search_notice(S, A, Z, depth, "--depth", engine=engine,
+                               limit=None if args.no_limit else MAX_SEARCH_SECONDS,
                                hint="use --time-budget S (anytime search, stopped in time), a smaller --depth, "
                                     "or --no-limit")
     else:
