@@ -22,7 +22,7 @@ __version__ = "0.1.0"
 
 #: The package's executables (setup.py's console scripts; a test checks that they agree).
 EXECUTABLES = ("pomdp-planner", "target_simulator", "belief_filter", "planner", "closed_loop", "measurement_adapter",
-               "sensor_manager", "run_recorder")
+               "sensor_manager", "run_recorder", "belief_visualizer")
 #: Exit code of an interrupted start (128 + SIGINT, the shell's convention).
 EXIT_INTERRUPTED = 130
 

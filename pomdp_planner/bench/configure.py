@@ -41,13 +41,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..cli._common import Parser
 from ..core.bounds import BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.checks import integer, number
 from ..core.domains.comparison import comparison_y
 from ..core.gate import STAGES
 from ..core.io.sensors import load_model_file
 from ..core.loop import Liveness, PlanJob, PlannerLoop
+from ..core.one_line import Parser
 from ..core.search import Planner
 from .lp import add_json_argument, cell, run_compared
 

@@ -28,7 +28,6 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ..cli._common import Parser
 from ..core.bounds import BOUND_CONSTANTS, BOUND_SOLVERS, BOUND_VARIANTS, solve_bounds
 from ..core.checks import integer
 from ..core.domains.comparison import comparison_model
@@ -38,6 +37,7 @@ from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
+from ..core.one_line import Parser
 
 #: ``comparison:S,A`` (the Sec. VI-B model) or a model file name / path.
 DEFAULT_MODELS = ("comparison:256,64", "tracking_s8_natural.yaml", "tracking_s3_info.yaml")

@@ -35,12 +35,12 @@ from typing import Any
 
 import numpy as np
 
-from ..cli._common import Parser
 from ..core.belief_mcts import BeliefMCTS, BeliefMCTSPolicy, rho_range
 from ..core.checks import integer, number
 from ..core.io.model_yaml import load_model
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
+from ..core.one_line import Parser
 from ..core.policies import MyopicPolicy
 from ..core.simulate import simulate
 from .stats import mean_ci

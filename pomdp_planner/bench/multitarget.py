@@ -46,7 +46,6 @@ from typing import Any
 
 import numpy as np
 
-from ..cli._common import Parser
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file, write_text_file
 from ..core.io.paths import shipped_model_path
@@ -56,6 +55,7 @@ from ..core.multitarget.planner import MultiTargetPlanner
 from ..core.multitarget.policies import make_joint_policy
 from ..core.multitarget.problem import MultiTargetProblem, make_problem
 from ..core.multitarget.simulate import simulate_targets
+from ..core.one_line import Parser
 from ..core.search import Planner
 from .stats import mean_ci
 

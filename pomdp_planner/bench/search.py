@@ -50,7 +50,6 @@ from typing import Any
 
 import numpy as np
 
-from ..cli._common import Parser
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
 from ..core.checks import integer
 from ..core.gate import build_planner
@@ -58,6 +57,7 @@ from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ..core.io.paths import resolve_path
 from ..core.model import POMDP
+from ..core.one_line import Parser
 from ..core.policies import check_seed
 from ..core.search import complete_tree_nodes
 from .engines import ENGINE_DEPTHS, ENGINE_MODELS, format_engines, run_engines

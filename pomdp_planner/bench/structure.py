@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from ..cli._common import Parser
 from ..core.checks import integer
 from ..core.model import POMDP
+from ..core.one_line import Parser
 from ..core.structure import REFUTED, AssumptionReport, check_assumptions, estimate_check, is_proven
 from .lp import add_json_argument, cell, load_bench_model, old_over_new, run_compared
 

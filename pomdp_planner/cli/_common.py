@@ -26,7 +26,7 @@ import json
 import math
 import sys
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, NoReturn, TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -35,21 +35,8 @@ from ..core.checks import option_value
 from ..core.errors import OptionError
 from ..core.io.sensors import load_model_file
 from ..core.model import POMDP, short_repr
+from ..core.one_line import Parser, one_line  # noqa: F401 (the subcommands' names)
 from ..core.options import SEED_RANGE, check_seed
-
-
-def one_line(text: str) -> str:
-    """``text`` on one line: every character that is not printable (line breaks of any kind, including
-    the separators ``str.splitlines`` honours, and other control characters) is shown escaped, as in
-    ``repr``. Every error is one line of stderr, whatever a user typed."""
-    return "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
-
-
-class Parser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose errors are one line naming the option (module docstring)."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {one_line(message)} (see '{self.prog} --help')\n")
 
 
 def int_in(lo: int | None, hi: int | None) -> Callable[[str], int]:

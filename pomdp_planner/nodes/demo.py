@@ -63,7 +63,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Int64MultiArray
 
-from ..cli._common import Parser
 from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file
@@ -72,6 +71,7 @@ from ..core.io.run_record import RunRecordError
 from ..core.loop.recorder_loop import RecorderLoop, RecordRow
 from ..core.loop.run_summary import RowFacts, RunSummary
 from ..core.model import POMDP
+from ..core.one_line import Parser
 from ..core.policies import make_policy
 from ..core.simulate import simulate
 from .messages import MessageError, decode_observation

@@ -41,8 +41,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
-from ...cli._common import Parser
 from ...core.io.paths import resolve_path
+from ...core.one_line import Parser
 from ...nodes.belief_filter import BeliefFilter
 from ...nodes.executor import NodeExecutor, shutdown_executor
 from ...nodes.messages import decode_plan_info

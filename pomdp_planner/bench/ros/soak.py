@@ -36,7 +36,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from ...cli._common import Parser
+from ...core.one_line import Parser
 from ...nodes.processes import NODES, ros_env, start_nodes, stop_nodes
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")

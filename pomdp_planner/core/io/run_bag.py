@@ -49,6 +49,7 @@ from ..loop.health import Log
 from ..loop.planner_loop import PlanInfo
 from ..loop.recorder_loop import RecorderLoop
 from ..loop.samples import ActionSample, BeliefSample
+from .paths import long_part
 from .run_record import RunRecord, RunRecordError, RunRecordWriter, read_run_record
 
 #: A run record's output is a bag when its name ends with this (case-insensitive).
@@ -286,6 +287,9 @@ def read_run_bag(path: str | os.PathLike, *, namespace: str | None = None, num_a
     ``run_record`` (default: the largest priority in it)."""
     path = Path(path)
     where = str(path)
+    problem = long_part(path)
+    if problem:
+        raise RunBagError(f"{short_repr(where)}: {problem}")
     reader, ts = _open_reader(path)
     try:
         conns = _find_topics(reader, where, namespace)
@@ -403,6 +407,9 @@ def open_run_output(path: str | os.PathLike, field_name: str, model_name: str, S
 def read_run_output(path: str | os.PathLike, *, namespace: str | None = None) -> RunRecord:
     """A run record from a CSV file or a bag (a ``.mcap``/``.db3`` file or a rosbag2 directory)."""
     p = Path(path)
+    problem = long_part(p)
+    if problem:
+        raise RunRecordError(f"{short_repr(str(p))}: {problem}")
     if p.is_dir() or p.suffix.lower() in (BAG_SUFFIX, ".db3"):
         bag = read_run_bag(p, namespace=namespace)
         return bag.record
