@@ -10,10 +10,8 @@ import argparse
 import sys
 import warnings
 
-import yaml
-
 from ..core.io.cassandra import export_pomdp
-from ..core.io.model_yaml import model_to_dict
+from ..core.io.model_yaml import dump_model
 from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ._common import add_json_argument, add_model_argument, emit_json, load_model_arg
 
@@ -41,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         if args.format == "pomdp":
             text = export_pomdp(model)
         else:
-            text = yaml.safe_dump(model_to_dict(model), sort_keys=False, default_flow_style=None)
+            text = dump_model(model)
     messages = [str(w.message) for w in caught]
     for m in messages:
         print(f"pomdp-planner: warning: {m}", file=sys.stderr)

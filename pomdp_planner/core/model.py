@@ -120,7 +120,7 @@ def check_model_size(S: int, A: int, Z: int, field_name: str, limit: int | None 
     limit = MAX_MODEL_BYTES if limit is None else limit
     need = model_bytes(S, A, Z, nnz)
     if need > limit:
-        form = "" if nnz is None else f" with {short_repr(nnz)} non-zeros"
+        form = "" if nnz is None else f" with {int(nnz):,} non-zeros"
         raise ModelError(f"{field_name}: S={short_repr(S)}, A={short_repr(A)}, Z={short_repr(Z)}{form} need "
                          f"{format_bytes(need)} for the transition, observation and reward matrices; "
                          f"the limit is {format_bytes(limit)} (MAX_MODEL_BYTES)")
