@@ -249,11 +249,21 @@ class _Tok(NamedTuple):
     #: For a line that is one element entry read whole: its action, row and column references and
     #: its probability (the texts of the words).
     elem: tuple[str, str, str, str] | None = None
+    #: Consecutive element lines with 0-based indices, read in bulk: ``(keys, actions, rows, columns,
+    #: probabilities, lines)``, lists of the words (``keys``: ``T`` or ``O``).
+    bulk: tuple[list, ...] | None = None
 
 
 _TOKEN = re.compile(r":|[^\s:]+")
 #: A line holding exactly one element entry ``T: a : s : s' p`` or ``O: a : s' : z p``.
 _ELEMENT_LINE = re.compile(r"\s*([TO])\s*:\s*([^\s:]+)\s*:\s*([^\s:]+)\s*:\s*([^\s:]+)\s+([^\s:]+)\s*")
+#: A line holding exactly one reward entry ``R: a : s : * : * v`` with 0-based indices (read whole).
+_REWARD_LINE = re.compile(r"\s*R\s*:\s*([0-9]{1,18})\s*:\s*([0-9]{1,18})\s*:\s*\*\s*:\s*\*\s+([^\s:]{1,64})\s*")
+#: The same with three 0-based indices (read in bulk, :class:`_Tok` ``bulk``).
+_INDEX_ELEMENT_LINE = re.compile(r"\s*([TO])\s*:\s*([0-9]{1,18})\s*:\s*([0-9]{1,18})\s*:\s*([0-9]{1,18})\s+"
+                                 r"([0-9.eE+\-]{1,64})\s*")
+#: Most element lines in one bulk token.
+BULK_LINES = 65536
 
 
 class _Lexer:
@@ -271,7 +281,33 @@ class _Lexer:
 
     def _tokens(self, text: str):
         count = 0
+        bulk: tuple[list, ...] = ([], [], [], [], [], [])
+
+        def flush():
+            nonlocal bulk
+            tok = _Tok(bulk[0][0], bulk[5][0], bulk=bulk)
+            bulk = ([], [], [], [], [], [])
+            return tok
+
         for lineno, raw in enumerate(io.StringIO(text), start=1):
+            if (m := _INDEX_ELEMENT_LINE.fullmatch(raw)) is not None:
+                count += 8  # T : a : s : s' p
+                if count > MAX_TOKENS:
+                    raise ModelError(f"line {lineno}: more than {MAX_TOKENS:,} words (MAX_TOKENS)")
+                for store, word in zip(bulk, m.groups(), strict=False):
+                    store.append(word)
+                bulk[5].append(lineno)
+                if len(bulk[0]) >= BULK_LINES:
+                    yield flush()
+                continue
+            if bulk[0]:
+                yield flush()
+            if (m := _REWARD_LINE.fullmatch(raw)) is not None:
+                count += 10  # R : a : s : * : * v
+                if count > MAX_TOKENS:
+                    raise ModelError(f"line {lineno}: more than {MAX_TOKENS:,} words (MAX_TOKENS)")
+                yield _Tok("R", lineno, (m.group(1), m.group(2), "*", m.group(3)))
+                continue
             if "#" in raw:
                 if len(raw) <= MAX_META_CHARS and (m := _META.match(raw.strip())):
                     try:
@@ -296,6 +332,8 @@ class _Lexer:
                     raise ModelError(f"line {lineno}: a word of {len(t)} characters "
                                      f"(at most {MAX_TOKEN_CHARS}): {short_repr(t, 40)}")
                 yield _Tok(t, lineno)
+        if bulk[0]:
+            yield flush()
 
     def advance(self) -> _Tok:
         tok = self.head
@@ -389,6 +427,12 @@ class _Cells:
         d = np.arange(S)
         self._append(self._keys(np.repeat(acts, S), np.tile(d, acts.size), np.tile(d, acts.size)),
                      np.ones(acts.size * S))
+
+    def write_many(self, a: np.ndarray, i: np.ndarray, j: np.ndarray, values: np.ndarray, lines: np.ndarray) -> None:
+        """Single cells ``(a[k], i[k], j[k])``, in order (element lines read in bulk)."""
+        self._flush()
+        np.maximum.at(self.lines, (a, i), lines)
+        self._append(self._keys(a, i, j), values)
 
     def write_one(self, a: int, i: int, j: int, value: float, line: int) -> None:
         """One cell (an element entry read whole)."""
@@ -633,6 +677,40 @@ class _Parser:
             raise self.error(f"{what}: probability {bad:g} is outside [0, 1]", tok)
         return values
 
+    def bulk_entries(self, tok: _Tok) -> None:
+        """Consecutive element lines with 0-based indices (:class:`_Tok` ``bulk``): checked and written
+        as arrays, with the checks and messages of the word-by-word path."""
+        keys, a_t, i_t, j_t, p_t, lines = tok.bulk
+        S, A, Z = (self.need(k, tok) for k in ("states", "actions", "observations"))
+        lines = np.array(lines, dtype=np.int64)
+        try:
+            p = np.array(p_t, dtype=float)
+        except ValueError:
+            p = None
+        if p is None or not np.all(np.isfinite(p)):
+            for k, text in enumerate(p_t):
+                if not _NUMBER.match(text) or not np.isfinite(float(text)):
+                    raise self.error(f"expected {keys[k]}: probability (a number), got {text!r}",
+                                     _Tok(keys[k], lines[k]))
+        bad = np.flatnonzero((p < 0.0) | (p > 1.0 + STOCHASTIC_ATOL))
+        if bad.size:
+            k = int(bad[0])
+            raise self.error(f"{keys[k]}: entry: probability {p[k]:g} is outside [0, 1]", _Tok(keys[k], lines[k]))
+        is_t = np.array(keys) == "T"
+        idx = [np.array(x, dtype=np.int64) for x in (a_t, i_t, j_t)]
+        for kind, values, n in (("action", idx[0], np.full(is_t.size, A)), ("state", idx[1], np.full(is_t.size, S)),
+                                ("state", idx[2], np.where(is_t, S, Z))):
+            out = np.flatnonzero(values >= n)
+            if out.size:
+                k = int(out[0])
+                what = "observation" if (kind == "state" and values is idx[2] and not is_t[k]) else kind
+                raise self.error(f"{what} index {values[k]} out of range 0..{n[k] - 1}", _Tok(keys[k], lines[k]))
+        self.write(len(keys), tok)
+        for key, store in (("T", self.stores[0]), ("O", self.stores[1])):
+            sel = is_t if key == "T" else ~is_t
+            if sel.any():
+                store.write_many(idx[0][sel], idx[1][sel], idx[2][sel], p[sel], lines[sel])
+
     def element_line(self, tok: _Tok, cells: _Cells) -> None:
         """An element entry read whole (:class:`_Tok` ``elem``): the same checks as word by word."""
         what = tok.text
@@ -699,6 +777,18 @@ class _Parser:
         cells.write(acts, np.arange(S), np.arange(n), M[None, :, :], tok)
 
     def reward(self, tok: _Tok, S: int, Z: int, R: _Rewards) -> None:
+        if tok.elem is not None:  # R: a : s : * : * v, read whole
+            a_t, s_t, _, v_t = tok.elem
+            acts = self.index("actions", _Tok(a_t, tok.line))
+            starts = self.index("states", _Tok(s_t, tok.line))
+            if not _NUMBER.match(v_t):
+                raise self.error(f"expected R: value (a number), got {v_t!r}", tok)
+            v = float(v_t)
+            if not np.isfinite(v):
+                raise self.error(f"R: value: {v_t!r} is too large for a float", tok)
+            self.write(len(acts) * len(starts) * (1 if R.full is None else S * Z), tok)
+            R.set_whole(acts, starts, v)
+            return
         self.colon("R")
         acts = self.ref("actions")
         self.colon("R: action")
@@ -762,7 +852,9 @@ class _Parser:
                     P, O = _Cells(A, S, S, self), _Cells(A, S, Z, self)
                     self.stores = (P, O)
                     R = _Rewards(A, S, Z)
-                if t == "T":
+                if tok.bulk is not None:
+                    self.bulk_entries(tok)
+                elif t == "T":
                     self.stochastic("T", tok, S, S, P)
                 elif t == "O":
                     self.stochastic("O", tok, S, Z, O)
