@@ -324,3 +324,22 @@ def test_plan_info_carries_the_root_bounds_as_priorities(harness):
     pub.publish(encode_belief(len(picks), B[picks[1]]))
     assert h.wait_until(lambda: len(infos) > len(picks), timeout=15)
     assert np.isnan(infos[-1]["bound_lower"]) and np.isnan(infos[-1]["bound_upper"])
+
+
+def test_max_setup_seconds_limits_the_configure_and_a_long_set_up_is_announced(harness, monkeypatch, capfd):
+    """The planner's ``max_setup_seconds`` is the gate's limit (0: none), as ``--no-limit`` on the
+    command line; a set-up expected to take long is announced in the log with its estimate."""
+    from pomdp_planner.core import gate
+
+    h = harness
+    with pytest.raises(NodeConfigError, match=r"more than the limit of 0.1 s \(MAX_SETUP_SECONDS\); the parameter "
+                       r"max_setup_seconds raises the limit \(0: no limit\)"):
+        PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
+                                                            Parameter("max_setup_seconds", value=1e-6)])
+    monkeypatch.setattr(gate, "SETUP_NOTICE_SECONDS", 0.0)  # every set-up is "long"
+    capfd.readouterr()
+    planner = h.add(PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
+                                                                        Parameter("max_setup_seconds", value=0.0)]))
+    assert planner.get_parameter("max_setup_seconds").value == 0.0
+    err = capfd.readouterr().err
+    assert "set-up for S=3, A=3, Z=3 is running, expected about" in err and "no time budget includes it" in err

@@ -12,9 +12,10 @@ own), one after the other, in one run:
   (``config/models/grid_10x10.yaml`` at that size) written as a ``.POMDP`` file with its
   ``# pomdp_planner:`` comment (element lines); any other spec is a model file;
 * **set-up**: the assumption gate's estimate (:func:`~pomdp_planner.core.gate.estimate_setup`)
-  beside what the gate then does (:func:`~pomdp_planner.core.gate.build_planner` with no time
-  limit, each stage timed: assumption check, bound LP, planner tables) and their ratio; a set-up
-  the gate refuses (e.g. the dense form of a sparse model too large for the search) shows why;
+  beside what the gate then does (:func:`~pomdp_planner.core.gate.build_planner` with its
+  defaults, each stage timed: assumption check, bound LP, planner tables) and their ratio; a set-up
+  the gate refuses (expected over ``MAX_SETUP_SECONDS``, or the dense form of a sparse model too
+  large for the search) shows why;
 * **peak RSS** of the process (after loading, setting up and deciding);
 * **decisions**: a search of depth 1 from the uniform belief and of depth 2 from a point belief
   (the median of three), as the planner makes them.
@@ -74,6 +75,7 @@ def model_file(spec: str, directory: Path) -> Path | str:
     """The file a spec loads from (module docstring), written into ``directory`` when generated."""
     from ..core.io.cassandra import save_pomdp_file
     from ..core.io.model_yaml import model_from_dict
+    from ..core.io.paths import resolve_path
 
     if m := re.fullmatch(r"tracking:(\d+),(\d+)", spec):
         S, A = int(m.group(1)), int(m.group(2))
@@ -89,7 +91,7 @@ def model_file(spec: str, directory: Path) -> Path | str:
         path = directory / f"grid_{rows}x{cols}.POMDP"
         save_pomdp_file(model_from_dict(grid_document(rows, cols), spec), path)
         return path
-    return spec
+    return resolve_path(spec, field="--models")
 
 
 def _spec_model(spec: str):
@@ -135,7 +137,7 @@ def measure(spec: str, path: str | None, decisions: bool) -> dict[str, Any]:
                est_lp=est.lp_seconds, est_tables=est.table_seconds, est_total=est.seconds, est_bytes=est.bytes,
                no_lp=est.no_lp)
     try:
-        setup = build_planner(model, max_setup_seconds=None)
+        setup = build_planner(model)
     except (ValueError, MemoryError) as exc:  # a set-up the gate refuses (its memory, the dense form)
         row.update(refused=str(exc).split(": ", 1)[-1][:160], mode=None)
         row["rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024

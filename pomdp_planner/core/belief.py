@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from .checks import check_int
 from .errors import BeliefError
 from .model import POMDP, ModelError, short_repr
-from .sparse import vecmat
+from .sparse import row_sums, vecmat
 
 #: Observations whose probability under the belief is at most this are impossible.
 ETA_MIN = 1e-300
@@ -224,8 +224,7 @@ def observation_branches(model: POMDP, b: np.ndarray, a: int) -> tuple[np.ndarra
         states, pred = states[keep], pred[keep]
         joint = (sp.diags_array(pred) @ model.O_csr[a][states]).T.tocsr()  # Z x |support|: pred_j O[a, j, z]
         joint.sum_duplicates()
-        eta_all = np.add.reduceat(joint.data, joint.indptr[:-1]) if joint.nnz else np.zeros(model.Z)
-        eta_all = np.where(np.diff(joint.indptr) > 0, eta_all, 0.0)
+        eta_all = row_sums(joint)
         zs = np.flatnonzero(eta_all > ETA_MIN)
         rows = joint[zs]
         rows.sum_duplicates()

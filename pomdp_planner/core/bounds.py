@@ -952,34 +952,68 @@ def _tighten(sg: _System, sh: _System, solver: str, g: np.ndarray, h: np.ndarray
     return best_g, best_h, {"method": "hinge LPs on the samples", "rounds": history}
 
 
-#: Unit costs (seconds) of :func:`estimate_solve_bounds`, measured on the development machine and
-#: rounded up: per ``A S^2`` entry on the least-element path (structure, iterations, samples),
-#: per ``S^3`` of its dense solves, and per ``S^3`` and ``A S^2`` of the HiGHS path.
-COST_LEAST = (2e-7, 1e-9)
+#: Unit costs (seconds) of :func:`estimate_solve_bounds`, CPU time measured on the development
+#: machine (``python -m pomdp_planner.bench.scale --suite setup`` compares estimate and set-up): the
+#: fixed part; per ``A S^2`` entry of the structure test; per ``S^2`` of the sampled beliefs (45
+#: trajectories of 8 steps); per ``A S^2`` entry and value-iteration step; per ``S^3`` of a
+#: policy-iteration solve; the HiGHS path per ``S^3`` and ``A S^2``; a sparse model's HiGHS path per
+#: ``S^1.7``, and its least element per stored non-zero and step.
+COST_LP_FIXED = 3e-3
+COST_STRUCTURE = 2e-8
+COST_SAMPLES = 8e-7
+COST_ITERATION = 5e-9
+COST_SOLVE = 1e-9
 COST_HIGHS = (3e-6, 3e-6)
+COST_SPARSE_HIGHS = 6e-6
+COST_SPARSE_ITERATION = 3e-8
+#: Policy-iteration steps counted for the least element.
+POLICY_STEPS = 5
 #: The tight variant without the least element adds hinge-LP rounds: about this many times the LP.
 TIGHTEN_FACTOR = 5.0
+
+
+def _iterations(kappa1: float) -> int:
+    """Value-iteration steps to the least element's stopping rule (error ``1e-13``) at factor ``kappa1``."""
+    return min(2000, math.ceil(math.log(1e-13) / math.log(min(max(kappa1, 1e-6), 0.999))) + 1)
 
 
 def estimate_solve_bounds(model: POMDP, variant: str = "tight") -> tuple[float, int]:
     """Rough ``(seconds, peak bytes)`` of :func:`solve_bounds` with the default solver, before it runs.
 
-    Runs the structure test the solver starts with (``O(A S^2)``): where the least element applies
-    (monotone transitions, a contraction) the cost is a few passes over the ``A (S-1)``
-    constraints and a few dense solves; otherwise the HiGHS path (the dense constraint matrices
-    of ``g`` and ``h``, ``A (S-1) x S`` each, and the solver's copies), and for ``tight`` the
-    hinge-LP rounds. Good to a factor of a few (the unit costs :data:`COST_LEAST`,
-    :data:`COST_HIGHS`)."""
+    Runs the structure test the solver starts with (``O(A S^2)``, ``O(non-zeros)`` sparse): where
+    the least element applies (monotone transitions, a contraction) the cost is the structure test,
+    the sampled beliefs and the value-iteration steps (``kappa_1`` sets their number) or a few
+    policy-iteration solves; otherwise the HiGHS path (the constraint matrices of ``g`` and ``h``,
+    ``A (S-1) x S`` each, and the solver's copies), and for ``tight`` the hinge-LP rounds. Good to a
+    factor of a few (the unit costs :data:`COST_LP_FIXED` ...)."""
     S, A = model.S, model.A
     if S < 2:
         return 0.0, 0
     st = _structure(model)
+    certified = variant == "tight" and st.certifies_tightest
+    if model.sparse:
+        nnz = model.P_csr.nnz
+        memory = 8 * 8 * (nnz + A * S) + 8 * 400 * S * 2
+        if st.contraction:
+            steps = _iterations(st.kappa1) if st.kappa1 < VALUE_ITERATION_KAPPA else POLICY_STEPS * 10
+            seconds = COST_LP_FIXED + COST_SPARSE_ITERATION * (nnz + A * S) * steps
+            if variant == "tight" and not certified:
+                seconds += COST_SPARSE_HIGHS * S**1.7 * A / 3 * TIGHTEN_FACTOR
+            return seconds, memory
+        return COST_LP_FIXED + COST_SPARSE_HIGHS * S**1.7 * A / 3 * (1.5 if variant == "tight" else 1.0), memory
     rows = A * S * S
     memory = 8 * 5 * rows + 8 * 400 * S * (A + 2)  # constraint matrices and copies; the sampled beliefs
+    base = COST_LP_FIXED + COST_STRUCTURE * rows + COST_SAMPLES * S * S
+    highs = COST_HIGHS[0] * S**3 + COST_HIGHS[1] * rows
     if st.contraction:
-        return COST_LEAST[0] * rows + COST_LEAST[1] * S**3, memory
-    seconds = COST_HIGHS[0] * S**3 + COST_HIGHS[1] * rows
-    return seconds * (TIGHTEN_FACTOR if variant == "tight" else 1.0), memory
+        if st.kappa1 < VALUE_ITERATION_KAPPA:
+            seconds = base + _iterations(st.kappa1) * COST_ITERATION * rows
+        else:
+            seconds = base + POLICY_STEPS * (COST_SOLVE * S**3 + COST_ITERATION * rows)
+        if variant == "tight" and not certified:
+            seconds += highs * TIGHTEN_FACTOR
+        return seconds, memory
+    return base + highs * (TIGHTEN_FACTOR if variant == "tight" else 1.0), memory
 
 
 # ---------------------------------------------------------------- public API

@@ -37,7 +37,7 @@ import scipy.sparse as sp
 from .checks import check_int, is_integer
 from .errors import MESSAGE_VALUE_CHARS as MESSAGE_VALUE_CHARS  # re-exported
 from .errors import BeliefError, ModelError, kind_of, short_repr
-from .sparse import STORAGES, SparseStack, choose_storage, csr_bytes
+from .sparse import STORAGES, SparseStack, choose_storage, csr_bytes, row_sums
 from .uncertainty import Uncertainty, get_uncertainty
 
 #: Rows of ``P`` and ``O`` must sum to one within this absolute tolerance.
@@ -237,8 +237,7 @@ def _check_stochastic_sparse(name: str, M: SparseStack, row_label: str, col_labe
             if bad[k]:
                 raise ModelError(f"{name}[{a}][{i}][{j}]: value is not finite ({C.data[k]})")
             raise ModelError(f"{name}[{a}][{i}][{j}]: probability is negative ({C.data[k]:.6g})")
-        sums = np.add.reduceat(C.data, C.indptr[:-1]) if C.nnz else np.zeros(C.shape[0])
-        sums = np.where(np.diff(C.indptr) > 0, sums, 0.0)
+        sums = row_sums(C)
         off = np.abs(sums - 1.0) > STOCHASTIC_ATOL
         if np.any(off):
             i = int(np.argmax(off))

@@ -199,6 +199,12 @@ class SparseStack:
         return f"SparseStack({A} x {n} x {m}, {self.nnz} non-zeros)"
 
 
+def row_sums(M: sp.csr_array) -> np.ndarray:
+    """The sum of each row's stored values (in column order), shape ``(n,)``."""
+    rows = np.repeat(np.arange(M.shape[0]), np.diff(M.indptr))
+    return np.bincount(rows, weights=M.data, minlength=M.shape[0])
+
+
 def matvec_rows(stack: SparseStack, a: int, x: np.ndarray) -> np.ndarray:
     """``stack[a] @ x`` for ``x`` of shape ``(m,)`` or ``(m, k)``."""
     return stack[a] @ x

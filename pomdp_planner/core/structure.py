@@ -1111,20 +1111,25 @@ def quick_tp2_refutation(model: POMDP, tol: float = 1e-9) -> str:
 
 
 # ==================================================================== cost estimate
-#: Unit costs (seconds) behind :func:`estimate_check`, measured on the development machine (two
-#: cores shared with other work) and rounded up: one array entry through one numpy pass; one
-#: entry of the exact ratio ``F1 / F2``; one multiply-add of a matrix product; ``eigvalsh`` per
-#: ``S^3``; one (matrix, 3-support) of the exact test; the counterexample search per matrix
-#: (fixed part, part per ``S^2``); one Clarabel SDP.
+#: Unit costs (seconds) behind :func:`estimate_check`, CPU time measured on the development machine
+#: (two cores shared with other work; ``python -m pomdp_planner.bench.scale --suite setup`` compares
+#: estimate and set-up): one array entry through one numpy pass; one entry of the exact ratio
+#: ``F1 / F2``; one multiply-add of a matrix product (BLAS); ``eigvalsh`` per ``S^3``; one
+#: (matrix, 3-support) of the exact test; the counterexample search per matrix (fixed part, part
+#: per ``S^2``); one Clarabel SDP.
 COST_ELEMENT = 3e-9
 COST_RATIO = 2e-8
-COST_FLOP = 1e-9
+COST_FLOP = 1.5e-10
 COST_EIG = 3e-9
 COST_TRIPLE = 5e-7
 COST_SEARCH = (0.05, 5e-6)
 COST_SDP = 0.1
 #: How many (j, a) pairs :func:`estimate_check` samples to predict how many ``D`` must be built.
 ESTIMATE_SAMPLE_PAIRS = 32
+#: How many of the sampled pairs' ``D`` it builds to measure the share the pair test refutes.
+ESTIMATE_SAMPLE_MATRICES = 64
+#: The fixed part of the check's time (reports, small arrays).
+COST_CHECK_FIXED = 1e-3
 #: Fixed part of the check's memory in :func:`estimate_check` (the reports, small temporaries).
 CHECK_OVERHEAD_BYTES = 256 * 2**10
 
@@ -1196,7 +1201,8 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
 
         return estimate_check_support(model, sdp_max_states, search, exact_max_states, reduce)
     S, A, Z = model.S, model.A, model.Z
-    seconds, peak = 0.0, 8 * 4 * A * S * Z + CHECK_OVERHEAD_BYTES  # (A3): P @ O and its cumulative sums
+    tol_estimate = 1e-9
+    seconds, peak = COST_CHECK_FIXED, 8 * 4 * A * S * Z + CHECK_OVERHEAD_BYTES  # (A3): P @ O and its cumsums
     for stack in (model.P, model.O):  # (A1), one matrix per distinct action (identical ones are cached)
         for a in range(stack.shape[0]):
             if a and np.array_equal(stack[a], stack[a - 1]):
@@ -1225,17 +1231,27 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
     peak = max(peak, 8 * 5 * min(_D_BLOCK, pairs * 3 * S * S) + CHECK_OVERHEAD_BYTES)
     rng = np.random.default_rng(0)
     picked = [sample[k] for k in rng.choice(len(sample), min(ESTIMATE_SAMPLE_PAIRS, len(sample)), replace=False)]
-    dirty_z, dirty_j = 0, 0
+    dirty_z, dirty_j, tried, easy = 0, 0, 0, 0
     for a, j in picked:
         Oa, Ob = model.O[a], model.O[a + 1]
         js = np.array([j])
-        clean = _elementwise_clean(model, a, js, (Oa[:-1] * Ob[1:])[js], (Oa[1:] * Ob[:-1])[js], None)
-        dirty_z += int(np.count_nonzero(~clean))
-        dirty_j += bool(np.any(~clean))
+        alpha, beta = (Oa[:-1] * Ob[1:])[js], (Oa[1:] * Ob[:-1])[js]
+        clean = _elementwise_clean(model, a, js, alpha, beta, None)
+        zs = np.flatnonzero(~clean[0])
+        dirty_z += zs.size
+        dirty_j += bool(zs.size)
+        zs = zs[:max(0, ESTIMATE_SAMPLE_MATRICES - tried)]
+        if zs.size:  # the share of built D that the cheap pair test refutes (no expensive test then)
+            _, _, F1, F2 = _rank_factors(model, a, js)
+            D = alpha[0, zs, None, None] * F1 - beta[0, zs, None, None] * F2
+            scale = np.abs(D).max(axis=(1, 2))
+            easy += int(np.count_nonzero(_pair_counterexamples(D)[1] < -tol_estimate * scale))
+            tried += zs.size
     dirty = round(pairs * dirty_z / len(picked))
     worst = round(pairs * dirty_j / len(picked))
     if not dirty:
         return CheckEstimate(seconds, seconds, peak, pairs, 0)
+    hard_share = 1.0 - easy / tried if tried else 1.0
     build = 10 * S * S * COST_ELEMENT  # D, min, max|D|, the pair test
     kstep = max(1, _D_BLOCK // max(1, S * S))  # matrices per block
     hard = COST_EIG * S**3
@@ -1245,10 +1261,11 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
         hard += COST_SDP if S <= sdp_max_states else 0.0
         hard += (COST_SEARCH[0] + COST_SEARCH[1] * S * S) if search else 0.0
     peak = max(peak, 8 * 6 * min(_D_BLOCK, dirty * S * S) + CHECK_OVERHEAD_BYTES)
-    # dominance needs a proven worst D: only the exact test (S <= exact_max_states) proves these
-    alone = dirty if not reduce or S > exact_max_states else worst
+    # dominance needs a proven worst D: only the exact test (S <= exact_max_states) proves these;
+    # a D the pair test refutes needs no expensive test
+    alone = hard_share * (dirty if not reduce or S > exact_max_states else worst)
     if S <= exact_max_states:  # one block of (matrix, triple) pairs: about 20 arrays of that size
-        peak = max(peak, 8 * 20 * min(_TRIPLE_BLOCK, min(alone, kstep) * (S * (S - 1) * (S - 2) // 6))
+        peak = max(peak, 8 * 20 * min(_TRIPLE_BLOCK, min(max(round(alone), 1), kstep) * (S * (S - 1) * (S - 2) // 6))
                    + CHECK_OVERHEAD_BYTES)
     expected = seconds + dirty * build + alone * hard
-    return CheckEstimate(expected, seconds + dirty * (build + hard), peak, pairs, dirty)
+    return CheckEstimate(expected, seconds + dirty * build + hard_share * dirty * hard, peak, pairs, dirty)

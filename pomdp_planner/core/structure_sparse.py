@@ -444,13 +444,13 @@ def dominance_support(model: POMDP, tol: float) -> tuple[tuple[float, int, int, 
 #: one comparison of two stored entries (candidate counts); one column of a block's suffix sums;
 #: one pair of stored entries of a row or one rectangle; the Python work per ``(a, j)`` frame and
 #: per candidate ``(j, z)``; one entry of a built ``D``; one stored product of ``P[a] @ O[a]``.
-COST_PAIR = 1.5e-9
-COST_COLUMN = 2e-9
-COST_COPAIR = 1e-7
-COST_FRAME = 3e-5
-COST_CANDIDATE = 4e-6
+COST_PAIR = 2.5e-9
+COST_COLUMN = 3e-9
+COST_COPAIR = 1.5e-7
+COST_FRAME = 1.2e-4
+COST_CANDIDATE = 1e-5
 COST_D_ENTRY = 5e-8
-COST_PRODUCT = 6e-8
+COST_PRODUCT = 1.8e-7
 #: How many ``(a, j)`` frames :func:`estimate_check_support` samples to predict how many ``D`` are built.
 ESTIMATE_SAMPLE_FRAMES = 64
 
@@ -473,16 +473,13 @@ def estimate_check_support(model: POMDP, sdp_max_states: int, search: bool, exac
                            reduce: bool):
     """:func:`.structure.estimate_check` for a sparse model: the check's operation counts from the
     non-zeros (:func:`check_copositivity_support`), with the share of built matrices measured on
-    :data:`ESTIMATE_SAMPLE_FRAMES` sampled frames."""
-    from .structure import (
-        CHECK_OVERHEAD_BYTES,
-        COST_EIG,
-        COST_TRIPLE,
-        CheckEstimate,
-    )
+    :data:`ESTIMATE_SAMPLE_FRAMES` sampled frames (their size sets the cost of the matrices built);
+    the Python work per frame and per candidate includes the matrices' tests (on small supports the
+    cheap ones decide)."""
+    from .structure import CHECK_OVERHEAD_BYTES, COST_CHECK_FIXED, CheckEstimate
 
     S, A = model.S, model.A
-    seconds, peak = 0.0, CHECK_OVERHEAD_BYTES
+    seconds, peak = COST_CHECK_FIXED, CHECK_OVERHEAD_BYTES
     for stack in (model.P_csr, model.O_csr):
         done: list[int] = []
         for a in range(len(stack)):
@@ -497,7 +494,7 @@ def estimate_check_support(model: POMDP, sdp_max_states: int, search: bool, exac
     PT, O = model.P_csr.T, model.O_csr
     rng = np.random.default_rng(0)
     frames = cands = 0
-    dirty_share, entries = 0.0, 0.0
+    entries = 0.0
     for a in range(max(A - 1, 0)):
         beta = sp.csr_array(O[a][1:].multiply(O[a + 1][:-1]))
         beta.eliminate_zeros()
@@ -513,7 +510,6 @@ def estimate_check_support(model: POMDP, sdp_max_states: int, search: bool, exac
     seconds += COST_FRAME * frames + COST_CANDIDATE * cands
     if cands:
         k = max(1.0, np.sqrt(entries / cands * max(A - 1, 1)))
-        hard = COST_EIG * k**3 + (COST_TRIPLE / 50.0) * (k * (k - 1) * (k - 2) / 6 if k <= exact_max_states else 0.0)
-        seconds += cands * (COST_D_ENTRY * k * k + hard) * (1.0 if dirty_share == 0.0 else dirty_share)
+        seconds += cands * COST_D_ENTRY * k * k
         peak = max(peak, int(8 * 8 * min(cands, 4_000_000 / max(k * k, 1.0)) * k * k) + CHECK_OVERHEAD_BYTES)
     return CheckEstimate(seconds, seconds, int(peak), frames, cands)
