@@ -996,10 +996,16 @@ class _Parser:
         unc.pop("epsilon", None)
         if epsilon is None and "epsilon" in self.lex.meta:
             epsilon = as_number(self.lex.meta["epsilon"], "epsilon (# pomdp_planner: comment)")
-        return POMDP(P=P, O=O, r=r, gamma=self.gamma, name=name,
-                     epsilon=default_epsilon(S) if epsilon is None else epsilon,
-                     state_names=names["states"], action_names=names["actions"],
-                     observation_names=names["observations"], metadata=metadata, **unc)
+        try:
+            return POMDP(P=P, O=O, r=r, gamma=self.gamma, name=name,
+                         epsilon=default_epsilon(S) if epsilon is None else epsilon,
+                         state_names=names["states"], action_names=names["actions"],
+                         observation_names=names["observations"], metadata=metadata, **unc)
+        except ModelError as exc:  # a field of the comment's uncertainty term: say where it came from
+            field, _, rest = str(exc).partition(": ")
+            if unc and field.startswith("uncertainty."):
+                raise ModelError(f"{field} (# pomdp_planner: comment): {rest}") from None
+            raise
 
 
 def parse_pomdp(text: str, source: str = "<string>", epsilon: float | None = None) -> POMDP:
