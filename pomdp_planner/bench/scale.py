@@ -120,10 +120,10 @@ def _timed(fn, repeat: int = 3) -> float:
 
 def measure(spec: str, path: str | None, decisions: bool) -> dict[str, Any]:
     """One model, in this process (the child's work): the row of the table."""
+    from ..core.domains.comparison import comparison_model
     from ..core.gate import STAGES, build_planner, estimate_setup
     from ..core.io.sensors import load_model_file
     from ..core.model import ModelError
-    from ..core.domains.comparison import comparison_model
     from ..core.search import Planner
 
     build_planner(comparison_model(4, 3))  # the first set-up of a process pays for imports: not timed
@@ -226,8 +226,8 @@ def format_table(rows: Sequence[dict[str, Any]], decisions: bool = True) -> str:
                  "comment); est chk / check, est LP / LP: the gate's estimate and the stage as it ran (no LP where "
                  "Assumption 1 fails); tables: the planner's; est / set-up: estimate and actual of check + LP + "
                  "tables, CPU: the CPU time of that set-up (all threads), est/CPU their ratio (on a loaded machine the "
-                 "wall clock exceeds the CPU time); RSS: peak of the process. d1: depth-1 decision from the uniform belief, d2: depth 2 from a "
-                 "point belief (median of 3; exhaustive where Assumption 1 fails).")
+                 "wall clock exceeds the CPU time); RSS: peak of the process. d1: depth-1 decision from the uniform "
+                 "belief, d2: depth 2 from a point belief (median of 3; exhaustive where Assumption 1 fails).")
     with open("/proc/loadavg") as fh:
         lines.append(f"Machine load (1, 5, 15 min) at the end: {' '.join(fh.read().split()[:3])}")
     return "\n".join(lines)
