@@ -479,19 +479,18 @@ class POMDP:
     def P_csr(self) -> SparseStack:  # noqa: N802 - the paper's name for the matrix
         """``P`` as one CSR matrix per action (:class:`~.sparse.SparseStack`, ``S x S`` each): what is
         stored for a sparse model, built once from the dense array for a dense one."""
-        stack = self.__dict__.get("_P_csr")
-        if stack is None:
-            stack = SparseStack.from_dense(self.P)
-            object.__setattr__(self, "_P_csr", stack)
-        return stack
+        return self._csr("P")
 
     @property
     def O_csr(self) -> SparseStack:  # noqa: N802
         """``O`` as one CSR matrix per action (``S x Z`` each); as :attr:`P_csr`."""
-        stack = self.__dict__.get("_O_csr")
+        return self._csr("O")
+
+    def _csr(self, name: str) -> SparseStack:
+        stack = self.__dict__.get(f"_{name}_csr")
         if stack is None:
-            stack = SparseStack.from_dense(self.O)
-            object.__setattr__(self, "_O_csr", stack)
+            stack = SparseStack.from_dense(getattr(self, name))
+            object.__setattr__(self, f"_{name}_csr", stack)
         return stack
 
     @property

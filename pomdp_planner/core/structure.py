@@ -265,8 +265,7 @@ def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
     """
     if model.sparse:
         return _check_tp2_support(model, tol)
-    worst = (np.inf, "transition", 0, (0, 0), (0, 0), 0.0)
-    total = 0
+    found: list[tuple[str, int, _Minor]] = []
     methods: set[str] = set()
     for label, stack in (("transition", model.P), ("observation", model.O)):
         seen: dict[bytes, list[tuple[np.ndarray, tuple]]] = {}
@@ -279,14 +278,22 @@ def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
                 methods.add(method)
                 cached = worst_tp2_minor(M, tol, method)
                 seen.setdefault(key, []).append((M, cached))
-            value, rows, cols, count, rel = cached
-            total += count
-            if rel < worst[0]:
-                worst = (rel, label, a, rows, cols, value)
+            found.append((label, a, cached))
+    return _tp2_report(found, tol, tuple(sorted(methods)))
+
+
+def _tp2_report(found: list[tuple[str, int, _Minor]], tol: float, methods: tuple[str, ...]) -> TP2Report:
+    """The report of the worst minors ``(matrix label, action, minor)`` of every matrix."""
+    worst = (np.inf, "transition", 0, (0, 0), (0, 0), 0.0)
+    total = 0
+    for label, a, (value, rows, cols, count, rel) in found:
+        total += count
+        if rel < worst[0]:
+            worst = (rel, label, a, rows, cols, value)
     rel, label, a, rows, cols, value = worst
     rel = 0.0 if not np.isfinite(rel) else rel
     return TP2Report(holds=rel >= -tol, worst_minor=value, matrix=label, action=a, rows=rows, cols=cols,
-                     num_negative=total, tol=tol, methods=tuple(sorted(methods)), worst_relative=rel)
+                     num_negative=total, tol=tol, methods=methods, worst_relative=rel)
 
 
 def _check_tp2_support(model: POMDP, tol: float) -> TP2Report:
@@ -294,23 +301,16 @@ def _check_tp2_support(model: POMDP, tol: float) -> TP2Report:
     identical matrices are checked once."""
     from .structure_sparse import worst_minor_support
 
-    worst = (np.inf, "transition", 0, (0, 0), (0, 0), 0.0)
-    total = 0
+    found: list[tuple[str, int, _Minor]] = []
     for label, stack in (("transition", model.P_csr), ("observation", model.O_csr)):
-        done: list[tuple[int, tuple]] = []
+        done: list[tuple[int, _Minor]] = []
         for a in range(len(stack)):
             cached = next((res for b, res in done if stack.same(a, b)), None)
             if cached is None:
                 cached = worst_minor_support(stack[a], tol)
                 done.append((a, cached))
-            value, rows, cols, count, rel = cached
-            total += count
-            if rel < worst[0]:
-                worst = (rel, label, a, rows, cols, value)
-    rel, label, a, rows, cols, value = worst
-    rel = 0.0 if not np.isfinite(rel) else rel
-    return TP2Report(holds=rel >= -tol, worst_minor=value, matrix=label, action=a, rows=rows, cols=cols,
-                     num_negative=total, tol=tol, methods=("support",), worst_relative=rel)
+            found.append((label, a, cached))
+    return _tp2_report(found, tol, ("support",))
 
 
 # =============================================================================== (A2)
