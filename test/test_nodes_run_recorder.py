@@ -4,10 +4,13 @@ run-record reader, row ``t`` holding exactly the belief and true state of epoch 
 still waiting at exit with what they have), bounds only where the planner published them, and
 ``pomdp-planner plot`` draws it; a second writer and an oversized sample are dropped before they
 reach the record; bad messages are counted in ``/diagnostics``; a file it cannot write is one
-``[FATAL]`` line; SIGINT ends it cleanly with the record complete."""
+``[FATAL]`` line, a full disk later one error (diagnostics ERROR) with the file ending on a whole
+row; SIGINT ends it cleanly with the record complete."""
 
 from __future__ import annotations
 
+import errno
+import io
 import math
 import os
 import signal
@@ -29,6 +32,7 @@ from test_run_record import png_size
 
 from pomdp_planner.cli import main as cli_main
 from pomdp_planner.core.io.run_record import read_run_record
+from pomdp_planner.core.loop.samples import ActionSample, BeliefSample
 from pomdp_planner.nodes.belief_filter import BeliefFilter
 from pomdp_planner.nodes.messages import decode_plan_info, encode_action, encode_true_state
 from pomdp_planner.nodes.planner import PlannerNode
@@ -138,6 +142,64 @@ def test_bad_messages_are_counted_in_the_diagnostics(harness, tmp_path):
     assert st["file"] == str(tmp_path / "run.csv") and st["rows_written"] == "0"
     assert st["_level"] == DiagnosticStatus.WARN and "since the last report: 2 malformed messages" in st["_message"]
     assert recorder.loop.health.counts["malformed_messages"] == 2
+
+
+class _FullDisk(io.RawIOBase):
+    """The recorder's file, on a disk with ``room`` bytes left: a write beyond it is cut short, the
+    next one fails with ENOSPC (what write(2) does on a full file system)."""
+
+    def __init__(self, raw: io.FileIO, room: int):
+        self.raw, self.room = raw, room
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data) -> int:
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = self.raw.write(bytes(data)[:self.room])
+        self.room -= n
+        return n
+
+    def truncate(self, size=None):
+        return self.raw.truncate(size)
+
+    def seek(self, pos, whence=0):
+        return self.raw.seek(pos, whence)
+
+    def close(self) -> None:
+        self.raw.close()
+        super().close()
+
+
+def test_a_full_disk_is_one_error_and_leaves_the_file_ending_on_a_whole_row(harness, tmp_path):
+    h = harness
+    path = tmp_path / "run.csv"
+    recorder = h.add(RunRecorderNode(context=h.context, parameter_overrides=_params(model_file=S3, file=str(path))))
+    rec = h.recorder()
+    h.start()
+    head = path.stat().st_size
+    recorder.writer.stream = _FullDisk(recorder.writer.stream, 45)  # room for a row and a half
+    for t in range(4):
+        recorder.inputs.call(recorder.loop.belief, BeliefSample(t, np.array([0.2, 0.3, 0.5])))
+        recorder.inputs.call(recorder.loop.action, ActionSample(t + 1, 1))
+        recorder.inputs.call(recorder.loop.plan_info, {
+            "epoch": t + 1, "action_priority": 1, "depth": 1, "nodes_expanded": 1, "pruned_percent": 0.0,
+            "certified": 0, "time_used": 0.001, "latency": 0.002, "deadline_hit": 0, "deadline_miss": 0,
+            "bound_lower": math.nan, "bound_upper": math.nan})
+    assert recorder.writer is None and recorder.last_row is not None
+    assert recorder.write_error == (f"file: cannot write {path}: No space left on device; recording stopped (the "
+                                    f"file ends on the row of epoch {recorder.last_row})")
+    data = path.read_bytes()
+    assert head < len(data) <= head + 45 and data.endswith(b"\n")
+    assert read_run_record(path).epoch.tolist() == list(range(recorder.last_row + 1))
+
+    def error():
+        found = rec.diag_values("run_recorder: recording")
+        return found[-1] if found and found[-1]["_level"] == DiagnosticStatus.ERROR else None
+
+    assert h.wait_until(lambda: error() is not None, timeout=10)
+    assert error()["_message"].startswith(recorder.write_error)
 
 
 def test_a_second_writer_and_an_oversized_sample_are_dropped_before_they_reach_the_record(harness, tmp_path):

@@ -3,6 +3,11 @@
 * A record written row by row reads back to the same values (hypothesis), and a reader sees each
   row as soon as it is written (streaming, as a node would).
 * Every kind of malformed record is refused with one line naming the file, the line and the column.
+* A row is written whole or not at all: a write the kernel cuts short (a file size limit, as a full
+  disk) leaves the file ending on the previous whole row, and the error is one line; ``simulate
+  --record`` then ends with that line (exit code 2). A last row without its line end (cut off)
+  is left out with one warning naming its line, at every cut point, also where the cut text would
+  pass as a row; ``plot`` draws the rows before it.
 * ``simulate --record``: one row per step, the belief the decision was made from (checked against
   the JSON steps of the same run), the priority, the planner's root bounds, depth and search time.
 * ``plot``: the PNG has the asked size (read from its IHDR chunk); a malformed record and a missing
@@ -14,8 +19,12 @@ from __future__ import annotations
 import builtins
 import io
 import json
+import os
 import struct
+import subprocess
+import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +33,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pomdp_planner.cli import main
+from pomdp_planner.core.errors import InputWarning
 from pomdp_planner.core.io.run_record import RunRecordError, RunRecordWriter, columns, read_run_record
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -161,6 +171,122 @@ def test_a_binary_file_is_refused_in_one_line(tmp_path):
         read_run_record(path)
 
 
+# ------------------------------------------------------------------ whole rows
+#: A child process whose files may not grow beyond LIMIT bytes (the kernel writes up to the limit,
+#: then fails the write with EFBIG, as a full disk fails it with ENOSPC), running ``CODE``.
+LIMITED = """
+import resource, signal, sys
+{imports}
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))
+{code}
+"""
+
+
+def _limited(tmp_path: Path, limit: int, imports: str, code: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", LIMITED.format(imports=imports, limit=limit, code=code), *args],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                          env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})
+
+
+ROW_BELIEF = [0.2, 0.3, 0.5]
+
+
+def test_a_failed_write_leaves_the_file_ending_on_its_last_whole_row(tmp_path):
+    """The limit falls inside the third row: the kernel writes part of it, then refuses; the file is
+    cut back to the end of the second row and the error names the field, the file and the reason."""
+    path = tmp_path / "run.csv"
+    w = RunRecordWriter(io.StringIO(), "m", 3, 3)
+    head = len(w.stream.getvalue())
+    w.write(0, ROW_BELIEF, 1, latency=0.0123456789)
+    row = len(w.stream.getvalue()) - head
+    for cut in (1, row // 2, row - 1):
+        limit = head + 2 * row + cut
+        proc = _limited(tmp_path, limit, "from pomdp_planner.core.io.run_record import RunRecordError, open_run_record",
+                        f"""
+w = open_run_record(sys.argv[1], "--record", "m", 3, 3)
+try:
+    for t in range(100):
+        w.write(t, {ROW_BELIEF}, 1, latency=0.0123456789)
+        print("wrote", t, flush=True)
+except RunRecordError as exc:
+    print(exc)
+w.close()
+""", str(path))
+        assert proc.returncode == 0, proc.stderr
+        *wrote, error = proc.stdout.splitlines()
+        assert wrote == ["wrote 0", "wrote 1"]
+        assert error == f"--record: cannot write {path}: File too large"
+        data = path.read_bytes()
+        assert len(data) == head + 2 * row and data.endswith(b"\n")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert list(read_run_record(path).epoch) == [0, 1]
+
+
+def test_simulate_record_on_a_full_file_system_is_one_line_and_a_readable_record(tmp_path):
+    path = tmp_path / "run.csv"
+    proc = _limited(tmp_path, 3000, "from pomdp_planner.cli import main",
+                    "sys.exit(main(sys.argv[1:]))",
+                    "simulate", S8, "--steps", "200", "--record", str(path))
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and err == [f"pomdp-planner: error: --record: cannot write {path}: File too large"], \
+        proc.stderr[-2000:]
+    assert path.stat().st_size <= 3000 and path.read_bytes().endswith(b"\n")
+    rec = read_run_record(path)
+    assert list(rec.epoch) == list(range(len(rec.epoch))) and rec.cut_line is None
+
+
+def _cut_record(tmp_path: Path, keep: int) -> tuple[Path, int]:
+    """A record of 4 rows whose last row keeps only its first ``keep`` characters (no line end); its line number."""
+    path = tmp_path / f"cut{keep}.csv"
+    small_record(path)
+    text = path.read_text()
+    body, last = text[:-1].rsplit("\n", 1)
+    path.write_text(body + "\n" + last[:keep])
+    return path, text.count("\n")
+
+
+def test_a_cut_last_row_is_left_out_with_one_warning_naming_its_line(tmp_path):
+    full = tmp_path / "full.csv"
+    small_record(full)
+    whole = read_run_record(full)
+    last = full.read_text().splitlines()[-1]
+    for keep in range(1, len(last) + 1):  # every cut point, the whole row without its line end too
+        path, line = _cut_record(tmp_path, keep)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rec = read_run_record(path)
+        assert [str(w.message) for w in caught if issubclass(w.category, InputWarning)] == [
+            f"{path}:{line}: the last row is cut off (no line end: still being written, or the writer stopped "
+            "part-way); read the 3 rows before it"]
+        assert rec.cut_line == line and list(rec.epoch) == list(whole.epoch[:3])
+        np.testing.assert_array_equal(rec.beliefs, whole.beliefs[:3])
+        np.testing.assert_array_equal(rec.latency, whole.latency[:3])
+
+
+def test_a_record_whose_only_row_is_cut_has_no_rows(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text(GOOD_HEAD + GOOD_ROW[:9])
+    with pytest.raises(RunRecordError, match=r":3: no rows: .*\(line 3 is a row cut off\)$"):
+        read_run_record(path)
+
+
+@pytest.mark.parametrize("text,line,problem", [
+    (GOOD_HEAD + GOOD_ROW[:9] + "\n" + GOOD_ROW.replace("0,", "1,", 1) + "\n", 3, "expected 11 columns"),
+    (GOOD_HEAD + GOOD_ROW + "\n" + GOOD_ROW.replace("0,1,", "1,1,", 1).replace("0.25", "0.2") + "\n", 4,
+     "the belief sums to"),
+    (GOOD_HEAD + GOOD_ROW + "\n" + "1,1,0.25,0.7\n" + GOOD_ROW.replace("0,", "2,", 1)[:5], 4,
+     "expected 11 columns"),
+])
+def test_a_row_cut_anywhere_but_at_the_end_is_refused(tmp_path, text, line, problem):
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(RunRecordError) as info:
+        read_run_record(path)
+    assert str(info.value).startswith(f"{path}:{line}: ") and problem in str(info.value)
+
+
 # ------------------------------------------------------------------ simulate --record
 def test_simulate_records_every_decision_with_its_belief(tmp_path, capsys):
     rec_path = tmp_path / "run.csv"
@@ -227,6 +353,17 @@ def test_plot_refuses_a_malformed_record_in_one_line(tmp_path, capsys):
     assert code == 2 and out == "" and not png.exists()
     assert err.strip().splitlines() == [f"pomdp-planner: error: {info.value}"]
     assert f"{bad}:5: column depth: expected an integer >= 0 or empty, got 'deep'" in err
+
+
+def test_plot_draws_the_whole_rows_of_a_record_with_a_cut_last_row(tmp_path, capsys):
+    path, line = _cut_record(tmp_path, 12)
+    png = tmp_path / "run.png"
+    assert main(["plot", str(path), "-o", str(png)]) == 0
+    out, err = capsys.readouterr()
+    assert err.strip().splitlines() == [f"pomdp-planner: warning: {path}:{line}: the last row is cut off (no line "
+                                        "end: still being written, or the writer stopped part-way); read the 3 rows "
+                                        "before it"]
+    assert out.strip() == f"wrote {png} (3 decisions of m)" and png_size(png) == (1000, 700)
 
 
 def test_plot_without_matplotlib_says_how_to_install_it(tmp_path, capsys, monkeypatch):

@@ -34,16 +34,21 @@ def _random_models() -> list:
     return [random_candidate(rng, ModelSpec(3, 3, 3, u, 0.9)) for u in ("renyi2", "shannon", "none")]
 
 
+@pytest.mark.parametrize("fused", [None, False])
 @pytest.mark.parametrize("name", SHIPPED)
-def test_priced_planner_equals_a_planner_of_the_priced_model(name):
+def test_priced_planner_equals_a_planner_of_the_priced_model(name, fused):
+    """Both leaf-table layouts (``fused=False`` is what models above the fused-table limit get)."""
     model = load_model_file(name)
     setup = build_planner(model)
+    base = Planner(model, MyopicBounds(model, setup.bounds.g, setup.bounds.h),
+                   guaranteed=setup.guaranteed, fused=fused)
+    assert base.fused == (fused is None)
     rng = np.random.default_rng(1)
     for _ in range(4):
         c = rng.normal(size=model.A) * 3.0
         priced_model = replace(model, r=model.r - c[None, :])
         fresh = Planner(priced_model, MyopicBounds(priced_model, setup.bounds.g, setup.bounds.h), guaranteed=True)
-        priced = setup.planner.priced(c)
+        priced = base.priced(c)
         assert priced.guaranteed == setup.guaranteed
         b = rng.dirichlet(np.ones(model.S))
         for depth in (1, 2, 3):

@@ -15,7 +15,8 @@ The picture is ``--width`` x ``--height`` inches at ``--dpi`` dots per inch (def
 100: 1000 x 700 pixels); the format follows the output's suffix (``.png``, ``.svg``, ``.pdf``).
 matplotlib is an optional extra (``pip install '.[plot]'``; also in the ``experiments`` extra): without
 it the command says so in one line (exit code 2). A malformed record is refused in one line
-naming the line and the column (exit code 2).
+naming the line and the column (exit code 2); a last row without its line end (still being
+written, or cut off) is left out with one warning naming its line.
 """
 
 from __future__ import annotations

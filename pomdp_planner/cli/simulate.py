@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
                 yield st
         finally:  # also when the reader stops early (| head)
             if record is not None:
-                record.stream.close()
+                record.close()
 
     if args.json:
         head = {"model": model.name, "policy": args.policy, "seed": args.seed, "gamma": model.gamma,

@@ -540,11 +540,15 @@ class Planner:
             raise OptionError(f"action_cost: expected {A} finite numbers (one per action), "
                               f"got {short_repr(action_cost)}")
         new = copy.copy(self)
-        new._rT = np.ascontiguousarray(self._rT - c[:, None])
-        # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
-        WT = self._WT.reshape(A, 1 + A, self.model.Z, self.model.S).copy()
-        WT[:, 1:] -= c[None, :, None, None] * WT[:, :1]
-        new._WT = np.ascontiguousarray(WT.reshape(self._WT.shape))
+        # every table that holds r: r itself (the unfused leaf products), r^T (rho, bounds), and
+        # the fused leaf table when there is one
+        new._r = np.ascontiguousarray(self._r - c[None, :])
+        new._rT = np.ascontiguousarray(new._r.T)
+        if self._WT is not None:
+            # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
+            WT = self._WT.reshape(A, 1 + A, self.model.Z, self.model.S).copy()
+            WT[:, 1:] -= c[None, :, None, None] * WT[:, :1]
+            new._WT = np.ascontiguousarray(WT.reshape(self._WT.shape))
         new._bound_cache = None
         return new
 

@@ -65,7 +65,7 @@ from std_msgs.msg import Int64MultiArray
 from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file
-from ..core.io.run_record import open_run_record
+from ..core.io.run_record import RunRecordError, open_run_record
 from ..core.loop.recorder_loop import RecorderLoop, RecordRow
 from ..core.loop.run_summary import RowFacts, RunSummary
 from ..core.model import POMDP
@@ -246,8 +246,13 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
                     print(f"(the monitor matched the nodes late; the table starts at epoch {row.epoch})", file=out)
                 print(table_row(summary.add(row)), file=out, flush=True)
                 if writer is not None:
-                    writer.write(row.epoch, row.belief, row.priority, **row.record_fields())
-                    written[0] += 1
+                    try:
+                        writer.write(row.epoch, row.belief, row.priority, **row.record_fields())
+                        written[0] += 1
+                    except RunRecordError as exc:  # a full disk: the file ends on its last whole row
+                        print(f"demo: {exc}; recording stopped", file=sys.stderr)
+                        writer.close()
+                        writer = None
                 last_progress = time.monotonic()
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
             if dead or time.monotonic() - last_progress > 60.0:
@@ -261,7 +266,7 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
         codes = stop_nodes(procs)
         monitor.close()
         if writer is not None:
-            writer.stream.close()
+            writer.close()
     for name, c in codes.items():
         text = procs[name][1].read_text(errors="replace")
         if c != 0 or "Traceback" in text:

@@ -12,7 +12,9 @@ state of epoch ``t`` where a simulator publishes it, the action ``[t + 1, p]`` a
 ``plan_info`` of epoch ``t + 1``. The pairing rule (when a row is written, what it waits for,
 bounded memory) is the core's :class:`~pomdp_planner.core.loop.recorder_loop.RecorderLoop`; the
 format is :mod:`~pomdp_planner.core.io.run_record` (``pomdp-planner plot FILE`` draws it). Each
-row is flushed as it is written; at exit the rows still waiting are written with what they have.
+row is flushed as it is written, whole or not at all; at exit the rows still waiting are written
+with what they have. A write that fails (a full disk) is one ERROR line and diagnostics at ERROR;
+the file ends on its last whole row and the node goes on without recording.
 :class:`RunInputs` (the subscriptions and the loop's timer) is also the demo's monitor's.
 Parameters: docs/ros.md ("Run recorder").
 """
@@ -132,6 +134,7 @@ class RunRecorderNode(ParameterNode):
                                                                   self.model.A, budget if budget > 0 else None)
         self.path = path
         self.write_error = ""
+        self.last_row: int | None = None
         self.loop = RecorderLoop(self.model.S, self.model.A, now=time.monotonic(),
                                  row_timeout=value("row_timeout").value,
                                  max_pending_rows=value("max_pending_rows").value,
@@ -150,9 +153,10 @@ class RunRecorderNode(ParameterNode):
         try:
             for row in out.rows:
                 self.writer.write(row.epoch, row.belief, row.priority, **row.record_fields())
-        except (OSError, InputError) as exc:  # a full disk (the rows are valid: the loop checked their parts)
-            self.write_error = f"file: cannot write {self.path}: {getattr(exc, 'strerror', None) or exc}; " \
-                               "recording stopped"
+                self.last_row = row.epoch
+        except InputError as exc:  # a full disk (the rows are valid: the loop checked their parts)
+            ends = "no row" if self.last_row is None else f"the row of epoch {self.last_row}"
+            self.write_error = f"{exc}; recording stopped (the file ends on {ends})"
             self.get_logger().error(self.write_error)
             self._close_file()
 
@@ -160,7 +164,7 @@ class RunRecorderNode(ParameterNode):
         writer, self.writer = self.writer, None
         if writer is not None:
             try:
-                writer.stream.close()
+                writer.close()
             except OSError:
                 pass
 

@@ -26,23 +26,29 @@ latency    seconds the decision took; empty where not measured
 ========== ==================================================================================
 
 :class:`RunRecordWriter` writes and flushes one row at a time, so a long run (or a node) can
-stream its record and a reader sees every finished decision. :func:`read_run_record` checks
+stream its record and a reader sees every finished decision. Into a file (:func:`open_run_record`)
+a row is written whole or not at all: a write that fails part-way (a full disk) is cut back to the
+end of the previous row, so the file always ends on a complete line. :func:`read_run_record` checks
 every line and refuses a malformed file with one line naming the line and the column
-(:class:`RunRecordError`, an :class:`~..errors.OptionError`: a bad argument file).
+(:class:`RunRecordError`, an :class:`~..errors.OptionError`: a bad argument file). Only a last
+line without its line end (a row still being written, or one cut by a crash) is not refused: it is
+left out, and the record says which line (:attr:`RunRecord.cut_line`), for one warning.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TextIO
 
 import numpy as np
 
-from ..errors import OptionError, short_repr
+from ..errors import InputWarning, OptionError, short_repr
 
 FORMAT = "pomdp_planner run record"
 VERSION = 1
@@ -75,18 +81,22 @@ class RunRecordWriter:
 
     ``model_name``, ``S``, ``A`` and ``time_budget`` (seconds or ``None``) go to the first line.
     :meth:`write` checks each row as the reader would, so a record the writer produced is always
-    readable."""
+    readable. ``stream`` is a text stream, or an unbuffered binary file (``io.RawIOBase``, as
+    :func:`open_run_record` opens it): then each line goes out whole or not at all (a write that
+    fails part-way is cut back to the previous line and raised as a :class:`RunRecordError`
+    starting with ``where``)."""
 
-    def __init__(self, stream: TextIO, model_name: str, S: int, A: int, time_budget: float | None = None):
+    def __init__(self, stream: TextIO | io.RawIOBase, model_name: str, S: int, A: int,
+                 time_budget: float | None = None, *, where: str = "run record: cannot write"):
         if any(ch in str(model_name) for ch in ";\n\r"):
             raise RunRecordError(f"run record: the model name {short_repr(model_name)} contains ';' or a line break")
         self.stream, self.S, self.A = stream, int(S), int(A)
+        self.where = where
         self._last_epoch: int | None = None
+        self._size = 0  # bytes of whole lines in a binary file
         budget = "none" if time_budget is None else _float_text(time_budget)
-        stream.write(f"# {FORMAT} {VERSION}; model={model_name}; S={self.S}; A={self.A}; time_budget={budget}\n")
-        self._csv = csv.writer(stream, lineterminator="\n")
-        self._csv.writerow(columns(self.S))
-        stream.flush()
+        self._put(f"# {FORMAT} {VERSION}; model={model_name}; S={self.S}; A={self.A}; time_budget={budget}\n"
+                  + ",".join(columns(self.S)) + "\n")
 
     def write(self, epoch: int, belief: Sequence[float] | np.ndarray, priority: int, *, true_state: int | None = None,
               bounds: tuple[int, int] | None = None, guaranteed: bool = False, depth: int | None = None,
@@ -100,26 +110,50 @@ class RunRecordWriter:
                _blank(None if bounds is None else int(bounds[1])), _blank(label),
                _blank(None if depth is None else int(depth)), "1" if certified else "0",
                "" if latency is None else _float_text(latency)]
-        self._last_epoch = _check_row(row, self.S, self.A, self._last_epoch, f"run record, epoch {int(epoch)}", None)
-        self._csv.writerow(row)
-        self.stream.flush()
+        epoch_checked = _check_row(row, self.S, self.A, self._last_epoch, f"run record, epoch {int(epoch)}", None)
+        self._put(",".join(row) + "\n")  # numbers and blanks only: no cell needs CSV quoting
+        self._last_epoch = epoch_checked
+
+    def _put(self, text: str) -> None:
+        """Write whole lines ``text`` and flush; into a binary file whole or not at all (class docstring)."""
+        if not isinstance(self.stream, io.RawIOBase):
+            self.stream.write(text)
+            self.stream.flush()
+            return
+        data = memoryview(text.encode("utf-8"))
+        try:
+            while data:
+                data = data[self.stream.write(data):]
+        except OSError as exc:
+            try:  # cutting a file back needs no space
+                self.stream.truncate(self._size)
+                self.stream.seek(self._size)
+            except OSError:
+                pass
+            raise RunRecordError(f"{self.where}: {exc.strerror or type(exc).__name__}") from None
+        self._size += len(data.obj)
+
+    def close(self) -> None:
+        """Close the stream."""
+        self.stream.close()
 
 
 def open_run_record(path: str | os.PathLike, field: str, model_name: str, S: int, A: int,
                     time_budget: float | None = None) -> RunRecordWriter:
-    """A :class:`RunRecordWriter` streaming into the file ``path`` (created or overwritten; closing
-    ``writer.stream`` ends it); a file that cannot be written is a :class:`RunRecordError` naming
-    ``field`` (the option or parameter that gave the path)."""
+    """A :class:`RunRecordWriter` streaming into the file ``path`` (created or overwritten; whole
+    rows only; :meth:`RunRecordWriter.close` ends it); a file that cannot be written, then or
+    later, is a :class:`RunRecordError` ``FIELD: cannot write PATH: REASON`` (``field``: the option
+    or parameter that gave the path)."""
+    where = f"{field}: cannot write {path}"
     try:
-        stream = open(path, "w", encoding="utf-8")
+        stream = open(path, "wb", buffering=0)
     except OSError as exc:
-        raise RunRecordError(f"{field}: cannot write {path}: {exc.strerror or type(exc).__name__}") from None
+        raise RunRecordError(f"{where}: {exc.strerror or type(exc).__name__}") from None
     try:
-        return RunRecordWriter(stream, model_name, S, A, time_budget)
-    except (OSError, RunRecordError) as exc:
+        return RunRecordWriter(stream, model_name, S, A, time_budget, where=where)
+    except RunRecordError as exc:
         stream.close()
-        reason = exc.strerror if isinstance(exc, OSError) else str(exc)
-        raise RunRecordError(f"{field}: cannot write {path}: {reason or type(exc).__name__}") from None
+        raise (exc if str(exc).startswith(where) else RunRecordError(f"{where}: {exc}")) from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,7 +161,8 @@ class RunRecord:
     """A run record read back: ``beliefs`` ``(T, S)``; ``true_state`` ``(T,)`` with -1 where unknown;
     ``action``, ``lower``, ``upper`` priorities ``1..A`` (bounds 0 where absent); ``guaranteed`` (bool:
     the bounds are guaranteed; ``False`` where absent or not guaranteed); ``depth`` (-1 where absent),
-    ``certified`` (bool), ``latency`` (seconds, NaN where absent)."""
+    ``certified`` (bool), ``latency`` (seconds, NaN where absent); ``cut_line``: a last line left
+    out because it was cut off (module docstring)."""
 
     model: str
     S: int
@@ -143,6 +178,8 @@ class RunRecord:
     depth: np.ndarray
     certified: np.ndarray
     latency: np.ndarray
+    #: The number of a last line left out because it lacks its line end (a row cut off), else ``None``.
+    cut_line: int | None = None
 
     @property
     def has_bounds(self) -> np.ndarray:
@@ -243,17 +280,30 @@ def _parse_first_line(text: str, where: str) -> tuple[str, int, int, float | Non
 
 def read_run_record(path: str | os.PathLike) -> RunRecord:
     """Read and check a run record (module docstring); any problem is one :class:`RunRecordError`
-    line ``FILE:LINE: column NAME: problem``."""
+    line ``FILE:LINE: column NAME: problem``. A last row without its line end is left out with one
+    :class:`~..errors.InputWarning` ``FILE:LINE: ...`` (and :attr:`RunRecord.cut_line`)."""
     where = str(path)
+    cut: list[int] = []
+
+    def whole_lines(fh: TextIO, first: int) -> Iterator[str]:
+        """The lines of ``fh`` that end with a line end; the number of a last one that does not goes to ``cut``."""
+        for k, text in enumerate(fh, start=first):
+            if text.endswith("\n"):
+                yield text
+            else:  # only the last line can lack its end
+                cut.append(k)
+
     try:
         with open(path, encoding="utf-8", newline="") as fh:
-            first = fh.readline().rstrip("\r\n")
-            model, S, A, budget = _parse_first_line(first, where)
-            reader = csv.reader(fh)
+            first = fh.readline()
+            if not first.endswith("\n") and first:
+                raise _fail(where, 1, None, "the first line is cut off (no line end)")
+            model, S, A, budget = _parse_first_line(first.rstrip("\r\n"), where)
+            reader = csv.reader(whole_lines(fh, 2))
             try:
                 header = next(reader)
             except StopIteration:
-                raise _fail(where, 2, None, "no header line") from None
+                raise _fail(where, 2, None, "no header line" + (" (it is cut off)" if cut else "")) from None
             if tuple(header) != columns(S):
                 bad = next((i for i, (h, c) in enumerate(zip(header, columns(S), strict=False)) if h != c),
                            min(len(header), len(columns(S))))
@@ -271,8 +321,14 @@ def read_run_record(path: str | os.PathLike) -> RunRecord:
         raise RunRecordError(f"{where}: not a CSV file ({exc})") from None
     except OSError as exc:
         raise RunRecordError(f"{where}: cannot read: {exc.strerror or type(exc).__name__}") from None
+    cut_line = cut[0] if cut else None
     if not rows:
-        raise _fail(where, 3, None, "no rows: the record has a header but no decision")
+        raise _fail(where, 3, None, "no rows: the record has a header but no decision"
+                    + (f" (line {cut_line} is a row cut off)" if cut_line else ""))
+    if cut_line is not None:
+        warnings.warn(InputWarning(f"{where}:{cut_line}: the last row is cut off (no line end: still being written, "
+                                   f"or the writer stopped part-way); read the {len(rows)} rows before it"),
+                      stacklevel=2)
     names = columns(S)
     cols = {name: [r[i] for r in rows] for i, name in enumerate(names)}
 
@@ -286,4 +342,5 @@ def read_run_record(path: str | os.PathLike) -> RunRecord:
         guaranteed=ints("guaranteed", 0).astype(bool), depth=ints("depth", -1),
         certified=ints("certified", 0).astype(bool),
         latency=np.array([math.nan if v.strip() == "" else float(v) for v in cols["latency"]]),
+        cut_line=cut_line,
     )
