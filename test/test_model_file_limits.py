@@ -312,3 +312,19 @@ def test_names_are_single_lines_so_export_cannot_inject_lines():
         model_from_dict({**model_to_dict(base), "name": "x\ndiscount: 0.1"})
     with pytest.raises(ModelError, match=rf"at most {MAX_NAME_CHARS}"):
         model_from_dict({**model_to_dict(base), "name": "x" * (MAX_NAME_CHARS + 1)})
+
+
+def test_pomdp_element_lines_are_bounded_by_their_own_count(monkeypatch):
+    """Element lines read in bulk count against MAX_ELEMENT_LINES (cheap lines), words against
+    MAX_TOKENS; both refusals name the line."""
+    head = "discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nO: 0 : * : 0 1.0\n"  # 20 words
+    text = head + "T: 0 : 0 : 1 0.5\n" * 30 + "T: 0 : 0 : 0 0.5\nT: 0 : 1 : 1 1.0\n"
+    assert parse_pomdp(text).P[0, 0, 0] == 0.5
+    monkeypatch.setattr(cassandra, "MAX_ELEMENT_LINES", 20)
+    with pytest.raises(ModelError, match=r"^<string>: line 26: more than 20 element lines \(MAX_ELEMENT_LINES\)$"):
+        parse_pomdp(text)
+    monkeypatch.setattr(cassandra, "MAX_ELEMENT_LINES", 10**6)
+    monkeypatch.setattr(cassandra, "MAX_TOKENS", 20)
+    assert parse_pomdp(text).S == 2  # the lines read in bulk are no words
+    with pytest.raises(ModelError, match=r"^<string>: line 6: more than 20 words \(MAX_TOKENS\)$"):
+        parse_pomdp(head + "T: 0 : 0 : 0 0.5 T: 0 : 1 : 1 1.0\n")  # two entries on a line: read word by word

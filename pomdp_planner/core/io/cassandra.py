@@ -46,8 +46,9 @@ matrix exists (as the smallest model they allow: one non-zero per row of ``T`` a
 entries together may write at most :data:`MAX_ENTRY_CELLS` matrix cells (a short file of
 ``T: * uniform`` lines cannot keep the parser busy), and the non-zeros they leave must fit in
 ``MAX_MODEL_BYTES`` (checked as they accumulate, before an entry expands); the file has at most
-:data:`MAX_TOKENS` words; rewards that depend on the end state or the observation need the
-``A x S x S x Z`` array ``R(s, a, s', z)``, which must fit in ``MAX_MODEL_BYTES`` as well.
+:data:`MAX_TOKENS` words and :data:`MAX_ELEMENT_LINES` element lines read in bulk; rewards that
+depend on the end state or the observation need the ``A x S x S x Z`` array ``R(s, a, s', z)``,
+which must fit in ``MAX_MODEL_BYTES`` as well.
 A line that is one element entry (``T: a : s : s' p``, ``O: a : s' : z p``) is read as a whole,
 several times faster than word by word.
 
@@ -102,11 +103,13 @@ MAX_TOKEN_CHARS = 256
 #: (a dense model of the largest size allowed has about 1.6e7 cells; later entries may
 #: overwrite earlier ones, so there is room for that). Writing a cell costs tens of nanoseconds.
 MAX_ENTRY_CELLS = 100_000_000
-#: Most words (numbers, names, keywords, ``:``) in a ``.POMDP`` file. Reading costs about 2 us
-#: of CPU per word on a general line and about a tenth of that on an element line read whole, so
-#: this bounds the time of any file to seconds; the export of a 100 x 100 grid model (sparse,
-#: element lines) has about 1.8 million, of a dense model with S = Z = 200 and A = 5 about 400 000.
+#: Most words (numbers, names, keywords, ``:``) in a ``.POMDP`` file, element lines read in bulk
+#: aside. Reading costs about 2 us of CPU per word, so this bounds the time of any file to seconds;
+#: the export of a dense model with S = Z = 200 and A = 5 has about 400 000.
 MAX_TOKENS = 4_000_000
+#: Most element lines with 0-based indices (``T: 0 : 12 : 13 0.05``) in a file, read in bulk at about
+#: 1 us each: a 100 x 100 grid model's export has about 330 000, a 200 x 200 one 1.3 million.
+MAX_ELEMENT_LINES = 8_000_000
 #: Cells held as coordinates before they are compacted (duplicates resolved, zeros dropped).
 COMPACT_CELLS = 4_000_000
 #: The ``uncertainty`` keys of the ``# pomdp_planner:`` comment (the YAML ``uncertainty:`` mapping).
@@ -289,11 +292,13 @@ class _Lexer:
             bulk = ([], [], [], [], [], [])
             return tok
 
+        elements = 0
         for lineno, raw in enumerate(io.StringIO(text), start=1):
             if (m := _INDEX_ELEMENT_LINE.fullmatch(raw)) is not None:
-                count += 8  # T : a : s : s' p
-                if count > MAX_TOKENS:
-                    raise ModelError(f"line {lineno}: more than {MAX_TOKENS:,} words (MAX_TOKENS)")
+                elements += 1
+                if elements > MAX_ELEMENT_LINES:
+                    raise ModelError(f"line {lineno}: more than {MAX_ELEMENT_LINES:,} element lines "
+                                     "(MAX_ELEMENT_LINES)")
                 for store, word in zip(bulk, m.groups(), strict=False):
                     store.append(word)
                 bulk[5].append(lineno)
