@@ -15,7 +15,8 @@ own), one after the other, in one run:
   beside what the gate then does (:func:`~pomdp_planner.core.gate.build_planner` with its
   defaults, each stage timed: assumption check, bound LP, planner tables) and their ratio; a set-up
   the gate refuses (expected over ``MAX_SETUP_SECONDS``, or the dense form of a sparse model too
-  large for the search) shows why;
+  large for the search) shows why, and where only the search is refused the assumption check
+  still runs and is timed;
 * **peak RSS** of the process (after loading, setting up and deciding);
 * **decisions**: a search of depth 1 from the uniform belief and of depth 2 from a point belief
   (the median of three), as the planner makes them.
@@ -121,7 +122,7 @@ def _timed(fn, repeat: int = 3) -> float:
 def measure(spec: str, path: str | None, decisions: bool) -> dict[str, Any]:
     """One model, in this process (the child's work): the row of the table."""
     from ..core.domains.comparison import comparison_model
-    from ..core.gate import STAGES, build_planner, estimate_setup
+    from ..core.gate import STAGES, assumption_report, build_planner, estimate_setup
     from ..core.io.sensors import load_model_file
     from ..core.model import ModelError
     from ..core.search import Planner
@@ -143,6 +144,10 @@ def measure(spec: str, path: str | None, decisions: bool) -> dict[str, Any]:
         setup = build_planner(model)
     except (ValueError, MemoryError) as exc:  # a set-up the gate refuses (its memory, the dense form)
         row.update(refused=str(exc).split(": ", 1)[-1][:160], mode=None)
+        if "MAX_DENSE_BYTES" in str(exc):  # the search is refused; the assumption check still runs
+            t0, cpu = time.perf_counter(), time.process_time()
+            assumption_report(model)
+            row.update(check=time.perf_counter() - t0, check_cpu=time.process_time() - cpu)
         row["rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
         return row
     row["cpu"] = time.process_time() - cpu
@@ -212,8 +217,8 @@ def format_table(rows: Sequence[dict[str, Any]], decisions: bool = True) -> str:
         if r.get("refused"):
             tail = f"refused: {r['refused']}"
             lines.append(f"{r['model']:<22} {r['S']:>6} {r['A']:>3} {r['Z']:>6} {stored:>9} {file:>8} "
-                         f"{cell(r['load'], '.2f'):>6} | {r['est_check']:>7.2f} {'':>7} {r['est_lp']:>7.2f} | "
-                         f"{r['rss'] / 2**20:>5.0f}M | {tail}")
+                         f"{cell(r['load'], '.2f'):>6} | {r['est_check']:>7.2f} {cell(r.get('check'), '.2f'):>7} "
+                         f"{r['est_lp']:>7.2f} | {r['rss'] / 2**20:>5.0f}M | {tail}")
             continue
         lines.append(
             f"{r['model']:<22} {r['S']:>6} {r['A']:>3} {r['Z']:>6} {stored:>9} {file:>8} {cell(r['load'], '.2f'):>6} | "

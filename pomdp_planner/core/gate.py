@@ -126,9 +126,9 @@ SETUP_NOTICE_SECONDS = 2.0
 #: the caller lifts the limit (``max_setup_seconds=None``: ``--no-limit``, ``no_limit=1``).
 MAX_SETUP_SECONDS = 600.0
 #: Seconds per byte of the planner's tables (filling them: a few passes over memory).
-COST_TABLE_BYTE = 1e-9
+COST_TABLE_BYTE = 2e-9
 #: Seconds per byte of the dense ``P`` and ``O`` a sparse model builds for the search.
-COST_DENSE_BYTE = 2e-9
+COST_DENSE_BYTE = 3e-9
 
 
 def available_memory() -> int | None:
