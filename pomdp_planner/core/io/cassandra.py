@@ -952,7 +952,9 @@ class _Parser:
                              f"got {kind_of(unc)}")
         unknown = sorted(set(map(str, unc)) - META_UNCERTAINTY_FIELDS)
         if unknown:
-            raise ModelError(f"uncertainty{where}: unknown field(s) {unknown}; "
+            shown = ", ".join(short_repr(k, 40) for k in unknown[:5]) + (f", ... ({len(unknown)} in all)"
+                                                                         if len(unknown) > 5 else "")
+            raise ModelError(f"uncertainty{where}: unknown field(s) [{shown}]; "
                              f"known: {sorted(META_UNCERTAINTY_FIELDS)}")
         out: dict = {"uncertainty": unc.get("function", "none"), "w": unc.get("weights")}
         if not isinstance(out["uncertainty"], str):
