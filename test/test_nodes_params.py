@@ -343,3 +343,17 @@ def test_max_setup_seconds_limits_the_configure_and_a_long_set_up_is_announced(h
     assert planner.get_parameter("max_setup_seconds").value == 0.0
     err = capfd.readouterr().err
     assert "set-up for S=3, A=3, Z=3 is running, expected about" in err and "no time budget includes it" in err
+
+
+def test_the_grid10_parameter_files_run_the_grid_model_in_every_node_of_the_closed_loop():
+    """``closed_loop.launch.xml model_set:=grid10`` reads config/<node>_grid10.yaml for its three nodes
+    (docs/ros.md, "Parameter files"): each exists, applies in any namespace and names the 10 x 10 grid,
+    as does closed_loop_grid10.yaml; the launch file takes each node's file by that pattern."""
+    launch = (REPO / "launch" / "closed_loop.launch.xml").read_text()
+    for node in ("target_simulator", "belief_filter", "planner"):
+        assert f"config/{node}_$(var model_set).yaml" in launch
+        doc = yaml.safe_load((REPO / "config" / f"{node}_grid10.yaml").read_text())
+        assert node_parameters(doc, node)["model_file"] == "config/models/grid_10x10.yaml" and f"/**/{node}" in doc
+        closed = yaml.safe_load((REPO / "config" / "closed_loop_grid10.yaml").read_text())
+        assert node_parameters(closed, node)["model_file"] == "config/models/grid_10x10.yaml"
+    assert parameter_set_model("grid10").name == "grid_10x10.yaml"
