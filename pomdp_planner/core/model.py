@@ -106,10 +106,12 @@ def as_count(value: object, field_name: str) -> int:
 
 def model_bytes(S: int, A: int, Z: int, nnz: int | None = None) -> int:
     """Bytes of ``P`` (A x S x S), ``O`` (A x S x Z) and ``r`` (S x A) as float64, dense; or, given
-    ``nnz`` (the non-zeros of ``P`` and ``O`` together), stored sparse (:mod:`.sparse`)."""
+    ``nnz`` (the non-zeros of ``P`` and ``O`` together), stored sparse (:mod:`.sparse`: the CSR arrays
+    and the row pointers of the transposes, which bound ``S`` and ``Z`` too)."""
     if nnz is None:
         return 8 * (A * S * S + A * S * Z + S * A)
-    return csr_bytes(nnz, 2 * A, S) + 8 * S * A
+    # the CSR arrays of P and O, the row pointers of their transposes (S + 1 and Z + 1 per action), r
+    return csr_bytes(nnz, 2 * A, S) + 4 * A * (S + Z + 2) + 8 * S * A
 
 
 def check_model_size(S: int, A: int, Z: int, field_name: str, limit: int | None = None,

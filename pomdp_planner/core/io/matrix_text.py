@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ModelError
-from ..model import kind_of, short_repr
+from ..model import check_model_size, kind_of, short_repr
 from ..sparse import SparseStack
 
 #: Characters a text block may hold: digits, the signs, the decimal point, exponents, white space.
@@ -173,6 +173,8 @@ def sparse_matrices(value: Any, field: str, A: int | None, rows: int | None, col
                              "by the entries)")
     if A is not None and len(per_action) != A:
         raise ModelError(f"{field}.sparse: {len(per_action)} entry blocks for {A} actions")
+    # the declared sizes before any entry: the smallest model they allow (its row pointers, r)
+    check_model_size(rows, len(per_action), cols, f"{field}.sparse", nnz=0)
     parts = [_sparse_entries(item, f"{field}.sparse[{a}]", rows, cols) for a, item in enumerate(per_action)]
     a = np.concatenate([np.full(p[0].size, k) for k, p in enumerate(parts)])
     i, j, v = (np.concatenate([p[t] for p in parts]) for t in range(3))
