@@ -17,7 +17,7 @@ import re
 import sys
 from pathlib import Path
 
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 PACKAGE = "pomdp_planner"
 
@@ -34,9 +34,10 @@ NODE_EXECUTABLES = {
     "measurement_adapter": "pomdp_planner.nodes.measurement_adapter:main",
     "sensor_manager": "pomdp_planner.nodes.sensor_manager:main",
     "run_recorder": "pomdp_planner.nodes.run_recorder:main",
+    "belief_visualizer": "pomdp_planner.nodes.belief_visualizer:main",
 }
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).absolute().parent  # not resolved: colcon --symlink-install builds in a tree of symlinks
 FORWARDER_DIR = Path("build") / "ros_forwarders"  # generated, never committed
 FORWARDER = """#!/bin/sh
 # Forwarder for `ros2 run` after a pip install: runs <prefix>/bin/<this file's name>.
@@ -111,12 +112,20 @@ def _colcon_bin_forwarders(executables) -> list[tuple[str, list[str]]]:
 
 EXECUTABLES = {**CLI_EXECUTABLES, **NODE_EXECUTABLES}
 
+#: The compiled search kernel (README.md, "Dependencies"): plain C against the CPython API, built
+#: here with the machine's C compiler. A top-level module, so that a source checkout first on
+#: sys.path (the tests' ``pythonpath = .``) never hides the installed build. Optional: without a
+#: compiler the package still installs, and its planners use the numpy reference (with a warning).
+KERNEL = Extension("_pomdp_planner_kernel", sources=["pomdp_planner/core/search_kernel.c"], optional=True,
+                   extra_compile_args=[] if os.name == "nt" else ["-O3", "-fno-trapping-math"])
+
 os.chdir(HERE)  # data_files are relative to this directory
 setup(
     name=PACKAGE,
     version=_version(),
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"], exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["py.typed"]},  # PEP 561: the package is typed
+    # PEP 561: the package is typed; the C yardstick of `bench search` (compiled when it runs)
+    package_data={PACKAGE: ["py.typed", "bench/*.c"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -125,6 +134,7 @@ setup(
         *_wheel_forwarders(EXECUTABLES),
         *_colcon_bin_forwarders(CLI_EXECUTABLES),
     ],
+    ext_modules=[KERNEL],
     python_requires=">=3.11",
     install_requires=["numpy", "scipy", "clarabel", "PyYAML"],
     extras_require={
@@ -132,6 +142,7 @@ setup(
         # docs/benchmarks.md, "Optional extras": plots of `pomdp-planner bench all`, and its POUCT peer
         "experiments": ["matplotlib"],
         "plot": ["matplotlib"],  # pomdp-planner plot
+        "bag": ["rosbags>=0.10"],  # run records as rosbag2 MCAP bags (--record x.mcap, plot and replay of bags)
         "bench": ["pomdp-py"],
     },
     zip_safe=False,  # PEP 561: a typed package is not zip-safe

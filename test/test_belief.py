@@ -11,6 +11,7 @@ from pomdp_planner.core.belief import (
     BeliefError,
     ImpossibleObservation,
     check_belief,
+    check_belief_rows,
     observation_probabilities,
     posteriors_all,
     predict,
@@ -186,6 +187,30 @@ def test_check_belief_errors(b, pattern):
     m = random_model(np.random.default_rng(0), 3, 2, 2)
     with pytest.raises(BeliefError, match=pattern):
         check_belief(m, np.array(b))
+
+
+@pytest.mark.parametrize("S", [2, 3, 8, 9, 33])
+def test_checking_rows_at_once_equals_checking_each(S):
+    """``check_belief_rows``: the same arrays as ``check_belief`` on each row, bit for bit."""
+    rng = np.random.default_rng(S)
+    for _ in range(50):
+        rows = rng.dirichlet(np.ones(S) * rng.choice([0.1, 1.0, 10.0]), size=int(rng.integers(1, 12)))
+        rows += rng.normal(scale=1e-8, size=rows.shape) * (rng.random() < 0.5)  # within the tolerance
+        rows[:, 0] = np.maximum(rows[:, 0], 0.0)
+        want = np.array([check_belief(S, b) for b in rows])
+        np.testing.assert_array_equal(check_belief_rows(S, list(rows), [f"b[{i}]" for i in range(len(rows))]), want)
+
+
+@pytest.mark.parametrize("bad, pattern", [
+    ([0.5, 0.5], r"^b\[1\]: expected 3 probabilities"),
+    ([0.5, np.nan, 0.5], r"^b\[1\]: contains non-finite"),
+    ([0.5, -0.1, 0.6], r"^b\[1\]: entry 1 is negative"),
+    ([0.5, 0.5, 0.5], r"^b\[1\]: sums to 1.5"),
+])
+def test_checking_rows_at_once_names_the_first_bad_row(bad, pattern):
+    rows = [[0.2, 0.3, 0.5], bad, [0.5, 0.5, 0.5]]
+    with pytest.raises(BeliefError, match=pattern):
+        check_belief_rows(3, rows, ["b[0]", "b[1]", "b[2]"])
 
 
 def test_check_belief_renormalises_tiny_errors():

@@ -37,12 +37,13 @@ def test_bench_model_small_config() -> None:
 
 def test_bench_cli_writes_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "bench.json"
-    assert main(["bench", "search", "--model", S3, "--beliefs", "2", "--timed", "1", "--json", str(out)]) == 0
+    assert main(["bench", "search", "--model", S3, "--beliefs", "2", "--timed", "1", "--no-engines",
+                 "--json", str(out)]) == 0
     data = json.loads(out.read_text())
     assert data["benchmark"] == "search" and data["models"][0]["S"] == 3
     assert "paper Table II" in capsys.readouterr().out
     report = format_report(run_search_bench([S3], BenchConfig(beliefs=1, deep_beliefs=1, timed=1, depths=(2,),
-                                                                timed_max_depth=2)))
+                                                                timed_max_depth=2, engines=False)))
     assert "26.3%" not in report  # the paper's row belongs to the S = Z = 8, A = 3 problem only
 
 
@@ -56,7 +57,7 @@ def test_module_entry_point_and_bad_model(tmp_path: Path) -> None:
 
 def test_shipped_models_resolve_by_bare_name() -> None:
     res = run_search_bench(["tracking_s3_info.yaml"], BenchConfig(beliefs=1, deep_beliefs=1, timed=1, depths=(2,),
-                                                                  timed_max_depth=2))
+                                                                  timed_max_depth=2, engines=False))
     assert res["models"][0]["model"] == "tracking_s3_info"
 
 
@@ -67,7 +68,7 @@ def test_bench_search_constant_is_used_and_reported(tmp_path: Path, capsys: pyte
     for constant in ("mlr", "fosd"):
         out = tmp_path / f"{constant}.json"
         assert main(["bench", "search", "--model", S3, "--beliefs", "2", "--timed", "1", "--constant", constant,
-                     "--json", str(out)]) == 0
+                     "--no-engines", "--json", str(out)]) == 0
         assert f"bounds: tight, constant {constant}," in capsys.readouterr().out
         data = json.loads(out.read_text())
         m = data["models"][0]
@@ -82,3 +83,30 @@ def test_bench_search_constant_is_used_and_reported(tmp_path: Path, capsys: pyte
         nodes[constant] = np.mean([sum(planner.count_nodes(x, 3)) for x in b])
         assert row["bnb_nodes_mean"] == pytest.approx(nodes[constant])
     assert nodes["mlr"] < nodes["fosd"]
+
+
+def test_the_engine_comparison(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The engines section: kernel, numpy and the C yardstick (compiled here; it checks its root values
+    and node count against the kernel's before it is timed) on the same trees; the B&B efficiency is
+    the ratio of the speed-up to the node ratio, recomputed here from the row's times and counts."""
+    from pomdp_planner.bench.engines import run_engines
+
+    model = load_model(S3)
+    res = run_engines([model], depths=(2, 3), beliefs=1, rounds=1, seed=0)
+    tiny = np.array([2.2250738585072014e-308])
+    assert (tiny / 2)[0] > 0.0  # loading the yardstick left the process's floating point as it was
+    rows = res["models"][0]["rows"]
+    assert [r["depth"] for r in rows] == [2, 3] and rows[1]["exhaustive_nodes"] == 820
+    for r in rows:
+        for k in ("c", "numpy"):
+            speedup = r[f"{k}_exh_seconds"] / r[f"{k}_bnb_seconds"]
+            assert r[f"{k}_bnb_efficiency"] == pytest.approx(speedup * r["bnb_nodes"] / r["exhaustive_nodes"])
+        if "cref_seconds" in r:
+            assert r["cref_max_rel_diff"] < 1e-10
+            assert r["kernel_over_cref"] == pytest.approx(r["cref_seconds"] / r["c_exh_seconds"])
+    out = tmp_path / "engines.json"
+    assert main(["bench", "search", "--model", S3, "--beliefs", "1", "--timed", "1", "--quick",
+                 "--engine-model", S3, "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "== engines: the compiled kernel, the numpy reference and the C yardstick" in text
+    assert json.loads(out.read_text())["engines"]["models"][0]["model"] == "tracking_s3_info"

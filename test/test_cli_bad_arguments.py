@@ -169,7 +169,7 @@ CASES: list[tuple[list[str], str]] = [
     (["plan", S2, "--depth", "51"], "--depth"),
     (["plan", S2, "--depth", "abc"], "--depth"),
     (["plan", S3, "--depth", "11"], "--depth"),  # 3.5e10 belief nodes: hours of search
-    (["plan", S8, "--depth", "3", "--memory-budget", "1"], "--depth"),  # 1.2 MiB estimated
+    (["plan", S8, "--depth", "5", "--memory-budget", "1"], "--depth"),  # 5.9 MiB estimated
     (["plan", S2, "--time-budget", "nan"], "--time-budget"),
     (["plan", S2, "--time-budget", "0"], "--time-budget"),
     (["plan", S2, "--time-budget", "61"], "--time-budget"),

@@ -97,27 +97,27 @@ def test_no_limit_lifts_the_node_limit(capsys: pytest.CaptureFixture[str], monke
 
 # ------------------------------------------------------------------------ memory
 def test_memory_budget_refuses_a_fixed_depth_with_the_estimate(capsys: pytest.CaptureFixture[str]) -> None:
-    need = search_memory_estimate(8, 3, 8, 4)
-    assert 1 * MIB < need and search_memory_estimate(8, 3, 8, 2) <= 1 * MIB
-    code, out, err = run(capsys, "plan", S8, "--depth", "4", "--memory-budget", "1")
+    need = search_memory_estimate(8, 3, 8, 5)
+    assert 1 * MIB < need and search_memory_estimate(8, 3, 8, 4) <= 1 * MIB
+    code, out, err = run(capsys, "plan", S8, "--depth", "5", "--memory-budget", "1")
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
-    assert f"--depth: a search of depth 4 needs about {need / MIB:.3g} MiB" in err
-    assert "more than the memory budget of 1 MiB; the deepest depth within it is 2" in err
+    assert f"--depth: a search of depth 5 needs about {need / MIB:.3g} MiB" in err
+    assert "more than the memory budget of 1 MiB; the deepest depth within it is 4" in err
     code, out, err = run(capsys, "plan", S8, "--depth", "2", "--memory-budget", "1", "--json")
     assert code == 0 and json.loads(out)["memory_budget_bytes"] == MIB
 
 
 def test_anytime_max_depth_is_capped_by_the_memory_budget(capsys: pytest.CaptureFixture[str]) -> None:
-    """S = 3: depth 5 needs more than 1 MiB, depth 4 fits; the anytime search stops at 4 and says so."""
-    assert search_memory_estimate(3, 3, 3, 4) <= MIB < search_memory_estimate(3, 3, 3, 5)
+    """S = 3: depth 8 needs more than 1 MiB, depth 7 fits; the anytime search stops at 7 and says so."""
+    assert search_memory_estimate(3, 3, 3, 7) <= MIB < search_memory_estimate(3, 3, 3, 8)
     argv = ["plan", S3, "--time-budget", "2", "--max-depth", "10", "--memory-budget", "1", "--exhaustive"]
     code, out, err = run(capsys, *argv, "--json")
     assert code == 0, err
     d = json.loads(out)
-    assert d["max_depth"] == 4 and d["max_depth_capped_from"] == 10 and d["depth"] <= 4
-    assert "--max-depth capped at 4 (asked 10)" in err
+    assert d["max_depth"] == 7 and d["max_depth_capped_from"] == 10 and d["depth"] <= 7
+    assert "--max-depth capped at 7 (asked 10)" in err
     code, out, _ = run(capsys, *argv)
-    assert "max depth: --max-depth capped at 4 (asked 10): a deeper search needs more than the memory budget of " \
+    assert "max depth: --max-depth capped at 7 (asked 10): a deeper search needs more than the memory budget of " \
            "1 MiB" in out
     code, out, _ = run(capsys, "plan", S3, "--time-budget", "0.2", "--max-depth", "3", "--json")
     assert json.loads(out)["max_depth_capped_from"] is None  # the default budget caps nothing here
@@ -130,8 +130,8 @@ def test_simulate_policy_caps_its_max_depth_too(capsys: pytest.CaptureFixture[st
     setup = build_planner(model, use_bounds=False, memory_budget=MIB)
     assert setup.planner.memory_budget == MIB  # the gate passes the budget on
     policy = SearchPolicy(setup, time_budget=1.0, max_depth=10)
-    assert policy.max_depth == 4 and "max_depth capped at 4" in policy.note
-    with pytest.raises(search.SearchMemoryError, match="option depth: a search of depth 6 needs"):
-        SearchPolicy(setup, depth=6)
+    assert policy.max_depth == 7 and "max_depth capped at 7" in policy.note
+    with pytest.raises(search.SearchMemoryError, match="option depth: a search of depth 8 needs"):
+        SearchPolicy(setup, depth=8)
     with pytest.raises(search.SearchMemoryError, match=r"option max_depth: .*not even depth 1 fits"):
         SearchPolicy(build_planner(model, use_bounds=False, memory_budget=1000), time_budget=1.0)

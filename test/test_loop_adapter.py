@@ -386,3 +386,32 @@ def test_soft_evidence_through_the_adapter_matches_the_hard_observation_it_encod
         (want,) = hard.observation(0, ObservationSample(t, p, z), now).beliefs
         assert got.epoch == want.epoch == t
         np.testing.assert_allclose(got.belief, want.belief, rtol=1e-12, atol=1e-15)
+
+
+def test_actions_slower_than_the_sensor_are_one_warning():
+    """Rule "Pace": a reading every 0.1 s answering an action every 0.1 s is no warning; once the
+    actions come every 0.3 s (decisions longer than the sensor period) the unused readings in
+    between are one warning naming both periods, and no second one."""
+    loop = joined(1, 2, max_age=0.0)
+    now, epoch, lines = T0 + 1.0, 1, []
+
+    def pace(out):
+        return [line.text for line in out.logs if "a decision takes longer than the sensor period" in line.text]
+
+    for _ in range(15):
+        now += 0.1
+        lines += pace(loop.measurement(1.0, now))  # answers the pending action
+        epoch += 1
+        lines += pace(loop.action(ActionSample(epoch, 2), now + 0.01))
+    assert lines == [] and loop.health.counts["surplus_readings"] == 0
+    for k in range(1, 61):
+        now += 0.1
+        lines += pace(loop.measurement(1.0, now))
+        if k % 3 == 0:
+            epoch += 1
+            lines += pace(loop.action(ActionSample(epoch, 2), now + 0.01))
+    assert loop.health.counts["surplus_readings"] == 40
+    assert len(lines) == 1, lines
+    # warned as the median of the last 20 action intervals (0.1 s, then 0.3 s) passed 1.5 x 0.1 s
+    assert lines[0].startswith("actions come every 0.2 s, measurement readings every 0.1 s (median, mean)")
+    assert "keep the planner's time_budget below the sensor period" in lines[0]

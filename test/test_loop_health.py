@@ -104,3 +104,72 @@ def test_report_level_is_the_highest_of_own_stall_and_problems():
 def test_problems_must_be_counters():
     with pytest.raises(ValueError, match="problems"):
         LoopHealth(("a",), ("b",), [], LIMITS)
+
+
+def test_a_change_of_level_is_one_line_each_way():
+    """``HealthChanges``: OK -> WARN -> ERROR -> WARN -> OK is four lines, a report at the same
+    level none (however often it comes), and back to OK says for how long it was not."""
+    from pomdp_planner.core.loop.health import HealthChanges
+
+    h = HealthChanges()
+    assert h.update(Level.OK, "", 0.0) is None
+    line = h.update(Level.WARN, "belief: no new belief for 2.0 s", 1.0)
+    assert (line.level, line.text) == ("warning", "health WARN: belief: no new belief for 2.0 s")
+    assert h.update(Level.WARN, "belief: no new belief for 3.0 s", 2.0) is None
+    line = h.update(Level.ERROR, "belief: no new belief for 10.0 s", 9.0)
+    assert (line.level, line.text) == ("error", "health ERROR: belief: no new belief for 10.0 s")
+    assert h.update(Level.ERROR, "still", 10.0) is None
+    assert h.update(Level.WARN, "", 11.0).text == "health WARN"
+    line = h.update(Level.OK, "", 13.5)
+    assert (line.level, line.text) == ("info", "health OK again after 12.5 s (was WARN)")
+    assert h.update(Level.OK, "", 14.0) is None
+    assert h.update(Level.ERROR, "x", 20.0).level == "error"
+    assert h.update(Level.OK, "", 21.0).text == "health OK again after 1.0 s (was ERROR)"
+
+
+def test_every_node_logs_its_level_changes_through_its_diagnostics():
+    """The nodes' diagnostics (``nodes/diagnostics.array``, which every node's report goes through)
+    log a change of level once to the node's console."""
+    import pytest
+
+    pytest.importorskip("rclpy")
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from pomdp_planner.nodes.diagnostics import array, status
+
+    class Logger:
+        def __init__(self):
+            self.lines = []
+
+        def info(self, text):
+            self.lines.append(("info", text))
+
+        def warning(self, text):
+            self.lines.append(("warning", text))
+
+        def error(self, text):
+            self.lines.append(("error", text))
+
+    class Clock:
+        def now(self):
+            from rclpy.time import Time
+            return Time(seconds=5)
+
+    class FakeNode:
+        def __init__(self):
+            self.logger = Logger()
+
+        def get_logger(self):
+            return self.logger
+
+        def get_clock(self):
+            return Clock()
+
+    node = FakeNode()
+    for level, message in [(Level.OK, ""), (Level.OK, ""), (Level.WARN, "gaps: 2"), (Level.WARN, "gaps: 3"),
+                           (Level.OK, ""), (Level.OK, ""), (DiagnosticStatus.ERROR, "belief: stalled")]:
+        array(node, status("planner: planning", "m", level, message, {}))
+    assert [lv for lv, _ in node.logger.lines] == ["warning", "info", "error"]
+    assert node.logger.lines[0][1] == "health WARN: gaps: 2"
+    assert node.logger.lines[1][1].startswith("health OK again after ")
+    assert node.logger.lines[2][1] == "health ERROR: belief: stalled"

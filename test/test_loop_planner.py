@@ -46,10 +46,10 @@ def bel(epoch, b=B):
     return BeliefSample(epoch, np.asarray(b, dtype=float))
 
 
-def stub(priority=2, certified=False, depth=1, deadline_hit=False) -> SearchResult:
+def stub(priority=2, certified=False, depth=1, deadline_hit=False, partial=False) -> SearchResult:
     return SearchResult(action=priority - 1, priority=priority, q_values=np.zeros(3), depth=depth,
                         nodes_expanded=(3,) * depth, nodes_pruned=(1,) * depth, certified=certified,
-                        root_bounds=None, time_used=0.001, deadline_hit=deadline_hit)
+                        root_bounds=None, time_used=0.001, deadline_hit=deadline_hit, partial=partial)
 
 
 def joined(loop, epoch=0, now=T0):
@@ -423,3 +423,61 @@ def test_a_model_too_large_for_even_depth_1_is_refused_at_construction(monkeypat
     monkeypatch.setattr(search, "search_memory_estimate", lambda *args: 2**40)  # 1 TiB per search
     with pytest.raises(OptionError, match=r"^max_depth: a search of depth 1 needs about"):
         PlannerLoop(S3, PARAMS, LIVE, now=T0)
+
+
+def test_a_decision_cut_inside_depth_one_is_sent_and_reported_as_partial():
+    """The budget ended inside depth 1: the best root action searched by then is published, the
+    decision counts as budget-exhausted and the report says it was partial."""
+    loop = make(time_budget=0.05, deadline_slack=0.02)
+    loop.belief(bel(0), T0)
+    job = loop.take(T0 + JOIN_DELAY)
+    out = loop.decided(job, Searched(stub(priority=3, deadline_hit=True, partial=True), True, True),
+                       T0 + JOIN_DELAY + 0.06)
+    assert out.actions == [ActionSample(1, 3)] and out.plan_info.deadline_hit
+    assert loop.health.counts["budget_exhausted"] == 1
+    values = loop.report(T0 + 1.0).values
+    assert values["last.partial"] is True and values["last.deadline_hit"] is True
+
+
+def _pace_lines(out) -> list[str]:
+    return [line.text for line in out.logs if "exceeds the period of the beliefs" in line.text]
+
+
+def test_a_time_budget_over_the_belief_period_is_one_warning_once_beliefs_are_skipped():
+    """Rule "Pace": beliefs every 0.1 s, each planned before the next comes (a loop that waits for
+    its actions), are no warning whatever the budget; beliefs skipped while time_budget exceeds
+    their period are one warning (again after time_budget changes), none when it does not."""
+    loop = make(time_budget=0.2)
+    joined(loop, 0)
+    now, epoch, lines = T0 + 1.0, 0, []
+    for _ in range(15):  # every belief planned: no warning, though 0.2 s > 0.1 s
+        epoch, now = epoch + 1, now + 0.1
+        lines += _pace_lines(loop.belief(bel(epoch), now))
+        out = loop.decided(loop.take(now), Searched(stub(), True, True), now + 0.01)
+        lines += _pace_lines(out)
+    assert lines == []
+    for k in range(10):  # now only every second belief is planned: the others are skipped
+        epoch, now = epoch + 1, now + 0.1
+        lines += _pace_lines(loop.belief(bel(epoch), now))
+        if k % 2:
+            loop.decided(loop.take(now), Searched(stub(), True, True), now + 0.01)
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("time_budget 0.2 s exceeds the period of the beliefs (0.1 s, the mean of the last 16 "
+                               "intervals)")
+    assert "keep time_budget below the sensor period" in lines[0]
+    loop.set_params({"time_budget": 0.3})
+    for k in range(4):
+        epoch, now = epoch + 1, now + 0.1
+        lines += _pace_lines(loop.belief(bel(epoch), now))
+        if k % 2:
+            loop.decided(loop.take(now), Searched(stub(), True, True), now + 0.01)
+    assert len(lines) == 2 and lines[1].startswith("time_budget 0.3 s exceeds")
+    quick = make(time_budget=0.05)
+    joined(quick, 0)
+    now, lines = T0 + 1.0, []
+    for e in range(1, 30):  # skipped beliefs, but the budget fits in their period: no warning
+        now += 0.1
+        lines += _pace_lines(quick.belief(bel(e), now))
+        if e % 3 == 0:
+            quick.decided(quick.take(now), Searched(stub(), True, True), now + 0.01)
+    assert lines == []

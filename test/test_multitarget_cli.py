@@ -22,6 +22,7 @@ import pytest
 
 from pomdp_planner.bench.multitarget import BOUND_CASES, REGRET_CASES, MultiBenchConfig, run_multitarget_bench
 from pomdp_planner.cli import main
+from pomdp_planner.cli.simulate_targets import _Row, bound_line
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.multitarget.policies import make_joint_policy
 from pomdp_planner.core.multitarget.problem import make_problem
@@ -96,6 +97,27 @@ def test_simulate_targets_text_and_json():
     assert data["summary"]["budget_violations"] == 0
 
 
+def test_every_bound_in_the_text_output_names_its_depth():
+    """Fixed depth: the header names the lookahead (depth and decisions) and every row's depth
+    column is that depth. Anytime: the header says the depth varies (the deepest completed within
+    the time budget) and every row's depth column is its decision's own depth."""
+    code, out, err = run_cli("simulate", "--targets", "perimeter_s3,perimeter_s3", "--budget", "2", "--steps", "3",
+                             "--option", "search=exhaustive")
+    assert code == 0, err
+    assert "upper bound on the optimal value of the depth-2 joint lookahead (3 decisions" in out
+    header = next(line.split() for line in out.splitlines() if line.startswith("step"))
+    rows = [line.split() for line in out.splitlines() if line[:4].strip().isdigit()]
+    depth = header.index("depth") + 1  # the priorities take K = 2 cells
+    assert len(rows) == 3 and all(r[depth] == "2" for r in rows)
+    problem = make_problem([PERIMETER, TRACKING], budget=1, discount=0.95)
+    policy = make_joint_policy("lagrangian", problem, time_budget=0.02, max_depth=4)
+    line = _Row(problem, 5)
+    assert "deepest depth completed within the time budget of 0.02 s" in bound_line(policy.planner)
+    steps, _ = simulate_targets(problem, policy, 5, seed=1)
+    for st in steps:
+        assert line.line(st).split()[depth] == str(st.decision.depth)
+
+
 def test_target_models_resolve_like_every_model_argument():
     path = str(ROOT / "config/models/perimeter_s3.yaml")
     code, _, err = run_cli("simulate", "--targets", f"{path},perimeter_s3", "--budget", "2", "--steps", "2",
@@ -131,7 +153,7 @@ def test_bad_multitarget_input_is_one_line_naming_the_field(argv, field):
 
 def test_bench_json_has_the_figures_with_zero_violations():
     tiny = MultiBenchConfig(bound_beliefs=3, bound_prices=1, episodes=2, steps=3, scaling_targets=(2, 4),
-                            scaling_decisions=1, time_budget=0.05,
+                            scaling_decisions=1, time_budget=0.05, tie_episodes=1,
                             bound_cases=(BOUND_CASES[0],), regret_cases=(REGRET_CASES[1],))
     result = run_multitarget_bench(tiny)
     assert result["budget_violations"] == 0
@@ -143,7 +165,19 @@ def test_bench_json_has_the_figures_with_zero_violations():
     assert set(regret) >= {"lagrangian (bnb)", "greedy", "round_robin", "equal_split", "fixed_price"}
     assert all(len(r["ci"]) == 2 for r in regret.values())
     assert set(result["decision_ms"]) == {"2", "4"}
+    assert all(r["decision_cpu_ms"] > 0 and r["decision_wall_ms"] > 0 for r in result["scaling"])
+    assert result["machine"]["cores"] >= 1 and len(result["machine"]["load_average"]) == 3
+    case = result["regret"][0]
+    assert [(p["first"], p["second"]) for p in case["paired"]] == [
+        ("fixed_price", "lagrangian (exhaustive)"), ("lagrangian (lower-bound ties)", "lagrangian (exhaustive)"),
+        ("lagrangian (lower-bound ties)", "fixed_price")]
+    returns = {label: row["return"]["mean"] for label, row in case["policies"].items()}
+    assert case["paired"][0]["difference"]["mean"] == pytest.approx(returns["fixed_price"]
+                                                                    - returns["lagrangian (exhaustive)"])
+    assert case["ties"]["decisions"] == 1 * 3 and case["ties"]["differing"] >= 0
     json.dumps(result)
+    only = run_multitarget_bench(tiny, parts=("scaling",))
+    assert "scaling" in only and "regret" not in only and "bounds" not in only
 
 
 def test_bench_command_line_refuses_bad_options(tmp_path):
@@ -151,3 +185,7 @@ def test_bench_command_line_refuses_bad_options(tmp_path):
     assert code == 2 and "--episodes" in err
     code, _, err = run_cli("bench", "multitarget", "--quick", "--json", str(tmp_path / "missing" / "x.json"))
     assert code == 2 and "--json" in err
+    code, _, err = run_cli("bench", "multitarget", "--quick", "--only", "scaling,nope")
+    assert code == 2 and "--only" in err
+    code, _, err = run_cli("bench", "multitarget", "--quick", "--only", "bounds", "--plot", str(tmp_path / "p.png"))
+    assert code == 2 and "--plot" in err

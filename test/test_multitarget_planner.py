@@ -23,7 +23,8 @@ from pomdp_planner.core.errors import OptionError
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.sensors import load_model_file
 from pomdp_planner.core.multitarget.dual import lambda_ceiling
-from pomdp_planner.core.multitarget.planner import MultiTargetPlanner
+from pomdp_planner.core.multitarget.joint_exact import ExactJointPlanner
+from pomdp_planner.core.multitarget.planner import DEFAULT_JOINT_DEPTH, MultiTargetPlanner
 from pomdp_planner.core.multitarget.policies import joint_policy_names, make_joint_policy
 from pomdp_planner.core.multitarget.problem import make_problem
 
@@ -166,6 +167,68 @@ def test_decisions_are_json_ready_with_priorities():
     assert data["priorities"] == [a + 1 for a in dec.actions]
     assert data["effort"] <= data["budget"] == 2.0
     assert set(data) >= {"lambda", "dual_bound", "gap", "lower_bound", "bound_guaranteed", "budget_use"}
+
+
+def test_beliefs_are_validated_once_at_the_boundary(monkeypatch):
+    """A decision validates its K beliefs once, one vectorised check per group of targets with the
+    same model (``check_belief_rows``), and never again inside the searches: not in any price's
+    evaluation, not for the posteriors of the lower bound."""
+    import pomdp_planner.core.multitarget.planner as planner_module
+    import pomdp_planner.core.search as search_module
+
+    singles, rows = [], []
+    real_single, real_rows = search_module.check_belief, planner_module.check_belief_rows
+    monkeypatch.setattr(search_module, "check_belief", lambda *a, **k: singles.append(1) or real_single(*a, **k))
+    monkeypatch.setattr(planner_module, "check_belief_rows", lambda *a, **k: rows.append(1) or real_rows(*a, **k))
+    problem = make_problem([PERIMETER, TRACKING] * 4, budget=4, discount=0.95)
+    for search in ("bnb", "exhaustive"):
+        planner = MultiTargetPlanner(problem, search=search, depth=2)
+        dec = planner.decide(_beliefs(problem, 3))
+        assert len(dec.prices) > 1 and singles == [] and len(rows) == 2  # two groups: one check each
+        rows.clear()
+    assert planner.evaluate(_beliefs(problem, 4), 0.5, 2).gap >= -1e-9 and singles == [] and len(rows) == 2
+
+
+def test_every_joint_policy_looks_ahead_to_one_default_depth():
+    """The planner, the fixed price, the equal split and the exact joint planner compare like with
+    like unless told otherwise: one default depth."""
+    problem = make_problem([PERIMETER, TRACKING], budget=1, discount=0.95)
+    depths = {"lagrangian": make_joint_policy("lagrangian", problem).planner.depth,
+              "fixed_price": make_joint_policy("fixed_price", problem, price=0.5).planner.depth,
+              "equal_split": make_joint_policy("equal_split", problem).depth,
+              "exact_joint": make_joint_policy("exact_joint", problem).planner.depth,
+              "library": MultiTargetPlanner(problem).depth}
+    assert set(depths.values()) == {DEFAULT_JOINT_DEPTH}, depths
+
+
+def test_lower_bound_tie_break_chooses_among_near_ties_and_keeps_the_bound():
+    """``tie_break="lower_bound"``: the dual bound is the knapsack rule's; the joint action is within
+    the tolerance of the knapsack's optimum at the price, its lower bound at least the knapsack
+    choice's, and with exhaustive searches the gap still bounds its exact shortfall. On the three
+    targets of RESULTS it changes some decisions (the case where it helps)."""
+    problem = make_problem([PERIMETER, PERIMETER, TRACKING], budget=2, discount=0.95)
+    plain = MultiTargetPlanner(problem, search="exhaustive", depth=1)
+    ties = MultiTargetPlanner(problem, search="exhaustive", depth=1, tie_break="lower_bound", tie_tolerance=1e-2)
+    joint = ExactJointPlanner(problem, 1)
+    changed = 0
+    for seed in range(40):
+        bs = _beliefs(problem, seed)
+        a, b = plain.decide(bs), ties.decide(bs)
+        assert b.lam == a.lam and b.dual_bound == a.dual_bound and b.prices == a.prices
+        value = sum(t.q_values[x] for t, x in zip(b.targets, b.actions, strict=True))
+        best = sum(t.q_values[x] for t, x in zip(a.targets, a.actions, strict=True))
+        assert value >= best - 1e-2 - 1e-12 and problem.within_budget(b.actions)
+        assert b.lower_bound >= a.lower_bound and b.gap == pytest.approx(b.dual_bound - b.lower_bound)
+        q = joint.q_values(bs)
+        assert q.max() - q[joint.actions.index(b.actions)] <= b.gap + 1e-9
+        changed += b.actions != a.actions
+    assert changed > 0
+    with pytest.raises(OptionError, match=r"^tie_break: expected one of knapsack, lower_bound"):
+        MultiTargetPlanner(problem, tie_break="random")
+    with pytest.raises(OptionError, match=r"^tie_tolerance"):
+        MultiTargetPlanner(problem, tie_tolerance=-1)
+    with pytest.raises(OptionError, match=r"^option tie_break"):
+        make_joint_policy("lagrangian", problem, tie_break="x")
 
 
 def test_bad_input_names_the_field():

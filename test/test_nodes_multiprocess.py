@@ -26,6 +26,7 @@ from rclpy.executors import SingleThreadedExecutor
 
 from pomdp_planner.core.belief import update
 from pomdp_planner.core.io.model_yaml import load_model
+from pomdp_planner.core.io.run_bag import read_run_bag
 from pomdp_planner.core.io.run_record import read_run_record
 from pomdp_planner.core.simulate import simulate
 from pomdp_planner.nodes.processes import node_command, parameter_set_model, parameter_set_values, stop_nodes
@@ -152,10 +153,11 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
     the README's node-loop example (its own parameter files, ``config/<node>_perimeter_s8.yaml``).
     The node logs' temporary directory is removed, unless ``--keep-logs`` (then it holds the three
     logs and the run record ``run.csv``, and the last line says where); ``--record FILE`` writes the
-    record there instead. The record holds the table's rows (epoch, true state, action, bounds,
-    certified, the belief's mode), as the run-record reader reads them."""
+    record there instead (here a rosbag2 bag, ``run.mcap``, with the loop's readings). The record
+    holds the table's rows (epoch, true state, action, bounds, certified, the belief's mode), as the
+    run-record reader reads them."""
     steps = 5
-    record = None if keep else tmp_path / "run.csv"  # with --keep-logs: run.csv in the logs' directory
+    record = None if keep else tmp_path / "run.mcap"  # with --keep-logs: run.csv in the logs' directory; else a bag
     proc = subprocess.run([sys.executable, "-m", "pomdp_planner.nodes.demo", "--steps", str(steps), "--model", model,
                            "--time-budget", "0.02", "--domain-id", str(domain), *(["--keep-logs"] if keep else []),
                            *([] if record is None else ["--record", str(record)])],
@@ -206,7 +208,12 @@ def test_demo_runs_and_exits_cleanly(domain, tmp_path, model, keep):
         assert left == [] and "node logs" not in proc.stdout
     # the run record: the table's rows, as pomdp-planner plot reads them
     assert f"run record ({steps} rows) in {record}; draw it with: pomdp-planner plot {record} -o run.png" in lines
-    rec = read_run_record(record)
+    if record.suffix == ".mcap":  # a rosbag2 bag: the same rows, and the loop's readings as they came
+        bag = read_run_bag(record)
+        rec = bag.record
+        assert bag.observations and all(1 <= p <= m.A and 0 <= z < m.Z for p, z in bag.observations.values())
+    else:
+        rec = read_run_record(record)
     assert (rec.model, rec.S, rec.A, rec.time_budget) == (m.name, m.S, m.A, 0.02)
     assert rec.epoch.tolist() == [int(r[0]) for r in rows] and rec.true_state.tolist() == [int(r[1]) for r in rows]
     assert rec.action.tolist() == [int(r[5]) for r in rows]

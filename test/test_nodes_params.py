@@ -23,6 +23,7 @@ from test_nodes_closed_loop import start_loop
 from pomdp_planner.core.bounds import BOUND_CONSTANTS, DEFAULT_CONSTANT, sample_beliefs, solve_bounds
 from pomdp_planner.core.io.model_yaml import load_model
 from pomdp_planner.nodes.belief_filter import BeliefFilter
+from pomdp_planner.nodes.belief_visualizer import BeliefVisualizer
 from pomdp_planner.nodes.measurement_adapter import MeasurementAdapter
 from pomdp_planner.nodes.messages import decode_plan_info, encode_belief
 from pomdp_planner.nodes.planner import PlannerNode
@@ -37,7 +38,7 @@ harness = pytest.fixture(make_harness)
 SET_NODE_CLASSES = {"target_simulator": TargetSimulator, "belief_filter": BeliefFilter, "planner": PlannerNode,
                     "measurement_adapter": MeasurementAdapter}
 #: Every node a shipped parameter file may configure (the sensor manager's files name several models).
-NODE_CLASSES = {**SET_NODE_CLASSES, "sensor_manager": SensorManager}
+NODE_CLASSES = {**SET_NODE_CLASSES, "sensor_manager": SensorManager, "belief_visualizer": BeliefVisualizer}
 PARAM_FILES = sorted((REPO / "config").glob("*.yaml"))
 
 
@@ -156,13 +157,13 @@ def test_shipped_yaml_loads_and_matches_declared_parameters(harness, path):
     doc = yaml.safe_load(path.read_text())
     assert doc, f"{path.name}: no node section"
     for section in doc:
-        node_name = section.removeprefix("/**/").lstrip("/")
+        assert section.startswith("/**/"), f"{path.name}: {section!r} would not apply in a namespace"
+        namespace, _, node_name = section.removeprefix("/**").rpartition("/")
         assert node_name in NODE_CLASSES, f"{path.name}: unknown node {section!r}"
-        assert section == f"/**/{node_name}", f"{path.name}: {section!r} would not apply in a namespace"
         params = parameter_dict_from_yaml_file(str(path), target_nodes=[section])
         assert params, f"{path.name}: {node_name}: no parameters"
-        node = h.add(NODE_CLASSES[node_name](
-            context=h.context, cli_args=["--ros-args", "--params-file", str(path)]))
+        node = h.add(NODE_CLASSES[node_name](  # a section /**/<ns>/<node>: the node in that namespace
+            context=h.context, namespace=namespace or "/", cli_args=["--ros-args", "--params-file", str(path)]))
         for name, msg in params.items():
             assert node.has_parameter(name), f"{path.name}: {node_name} declares no parameter {name!r}"
             expected = Parameter.from_parameter_msg(msg).value

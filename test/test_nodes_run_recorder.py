@@ -31,6 +31,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 from test_run_record import png_size
 
 from pomdp_planner.cli import main as cli_main
+from pomdp_planner.core.io.run_bag import read_run_bag
 from pomdp_planner.core.io.run_record import read_run_record
 from pomdp_planner.core.loop.samples import ActionSample, BeliefSample
 from pomdp_planner.nodes.belief_filter import BeliefFilter
@@ -54,10 +55,12 @@ def _rows_written(node: RunRecorderNode) -> int:
         return node.loop.health.counts["rows_written"]
 
 
-@pytest.mark.parametrize("use_bounds", [True, False])
-def test_a_recorded_loop_reads_back_pairs_by_epoch_and_plots(harness, tmp_path, use_bounds):
+@pytest.mark.parametrize("use_bounds, suffix", [(True, "csv"), (False, "csv"), (True, "mcap")])
+def test_a_recorded_loop_reads_back_pairs_by_epoch_and_plots(harness, tmp_path, use_bounds, suffix):
+    """The same as a CSV and as a rosbag2 bag (``file`` ending in .mcap), which also keeps the
+    reading that made each row's belief."""
     h = harness
-    path, png = tmp_path / "run.csv", tmp_path / "run.png"
+    path, png = tmp_path / f"run.{suffix}", tmp_path / "run.png"
     recorder = h.add(RunRecorderNode(context=h.context, parameter_overrides=_params(
         model_file=S3, file=str(path), time_budget=0.02, expect_true_state=True)))
     infos: list = []
@@ -86,7 +89,20 @@ def test_a_recorded_loop_reads_back_pairs_by_epoch_and_plots(harness, tmp_path, 
     complete = _rows_written(recorder)  # written as the loop ran; at exit the waiting rows follow with what they have
     recorder.destroy_node()
 
-    record = read_run_record(path)
+    if suffix == "mcap":
+        bag = read_run_bag(path)
+        record = bag.record
+        with h.cond:
+            readings = {o[0]: (o[1], o[2]) for o in rec.observations["observation"]}
+        assert bag.observations and all(readings[t] == r for t, r in bag.observations.items())
+        # one writer to one reader delivers in order: no reading is missing below the newest kept; the
+        # newest rows' readings may still have been in flight at exit (another reader than the rows')
+        newest = max(bag.observations)
+        assert set(bag.observations) >= {t for t in record.epoch.tolist() if 0 < t <= newest}
+        assert newest >= record.epoch[complete // 2]
+        assert set(bag.topics) == {"run_record", "belief", "action", "true_state", "observation", "plan_info"}
+    else:
+        record = read_run_record(path)
     assert (record.model, record.S, record.A, record.time_budget) == ("tracking_s3_info", 3, 3, 0.02)
     n = len(record.epoch)
     assert n >= ROWS and record.epoch.tolist() == list(range(n))  # matched before the loop ran: every epoch

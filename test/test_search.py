@@ -128,10 +128,10 @@ _S8 = tracking(8)
 @pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_matches_naive_reference_random_models(uncertainty: str, seed: int, fused: bool) -> None:
+def test_matches_naive_reference_random_models(uncertainty: str, seed: int, fused: bool, engine: str) -> None:
     model = random_model(seed, S=3, A=3, Z=3, uncertainty=uncertainty)
     bounds = random_bounds(model, seed)
-    planner = Planner(model, bounds, fused=fused)
+    planner = Planner(model, bounds, fused=fused, kernel=engine)
     rng = np.random.default_rng(seed)
     for depth in (1, 2, 3):
         b = rng.dirichlet(np.ones(model.S))
@@ -303,21 +303,21 @@ def test_exhaustive_counts_equal_formula(S: int) -> None:
     assert res.percent_pruned == (0.0,) * depth
 
 
-def test_fast_bound_actions_equal_myopic_bounds() -> None:
-    """The planner's column-wise bound actions equal ``MyopicBounds.actions`` (ties included)."""
+def test_fast_bound_actions_equal_myopic_bounds(engine: str) -> None:
+    """The planner's rewards and bound actions equal ``MyopicBounds.actions`` (ties included), with
+    either engine."""
     bounds = model_bounds(_S8)
-    planner = Planner(_S8, bounds)
+    planner = Planner(_S8, bounds, kernel=engine)
     rng = np.random.default_rng(21)
-    B = np.vstack([rng.dirichlet(np.ones(8) * 0.3, size=2000), np.eye(8), np.full((1, 8), 1 / 8)])
-    rhoT, lo, up = planner._rho_bounds(bounds, np.ascontiguousarray(B.T))
-    np.testing.assert_allclose(rhoT, _S8.rho(B).T, rtol=1e-12, atol=1e-12)
+    B = np.vstack([rng.dirichlet(np.ones(8) * 0.3, size=500), np.eye(8), np.full((1, 8), 1 / 8)])
+    np.testing.assert_allclose(planner.q_values_batch(B, 0), _S8.rho(B), rtol=1e-12, atol=1e-12)
     lo_ref, up_ref = bounds.actions(B)
-    np.testing.assert_array_equal(lo, lo_ref)
-    np.testing.assert_array_equal(up, up_ref)
+    got = np.array([planner.root_bounds(b) for b in B])
+    np.testing.assert_array_equal(got[:, 0], lo_ref)
+    np.testing.assert_array_equal(got[:, 1], up_ref)
     flat = POMDP(P=_S3.P, O=_S3.O, r=np.ones((3, 3)), gamma=0.9)  # all actions tie
     tie = MyopicBounds(flat, np.zeros(3), np.zeros(3))
-    _, lo, up = Planner(flat, tie)._rho_bounds(tie, np.full((3, 1), 1 / 3))
-    assert (int(lo[0]), int(up[0])) == (0, 2)
+    assert Planner(flat, tie, kernel=engine).root_bounds(np.full(3, 1 / 3)) == (0, 2)
 
 
 def test_count_nodes_matches_search_and_nested_depths() -> None:
@@ -342,13 +342,15 @@ def perfect_sensor_model(uncertainty: str) -> POMDP:
 
 
 def test_custom_uncertainty_uses_the_generic_path() -> None:
-    """An uncertainty function the planner does not know is evaluated from explicit posteriors."""
+    """An uncertainty function the planner does not know is evaluated from explicit posteriors (by
+    the numpy engine: the kernel values Shannon, Renyi-2 and none)."""
     from pomdp_planner.core.uncertainty import RENYI2, Uncertainty
 
     custom = Uncertainty("my_renyi", RENYI2.value, RENYI2.gradient)
     m = tracking(3)
     mc = POMDP(P=m.P, O=m.O, r=m.r, gamma=m.gamma, uncertainty=custom, w=m.w)
     b = np.array([0.3, 0.3, 0.4])
+    assert Planner(mc).kernel == "numpy"
     r1, r2 = Planner(m).search(b, 3, use_bounds=False), Planner(mc).search(b, 3, use_bounds=False)
     np.testing.assert_allclose(r2.q_values, r1.q_values, rtol=1e-11)
     assert r1.nodes_expanded == r2.nodes_expanded
@@ -356,9 +358,9 @@ def test_custom_uncertainty_uses_the_generic_path() -> None:
 
 @pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
 @pytest.mark.parametrize("uncertainty", ["renyi2", "shannon", "none"])
-def test_zero_probability_branches_are_skipped(uncertainty: str, fused: bool) -> None:
+def test_zero_probability_branches_are_skipped(uncertainty: str, fused: bool, engine: str) -> None:
     model = perfect_sensor_model(uncertainty)
-    planner = Planner(model, fused=fused)
+    planner = Planner(model, fused=fused, kernel=engine)
     for b in (np.array([0.5, 0.5, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([1.0, 1e-250, 0.0]) / (1 + 1e-250)):
         with np.errstate(divide="raise", invalid="raise", over="raise"):
             res = planner.search(b, 3, use_bounds=False)
@@ -371,11 +373,11 @@ def test_zero_probability_branches_are_skipped(uncertainty: str, fused: bool) ->
 
 
 @pytest.mark.parametrize("fused", [True, False], ids=["fused", "unfused"])
-def test_tiny_eta_leaves_use_the_safe_path(fused: bool) -> None:
+def test_tiny_eta_leaves_use_the_safe_path(fused: bool, engine: str) -> None:
     """eta ~ 1e-200 at the leaves (u_s^2 underflows): values stay finite and exact."""
     model = perfect_sensor_model("renyi2")
     b = np.array([0.5, 0.5 - 1e-200, 1e-200])
-    res = Planner(model, fused=fused).search(b, 2, use_bounds=False)
+    res = Planner(model, fused=fused, kernel=engine).search(b, 2, use_bounds=False)
     _, Q, nodes = reference_search(model, b, 2, None)
     np.testing.assert_allclose(res.q_values, Q, rtol=1e-12, atol=1e-12)
     assert res.nodes_expanded[-1] == nodes
@@ -414,6 +416,15 @@ def test_deadline_is_checked_inside_a_depth_and_interrupted_depths_are_discarded
         res = planner.plan(b, max_depth=3, time_budget=float(budget), use_bounds=False, predict_stop=False)
         readings.append((budget, res.depth, res.deadline_hit))
         reference = planner.search(b, res.depth, use_bounds=False)
+        if res.partial:  # depth 1 interrupted: the root actions it finished, in decreasing rho
+            assert res.depth == 1 and res.deadline_hit
+            searched = np.isfinite(res.q_values)
+            order = np.argsort(-_S8.rho(b), kind="stable")
+            assert searched[order].tolist() == sorted(searched.tolist(), reverse=True) and searched.any()
+            np.testing.assert_array_equal(res.q_values[searched], reference.q_values[searched])
+            assert res.action == int(np.nanargmax(res.q_values))
+            assert res.nodes_expanded[0] < reference.nodes_expanded[0]
+            continue
         np.testing.assert_array_equal(res.q_values, reference.q_values)
         assert res.action == reference.action and res.nodes_expanded == reference.nodes_expanded
         assert res.depth >= 1

@@ -17,12 +17,13 @@ import pytest
 
 from pomdp_planner.core.gate import build_planner
 from pomdp_planner.core.io.model_yaml import load_model
-from pomdp_planner.core.model import POMDP
+from pomdp_planner.core.model import POMDP, format_bytes
 from pomdp_planner.core.search import (
     DEFAULT_MEMORY_BUDGET,
     MAX_SEARCH_DEPTH,
     Planner,
     SearchMemoryError,
+    check_search_memory,
     search_memory_estimate,
 )
 
@@ -54,24 +55,26 @@ def s3():
     ("s3", 16 * 2**10, False, range(1, 8)),
     ("s3", 64 * 2**10, True, range(1, 7)),
 ])
-def test_estimate_bounds_the_measured_peak(request, name, chunk, use_bounds, depths):
+def test_estimate_bounds_the_measured_peak(request, name, chunk, use_bounds, depths, engine):
+    """Both engines (the kernel allocates through PyMem_RawMalloc, which tracemalloc sees); the
+    numpy engine, the larger, comes within a factor 4 where the levels dominate."""
     model = request.getfixturevalue(name)
     setup = build_planner(model, use_bounds=use_bounds, chunk_bytes=chunk)
     assert setup.mode == ("prune" if use_bounds else "exhaustive")
-    planner = setup.planner
+    planner = Planner(model, setup.planner.bounds, chunk_bytes=chunk, kernel=engine)
     b = np.full(model.S, 1.0 / model.S)
     for d in depths:
         peak = traced_peak(planner.search, b, d, use_bounds=use_bounds)
         est = planner.memory_estimate(d)
         assert peak <= est, (d, peak, est)
-        if d >= 3 and not use_bounds:  # not vacuous where the levels dominate
+        if d >= 3 and not use_bounds and engine == "numpy":  # not vacuous where the levels dominate
             assert est <= 4 * peak, (d, peak, est)
 
 
-def test_memory_grows_with_the_depth_not_the_tree(s3):
+def test_memory_grows_with_the_depth_not_the_tree(s3, engine):
     """Saturated levels add a constant amount: the measured growth per level stays below the
     estimate's, while the tree grows nine-fold per level."""
-    planner = Planner(s3, None, chunk_bytes=16 * 2**10)
+    planner = Planner(s3, None, chunk_bytes=16 * 2**10, kernel=engine)
     b = np.full(3, 1.0 / 3)
     peaks = [traced_peak(planner.search, b, d, use_bounds=False) for d in (5, 6, 7)]
     steps = np.diff(peaks)
@@ -96,7 +99,7 @@ def test_search_over_budget_is_refused_before_allocating(s8):
     msg = str(info.value)
     need = planner.memory_estimate(6)
     assert msg.startswith("depth: a search of depth 6 needs about ")
-    assert f"{need / 2**20:.3g} MiB" in msg and f"memory budget of {budget / 2**20:.3g} MiB" in msg
+    assert f"needs about {format_bytes(need)} " in msg and f"memory budget of {format_bytes(budget)};" in msg
     assert "S=8, A=3, Z=8" in msg and f"{sum(24**i for i in range(7)):.3g} belief nodes" in msg
     assert msg.endswith("the deepest depth within it is 3")
     assert isinstance(info.value, ValueError)
@@ -133,6 +136,6 @@ def test_default_budget_admits_the_paper_depths(s8):
     planner = Planner(s8, None)
     for d in range(1, 11):
         planner.check_memory(d)
-    big = POMDP(P=np.full((8, 256, 256), 1 / 256), O=np.full((8, 256, 256), 1 / 256), r=np.zeros((256, 8)), gamma=0.9)
-    with pytest.raises(SearchMemoryError, match=r"depth: a search of depth 20 needs about .* GiB .*S=256, A=8, Z=256"):
-        Planner(big, None).check_memory(20)
+    # a step of a large model is one parent under one action, but its children fill a level: Z S floats
+    with pytest.raises(SearchMemoryError, match=r"depth: a search of depth 90 needs .* GiB .*S=1600, A=2, Z=1600"):
+        check_search_memory(1600, 2, 1600, 90, DEFAULT_MEMORY_BUDGET)

@@ -26,8 +26,14 @@ no domain) is skipped with the gate's reason, unless ``--prune-without-guarantee
 measure pruning anyway; the report then says that no guarantee holds and that agreeing root
 bounds certify nothing.
 
-Everything runs in this process on one core's worth of numpy (the planner avoids BLAS
-threads). Timings on a shared machine are noisy: compare ratios measured in one run.
+* **Engines** (:mod:`.engines`; depths 2..5 on ``tracking_s8_info``, ``tracking_s8_natural``,
+  ``perimeter_s8``, ``perimeter_s3``): nodes/s of the compiled kernel and of the numpy reference
+  side by side, exhaustive and branch-and-bound, the B&B efficiency of each, and the kernel against
+  an optimised standalone C implementation of the same exhaustive expectimax compiled for the
+  machine (thread CPU time, interleaved rounds; ``--no-engines`` leaves it out).
+
+Everything runs in this process on one core (the planner avoids BLAS threads). Timings on a
+shared machine are noisy: compare ratios measured in one run.
 """
 
 from __future__ import annotations
@@ -53,6 +59,7 @@ from ..core.io.paths import resolve_path
 from ..core.model import POMDP
 from ..core.policies import check_seed
 from ..core.search import complete_tree_nodes
+from .engines import ENGINE_DEPTHS, ENGINE_MODELS, format_engines, run_engines
 from .paper import PAPER_TABLE_II
 
 #: Table II's models: the primary one (the paper's S = 3 problem stretched naturally to S = 8 with
@@ -77,10 +84,16 @@ class BenchConfig:
     variant: str = "tight"
     constant: str = DEFAULT_CONSTANT  # the bound LP's belief-independent constant (core.bounds.BOUND_CONSTANTS)
     prune_without_guarantee: bool = False  # measure pruning on a model whose bounds are not valid (said so)
+    engines: bool = True  # the engine comparison (module docstring)
+    engine_models: tuple[str, ...] = ENGINE_MODELS
+    engine_depths: tuple[int, ...] = ENGINE_DEPTHS
+    engine_beliefs: int = 3
+    engine_rounds: int = 5
 
     @classmethod
     def quick(cls) -> BenchConfig:
-        return cls(beliefs=20, deep_beliefs=3, timed=3, depths=(2, 3, 4, 5, 6), timed_max_depth=4)
+        return cls(beliefs=20, deep_beliefs=3, timed=3, depths=(2, 3, 4, 5, 6), timed_max_depth=4,
+                   engine_depths=(2, 3, 4), engine_beliefs=2, engine_rounds=3)
 
 
 def _timed(fn: Callable[[], Any], clock: Callable[[], float] = time.perf_counter) -> tuple[float, Any]:
@@ -197,10 +210,16 @@ def run_search_bench(models: Sequence[str] = DEFAULT_MODELS, config: BenchConfig
     config = config or BenchConfig()
     t0 = time.perf_counter()
     loaded = [load_model(resolve_path(m, "--model")) for m in models]  # every file checked before the first run
+    engine_models = [load_model(resolve_path(m, "--engine-model")) for m in config.engine_models] \
+        if config.engines else []
     results = [bench_model(model, config, log) for model in loaded]
-    return {"benchmark": "search", "config": asdict(config), "models": results,
-            "total_time": time.perf_counter() - t0, "python": sys.version.split()[0],
-            "numpy": np.__version__, "cpu_count": os.cpu_count()}
+    out = {"benchmark": "search", "config": asdict(config), "models": results,
+           "python": sys.version.split()[0], "numpy": np.__version__, "cpu_count": os.cpu_count()}
+    if engine_models:
+        out["engines"] = run_engines(engine_models, config.engine_depths, config.engine_beliefs,
+                                     config.engine_rounds, config.seed, log)
+    out["total_time"] = time.perf_counter() - t0
+    return out
 
 
 def _fmt(x: Any, spec: str) -> str:
@@ -242,6 +261,8 @@ def format_report(result: dict[str, Any]) -> str:
         tg = m["targets"]
         lines.append("   targets: " + ", ".join(f"{k} = {v}" for k, v in tg.items() if v is not None))
         lines.append("")
+    if "engines" in result:
+        lines += [*format_engines(result["engines"]), ""]
     lines.append(f"total {result['total_time']:.0f} s (python {result['python']}, numpy {result['numpy']}, "
                  f"{result['cpu_count']} CPUs)")
     return "\n".join(lines)
@@ -273,13 +294,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", action="append", default=None, metavar="MODEL",
                    help="model file (repeatable; default: the shipped S = 8 tracking models, natural and "
                         "steeper, and S = 3)")
+    p.add_argument("--engine-model", action="append", default=None, metavar="MODEL",
+                   help="model file of the engine comparison (repeatable; default: the --model files, else "
+                        "tracking_s8_info, tracking_s8_natural, perimeter_s8, perimeter_s3)")
+    p.add_argument("--no-engines", action="store_true",
+                   help="leave out the engine comparison (kernel, numpy reference, C yardstick)")
 
 
 def config_from_args(args: argparse.Namespace) -> BenchConfig:
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     changes: dict[str, Any] = {"seed": check_seed(args.seed, "--seed"), "variant": args.variant,
                                "constant": args.constant,
-                               "prune_without_guarantee": args.prune_without_guarantee}
+                               "prune_without_guarantee": args.prune_without_guarantee,
+                               "engines": not args.no_engines}
+    if args.engine_model or args.model:  # the engines measure the models asked for
+        changes["engine_models"] = tuple(args.engine_model or args.model)
     if args.beliefs is not None:
         if not 1 <= args.beliefs <= MAX_BELIEFS:
             raise ValueError(f"--beliefs: must be in 1..{MAX_BELIEFS}, got {args.beliefs}")

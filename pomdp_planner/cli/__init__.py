@@ -24,11 +24,11 @@ from collections.abc import Sequence
 
 from ..__main__ import EXIT_INTERRUPTED, INTERRUPTED
 from ..core.errors import InputError, InputWarning
-from . import bench, bounds, check, export, plan, plot, simulate
+from . import bench, bounds, check, export, plan, plot, replay, simulate
 from ._common import Parser, one_line
 
 #: Subcommand modules, in the order ``--help`` lists them.
-SUBCOMMANDS = (check, bounds, export, simulate, plan, plot, bench)
+SUBCOMMANDS = (check, bounds, export, simulate, plan, plot, replay, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -172,6 +172,8 @@ def run(args: argparse.Namespace) -> int:
         f"root bounds: {rb}",
         f"depth: {d['depth']}" + ("  (next depth predicted not to finish in time: not started)"
                                   if d.get("predicted_stop") else
+                                  f"  (deadline hit inside depth 1: {sum(x is not None for x in d['q_values'])} root "
+                                  "action(s) searched, the best of them chosen)" if d.get("partial") else
                                   "  (deadline hit; deeper depth discarded)" if d["deadline_hit"] else ""),
         "nodes per depth: " + ", ".join(f"d={i + 1}: {n:,} ({p:.1f}% pruned)" for i, (n, p) in
                                         enumerate(zip(d["nodes_expanded"], d["percent_pruned"], strict=True))),

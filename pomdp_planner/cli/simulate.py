@@ -11,7 +11,9 @@ without guarantee (``--option prune_without_guarantee=1``).
 ``--record FILE`` also writes the run as a run record (``core/io/run_record.py``: one CSV row per
 decision with the belief it was made from, the true state, the priority, the root bounds, the
 depth, whether it was certified and the search time), streamed like the output; ``pomdp-planner
-plot FILE`` draws it.
+plot FILE`` draws it. A FILE ending in ``.mcap`` is a rosbag2 MCAP bag instead
+(``core/io/run_bag.py``: the record and the loop's topics, with the readings, epoch ``t`` at
+``t * 0.1`` s), for ``ros2 bag``, Foxglove, ``plot`` and ``replay``.
 
 With ``--targets M1,M2,... --budget B`` (no ``MODEL``) it simulates K targets under one effort
 budget per epoch and a joint policy (``cli/simulate_targets.py``, docs/multitarget.md).
@@ -32,7 +34,8 @@ from collections.abc import Iterator, Sequence
 from ..core.checks import option_value
 from ..core.errors import OptionError
 from ..core.io.outputs import check_output_file
-from ..core.io.run_record import RunRecordWriter, open_run_record
+from ..core.io.run_bag import open_run_output, simulated_clock, write_row
+from ..core.io.run_record import RunRecordWriter
 from ..core.model import POMDP, short_repr
 from ..core.multitarget.policies import JOINT_POLICIES, joint_policy_names
 from ..core.options import STEPS_RANGE
@@ -87,7 +90,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="true initial state: a state name or 0-based index (default: sampled from the belief)")
     p.add_argument("--record", default=None, metavar="FILE",
                    help="also write the run as a run-record CSV (one row per decision: belief, action, root "
-                        "bounds, depth, certified, latency; docs/cli.md), e.g. for 'pomdp-planner plot'")
+                        "bounds, depth, certified, latency; docs/cli.md), e.g. for 'pomdp-planner plot'; a name "
+                        "ending in .mcap writes a rosbag2 MCAP bag (also for 'pomdp-planner replay')")
     simulate_targets.add_arguments(p)
     add_json_argument(p)
     p.set_defaults(func=run)
@@ -132,14 +136,18 @@ def run(args: argparse.Namespace) -> int:
     summary = RunningSummary(model.gamma)
     record = None if args.record is None else _open_record(args.record, model, policy)
 
+    clock = simulated_clock()  # a bag's row times: epoch t at t * 0.1 s from now
+
     def steps() -> Iterator[SimulationStep]:
         belief = sim.initial_belief  # the belief each decision is made from
+        reading = None  # the (priority, observation) that made it
         try:
             for st in sim:
                 summary.add(st)
                 if record is not None:
-                    record.write(st.t, belief, st.action + 1, true_state=st.state, **last_decision(policy, belief))
-                belief = st.belief
+                    write_row(record, st.t, belief, st.action + 1, true_state=st.state, observation=reading,
+                              stamp_ns=clock(st.t), **last_decision(policy, belief))
+                belief, reading = st.belief, (st.action + 1, st.observation)
                 yield st
         finally:  # also when the reader stops early (| head)
             if record is not None:
@@ -179,8 +187,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _open_record(path: str, model: POMDP, policy: object) -> RunRecordWriter:
-    """The ``--record`` writer (every row is flushed as written; closed after the last step)."""
-    return open_run_record(path, "--record", model.name, model.S, model.A, getattr(policy, "time_budget", None))
+    """The ``--record`` writer: a CSV run record (every row is flushed as written) or, for a
+    ``.mcap`` name, a bag (``core/io/run_bag.py``); closed after the last step."""
+    return open_run_output(path, "--record", model.name, model.S, model.A, getattr(policy, "time_budget", None))
 
 
 class StepTable:

@@ -7,8 +7,8 @@ efforts per priority ``1..A``, for every target or one per target separated by `
 ``A - p`` for priority ``p``). The run (``core/multitarget/simulate.py``) draws every target's
 randomness from its own stream (common random numbers: the same ``--seed`` gives every policy
 the same luck). Printed per step: the priorities, the effort used, the joint reward and, for the
-planners, the price ``lambda``, the dual bound and the gap; then the summary, with the number of
-epochs over budget (0 for every policy of the package).
+planners, the lookahead depth the numbers refer to, the price ``lambda``, the dual bound and the
+gap; then the summary, with the number of epochs over budget (0 for every policy of the package).
 """
 
 from __future__ import annotations
@@ -121,10 +121,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"# {problem.describe()}  policy={name} seed={args.seed} steps={args.steps}")
     if planner is not None:
         print(f"# planner: {planner.describe()}")
-        print("# dual bound: " + ("an upper bound on the joint lookahead value (every target searched exhaustively)"
-                                  if planner.bound_guaranteed else
-                                  "ESTIMATE, not a bound (branch-and-bound values; --option search=exhaustive "
-                                  "makes it one)"))
+        print(f"# {bound_line(planner)}")
         if planner.note:
             print(f"# planner: {planner.note}")
     cells = _Row(problem, args.steps)
@@ -141,15 +138,28 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def bound_line(planner: MultiTargetPlanner) -> str:
+    """What the dual bound of each row is, and which lookahead it refers to (the ``depth`` column)."""
+    if planner.time_budget is None:
+        depth = f"the depth-{planner.depth} joint lookahead ({planner.depth + 1} decisions; the depth column)"
+    else:
+        depth = (f"the joint lookahead of the row's depth (the depth column: the deepest depth completed within "
+                 f"the time budget of {planner.time_budget:g} s, up to {planner.max_depth})")
+    if planner.bound_guaranteed:
+        return f"dual bound: an upper bound on the optimal value of {depth}; every target searched exhaustively"
+    return (f"dual bound: ESTIMATE, not a bound, of the optimal value of {depth}; branch-and-bound values "
+            "(--option search=exhaustive makes it one)")
+
+
 class _Row:
     """One fixed-width line per step (the steps are streamed, so widths are fixed in advance)."""
 
-    HEADERS = ("step", "priorities", "effort", "reward", "lambda", "dual_bound", "gap")
+    HEADERS = ("step", "priorities", "effort", "reward", "depth", "lambda", "dual_bound", "gap")
 
     def __init__(self, problem: MultiTargetProblem, steps: int):
         self.problem = problem
         budget = format_effort(problem.budget)
-        widths = [len(str(max(steps - 1, 0))), 2 * problem.K - 1, 2 * len(budget) + 6, 9, 9, 10, 9]
+        widths = [len(str(max(steps - 1, 0))), 2 * problem.K - 1, 2 * len(budget) + 6, 9, 5, 9, 10, 9]
         self.widths = [max(w, len(h)) for w, h in zip(widths, self.HEADERS, strict=True)]
         self.header = self._join(self.HEADERS) + "\n" + "  ".join("-" * w for w in self.widths)
 
@@ -160,6 +170,7 @@ class _Row:
         d = st.decision
         effort = f"{format_effort(st.effort)}/{format_effort(self.problem.budget)}"
         effort += "" if st.within_budget else " OVER"
-        nums = ["-"] * 3 if d is None else [format_number(d.lam), format_number(d.dual_bound), format_number(d.gap)]
+        nums = ["-"] * 4 if d is None else [str(d.depth), format_number(d.lam), format_number(d.dual_bound),
+                                            format_number(d.gap)]
         return self._join([str(st.t), " ".join(str(a + 1) for a in st.actions), effort,
                            format_number(st.reward), *nums])

@@ -26,34 +26,25 @@ generated: they are impossible, contribute ``eta * V = 0`` to the Q value, and c
 "prunes" relative to the complete-tree formula; the tracking models reach every branch from
 a full-support belief because ``P > 0``).
 
-Speed: the tree is processed level by level on arrays of beliefs, in chunks (depth-first over
-chunks, so memory stays bounded at any depth). The leaf level, which dominates, needs no
-posterior beliefs: for a batch of parents with predicted beliefs ``b^a``, with
-``u = b^a ∘ O[a][:, z]`` and ``eta = sum u``,
-``eta * V(leaf) = max_a' (u · r_a' - w_a' eta f(u / eta))`` where ``u · r_a'``, ``eta`` and
+Two engines compute the search, with the same traversal and the same results: the compiled
+kernel (``core/search_kernel.c`` through :mod:`.search_kernel`; built when the package is
+installed) and its numpy reference (:mod:`.search_reference`, whose docstring gives the
+traversal and the fused leaf formulas). A planner uses the kernel whenever it is installed and
+takes the model (uncertainty Shannon, Renyi-2 or none; :class:`MyopicBounds` or none), else the
+reference; ``Planner(kernel="numpy")`` asks for the reference. Without the installed kernel the
+planner says so once per process (a ``RuntimeWarning``). The traversal takes a level in chunks
+of parents and each chunk action by action (a *step*: the allowed parents' children under one
+action, valued depth-first), so branch-and-bound forms children and leaf values only for the
+(parent, action) pairs it keeps, and the deadline is read before every step.
 
-* Renyi: ``eta f = -eta log(sum_s u_s^2 / eta^2)``, ``sum_s u_s^2 = (b^a)^2 @ O[a]^2``;
-* Shannon: ``eta f = eta log eta - sum_s u_s log u_s`` with
-  ``sum_s u_s log u_s = (b^a log b^a) @ O[a] + b^a @ (O[a] log O[a])``
-
-are all matrix products. Branches with tiny ``eta < ETA_FUSED_MIN`` (where ``u_s^2`` could
-underflow) are recomputed from the normalised posterior, so no division blows up. Products
-over the small ``S`` dimension are ``einsum`` loops, not BLAS calls: on a shared 2-core
-machine multi-threaded BLAS waiting for a busy core made the leaf level several times slower.
-
-Leaf tables: ``eta`` and ``u · r_a'`` for every ``a'`` are one product per action. Up to
-:data:`FUSED_TABLE_MAX_BYTES` the planner keeps the *fused* table ``WT[a]`` (rows ``O[a][:, z]``
-and ``O[a][:, z] r[:, a']``: ``A (A + 1) Z S`` floats) and multiplies it with ``b^a``; beyond it
-(2.3 GiB at S = Z = 256, A = 64, seconds to fill) it multiplies ``O[a]^T`` with ``b^a`` stacked
-with ``r_a' ∘ b^a``: the same sums with the products taken in another order (equal up to
-rounding), ``S (A + 1)`` floats per parent of temporary instead of the table, and no slower at
-that size (``pomdp-planner bench configure``).
-
-Anytime (:meth:`Planner.plan`): iterative deepening ``1..max_depth``; the deadline is checked
-before every chunk (about 4 MB of work, a few ms), an interrupted depth is discarded and the
-deepest completed one returned; depth 1 ignores the deadline; a depth predicted not to finish
-is not started (:func:`next_depth_cannot_finish`). If the root bounds agree and the planner's
-bounds are *guaranteed* (Assumption 1 holds and the LP is feasible: the gate of
+Anytime (:meth:`Planner.plan`): iterative deepening ``1..max_depth``; the deadline is read
+before every step at every depth, depth 1 included. An interrupted depth ``>= 2`` is discarded
+and the deepest completed one returned; an interrupted depth 1 returns the root actions it
+finished (``partial``; their Q values are depth-1 values, the others ``nan``): it takes the root
+actions in decreasing order of ``rho(b0, a)`` and always finishes the first, so a valid action
+always comes back. A depth predicted not to finish is not started
+(:func:`next_depth_cannot_finish`). If the root bounds agree and the planner's bounds are
+*guaranteed* (Assumption 1 holds and the LP is feasible: the gate of
 :mod:`~pomdp_planner.core.gate` decides, and only it builds guaranteed planners) the action is
 certified (Proposition 1) and ``plan`` returns after depth 1 of that one action (the other Q
 values are ``nan``); :meth:`Planner.search` always searches the depth it is given. Bounds
@@ -71,6 +62,7 @@ they agree whenever no node of the exhaustive-optimal subtree has its argmax pru
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -79,28 +71,28 @@ from typing import Any
 
 import numpy as np
 
-from .belief import ETA_MIN, check_belief
+from . import search_kernel
+from .belief import check_belief
 from .checks import check_int
 from .errors import BeliefError, OptionError, short_repr
 from .model import POMDP, format_bytes, priority_of
-from .myopic import MyopicBounds, TrivialBounds, argmax_smallest, transform_matrix
+from .myopic import MyopicBounds, TrivialBounds
 from .options import MAX_DEPTH_RANGE as MAX_DEPTH_RANGE  # re-exported: the ranges live in options.py
 from .options import TIME_BUDGET_RANGE as TIME_BUDGET_RANGE
 from .options import check_depth, check_time_budget
+from .search_reference import ETA_FUSED_MIN as ETA_FUSED_MIN  # re-exported
+from .search_reference import ETA_SKIP as ETA_SKIP
+from .search_reference import DeadlineExceeded, ReferenceEngine, Traversal
 
-#: Observation branches with ``eta <= ETA_SKIP`` are impossible and not generated.
-ETA_SKIP = ETA_MIN
-#: Below this ``eta`` the fused leaf formulas are replaced by the normalised computation.
-ETA_FUSED_MIN = 1e-100
-#: Leaf chunks of at most this many parents evaluate all actions in one batch.
-LEAF_STACK_MAX = 256
-#: A leaf chunk's action computed for all parents (and masked) if at least this share may take it.
-LEAF_GATHER_FRACTION = 0.7
 #: Anytime stop rule: depth ``d + 1`` is not started when its predicted time exceeds this many
 #: times the budget left (prediction: last depth's time times its growth over the depth before).
 PREDICT_MARGIN = 1.5
 #: Default memory budget (bytes) for one chunk of the leaf level.
 DEFAULT_CHUNK_BYTES = 4 * 2**20
+#: Most multiply-adds of one step (a chunk's parents under one action): the deadline is read
+#: before every step, so this bounds how long it goes unread (about 0.2-1 ms in the kernel, a few
+#: ms in numpy); on large models a step is one parent under one action, however long that takes.
+STEP_WORK = 2**21
 #: Default memory budget (bytes) of one search: 1 GiB (``Planner(memory_budget=...)`` overrides it).
 DEFAULT_MEMORY_BUDGET = 2**30
 #: Deepest search accepted: the search recurses once per level (Python's stack is finite), and
@@ -113,8 +105,11 @@ MAX_SEARCH_DEPTH = 100
 #: minutes, and every further level multiplies that by ``A Z`` (24 there). The anytime search
 #: (under a time budget) is not limited: its deadline stops it.
 MAX_TREE_NODES = 10**10
-#: Fixed part of :func:`search_memory_estimate` (root arrays, results, small temporaries).
-SEARCH_OVERHEAD_BYTES = 64 * 2**10
+#: Fixed part of :func:`search_memory_estimate` (root arrays, results, small temporaries; the
+#: kernel's per-search scratch comes on top: :func:`search_memory_estimate`).
+SEARCH_OVERHEAD_BYTES = 16 * 2**10
+#: Leaf parents whose leaves the kernel values together (``LEAF_BLOCK`` in search_kernel.c).
+KERNEL_LEAF_BLOCK = 32
 #: Fixed part of :func:`planner_table_bytes` (the planner object and its array headers).
 TABLE_OVERHEAD_BYTES = 8 * 2**10
 #: The planner builds the fused leaf table (module docstring, "Leaf tables") only up to this size.
@@ -184,46 +179,58 @@ class SearchMemoryError(OptionError):
     the planner cannot serve, so the command line reports it as exit code 2."""
 
 
-def _chunk_sizes(S: int, A: int, Z: int, chunk_bytes: int) -> tuple[int, int, int]:
-    """``(leaf chunk, expand chunk, bytes per leaf parent)``: parents per chunk of :class:`Planner`."""
-    per_parent = 8 * (Z * (1 + 3 * A + 4) + 2 * S)  # leaf: about (Z + 3 Z A + 4 Z + 2 S) floats per parent
-    leaf = max(64, int(chunk_bytes // per_parent))
-    expand = max(16, int(chunk_bytes // (8 * A * Z * (S + 4))))
+def chunk_sizes(S: int, A: int, Z: int, chunk_bytes: int) -> tuple[int, int, int]:
+    """``(leaf chunk, expand chunk, bytes per leaf parent)``: parents per chunk of :class:`Planner`.
+
+    A chunk takes at most ``chunk_bytes`` of temporaries (numpy engine; at least 64 leaf parents or
+    16 expanded ones) and one step of it (the chunk under one action) about :data:`STEP_WORK`
+    multiply-adds (at least one parent): ``S^2 + Z S (A + 2)`` per leaf parent (prediction and the
+    observation sums), ``S^2 + Z S (3 A + 3)`` per expanded parent (prediction, children, their
+    rewards and bounds)."""
+    per_parent = 8 * (Z * (A + 5) + 2 * S)  # leaf step: about (A + 5) Z + 2 S floats per parent
+    leaf_work = S * S + Z * S * (A + 2)
+    expand_work = S * S + Z * S * (3 * A + 3)
+    leaf = max(1, min(max(64, int(chunk_bytes // per_parent)), STEP_WORK // leaf_work))
+    expand = max(1, min(max(16, int(chunk_bytes // (8 * Z * (2 * S + 4)))), STEP_WORK // expand_work))
     return leaf, expand, per_parent
 
 
 def search_memory_estimate(S: int, A: int, Z: int, depth: int, chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> int:
     """Upper estimate of the peak bytes that :class:`Planner` allocates for a depth-``depth`` search.
 
-    The search is depth-first over chunks (module docstring), so memory does not grow with the
+    The search is depth-first over steps (module docstring), so memory does not grow with the
     tree, ``(A Z)^depth`` leaves, but with the depth: at its deepest point it holds, for every
-    level ``k = 1 .. depth - 1``, the children of one chunk of the level above, at most
-    ``n_k = min(n_{k-1}, E) A Z`` columns (``n_0 = 1``, ``E`` parents per expand chunk), each
-    with its belief (``S`` floats), ``Q`` values and allowed actions (``A`` each), key, ``eta``
-    and ``rho`` (``3 A`` floats with bounds: ``rho`` is a view of the bounds' product); plus the
-    temporaries of one expansion (about ``3 S A Z`` floats per parent) or of one leaf chunk
-    (whichever is larger: they never coexist); a quarter more for the small temporaries around
-    them, plus a fixed :data:`SEARCH_OVERHEAD_BYTES`. Exhaustive search reaches these sizes;
-    branch-and-bound prunes, so it needs at most as much (``tracemalloc`` peaks are below the
-    estimate in test/test_search_memory.py). Once ``n_k`` saturates, each further level adds
-    ``E A Z`` columns: an estimated 9.8 MB per level for S = Z = 8, A = 3 with the default
-    ``chunk_bytes`` (RSS measured: about 5.7 MB per level).
+    level ``k = 1 .. depth - 1``, the children of one step of the level above, at most
+    ``n_k = min(n_{k-1}, E) Z`` columns (``n_0 = 1``, ``E`` parents per expand chunk), each
+    with its belief (``S`` floats), ``rho`` and ``Q`` values and allowed actions (``A`` each),
+    parent, ``eta`` and the bound terms (``2 A`` floats with bounds); plus the temporaries of one
+    expansion step (about ``2 S Z`` floats per parent) or of one leaf step (whichever is larger:
+    they never coexist); a quarter more for the small temporaries around them, plus a fixed
+    :data:`SEARCH_OVERHEAD_BYTES` and the kernel's scratch (one expansion step's sums and the arrays
+    of :data:`KERNEL_LEAF_BLOCK` leaf parents). Both engines stay within it. Exhaustive search
+    reaches these sizes; branch-and-bound prunes, so it needs at most as much (``tracemalloc``
+    peaks are below the estimate in test/test_search_memory.py). Once ``n_k`` saturates, each
+    further level adds ``E Z`` columns.
     """
-    leaf, expand, per_parent = _chunk_sizes(S, A, Z, chunk_bytes)
-    per_column = 8 * (S + 4 * A + 2) + A
+    leaf, expand, per_parent = chunk_sizes(S, A, Z, chunk_bytes)
+    per_column = 8 * (S + 5 * A + 3) + A
     total, n, widest = 0, 1, 1
     for _ in range(1, depth):
         widest = min(n, expand)
-        n = widest * A * Z
+        n = widest * Z
         total += n * per_column
-    expansion = (8 * (3 * S + 4) + 1) * A * Z * widest if depth > 1 else 0
+    expansion = 8 * (2 * S + 4) * Z * widest if depth > 1 else 0
     leaf_chunk = 3 * per_parent * min(leaf, n) // 2
-    return 5 * (total + max(expansion, leaf_chunk)) // 4 + SEARCH_OVERHEAD_BYTES
+    scratch = 8 * (widest + KERNEL_LEAF_BLOCK * (S + (A + 4) * Z) + 2 * S + 4 * A)
+    return 5 * (total + max(expansion, leaf_chunk)) // 4 + SEARCH_OVERHEAD_BYTES + scratch
 
 
 def fused_table_bytes(S: int, A: int, Z: int) -> int:
-    """Bytes of the fused leaf table ``WT`` (module docstring, "Leaf tables"): ``A (A + 1) Z S`` floats."""
-    return 8 * A * (A + 1) * Z * S
+    """Bytes of the fused leaf table, at most ``A (A + 3) Z' S`` floats (``Z'``: ``Z`` rounded up to
+    a multiple of 4): the kernel's ``[O | O r_a' | X (| O)]`` (:mod:`.search_kernel`; ``A + 3``
+    blocks for Shannon, ``A + 2`` for Renyi, each padded to ``Z'`` columns) or the numpy engine's
+    ``WT`` (``A + 1`` blocks of ``Z``, :mod:`.search_reference`, "Leaf tables")."""
+    return 8 * A * (A + 3) * (-(-Z // 4) * 4) * S
 
 
 def uses_fused_table(S: int, A: int, Z: int, fused: bool | None = None) -> bool:
@@ -232,18 +239,26 @@ def uses_fused_table(S: int, A: int, Z: int, fused: bool | None = None) -> bool:
     return fused_table_bytes(S, A, Z) <= FUSED_TABLE_MAX_BYTES if fused is None else bool(fused)
 
 
-def planner_table_bytes(S: int, A: int, Z: int, fused: bool | None = None) -> int:
+def planner_table_bytes(S: int, A: int, Z: int, fused: bool | None = None, engine: str | None = None) -> int:
     """Peak bytes :class:`Planner` allocates when it is built (its tables, before any search).
 
-    The fused leaf table ``WT`` (module docstring, "Leaf tables": ``A (A + 1) Z S`` floats) when
-    :func:`uses_fused_table` says so; then ``O`` transposed twice and one table of the leaf
-    formula (``O`` squared or ``O log O``: ``(A, Z, S)`` each), three ``(A, Z, S)`` temporaries
-    while that one is built, ``P`` transposed (``A S^2``), ``r`` twice, and the action masks
-    (``A^3`` bytes), plus :data:`TABLE_OVERHEAD_BYTES`. Needs only the sizes, so an entry point can
-    refuse before it builds anything. (``count_nodes`` builds two more ``(A, Z, S)`` tables on its
-    first call.)"""
-    floats = 6 * A * Z * S + A * S * S + 2 * S * A
+    ``engine``: ``"c"`` or ``"numpy"`` (``None``: the one a planner of this process uses, the
+    kernel when it is installed). The fused leaf table (:func:`fused_table_bytes`) when
+    :func:`uses_fused_table` says so; then, for the kernel, ``O`` transposed and one table of the
+    leaf formula (``O`` squared or ``O log O``; ``(A, S, Z)`` floats each, and a mask of bytes
+    while it is built), ``r`` twice and the reward and bound products (``3 S A``); for the numpy
+    engine, ``O``
+    transposed twice and the leaf formula's table, three temporaries while that one is built,
+    ``P`` transposed (``A S^2``), ``r`` twice, and the action masks (``A^3`` bytes). Plus
+    :data:`TABLE_OVERHEAD_BYTES`. Needs only the sizes, so an entry point can refuse before it
+    builds anything. (The numpy engine's ``count_nodes`` builds two more ``(A, Z, S)`` tables on
+    its first call.)"""
+    if engine is None:
+        engine = "c" if search_kernel.available() else "numpy"
     table = fused_table_bytes(S, A, Z) if uses_fused_table(S, A, Z, fused) else 0
+    if engine == "c":
+        return table + 17 * A * Z * S + 40 * S * A + TABLE_OVERHEAD_BYTES
+    floats = 6 * A * Z * S + A * S * S + 2 * S * A
     return table + 8 * floats + A**3 + A * Z + TABLE_OVERHEAD_BYTES
 
 
@@ -279,11 +294,6 @@ def check_search_memory(S: int, A: int, Z: int, depth: int, memory_budget: int, 
         f"{format_bytes(memory_budget)}; {deepest}")
 
 
-class DeadlineExceeded(Exception):
-    """Raised inside a depth when the wall-clock deadline passes: :meth:`Planner.plan` catches it
-    (never lets it escape); :meth:`Planner.search` with a ``deadline`` raises it to its caller."""
-
-
 @dataclass(frozen=True)
 class SearchResult:
     """The outcome of :meth:`Planner.search` or :meth:`Planner.plan`.
@@ -294,7 +304,10 @@ class SearchResult:
     tree of depth ``i + 1`` (see the module docstring). ``certified`` means the root bounds
     agree and are guaranteed (``guaranteed``: Assumption 1 holds, the LP is feasible), so the
     action is the optimal one (Proposition 1); ``crossed``: the root bounds cross (lower > upper),
-    which valid bounds never do.
+    which valid bounds never do. ``deadline_hit``: the time budget limited the depth (a deeper
+    depth was interrupted, or not started: ``predicted_stop``). ``partial``: the deadline
+    interrupted depth 1 itself, so only the root actions with a finite Q value were searched (in
+    decreasing order of ``rho(b0, a)``; at least the first) and ``action`` is the best of them.
     """
 
     action: int
@@ -313,6 +326,7 @@ class SearchResult:
     depth_times: tuple[float, ...] = field(default=())
     predicted_stop: bool = False
     guaranteed: bool = False
+    partial: bool = False
 
     @property
     def crossed(self) -> bool:
@@ -349,21 +363,18 @@ class SearchResult:
             "time_used": float(self.time_used),
             "deadline_hit": bool(self.deadline_hit),
             "predicted_stop": bool(self.predicted_stop),
+            "partial": bool(self.partial),
         }
 
 
-def _mm(M: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """``M @ X`` for a small ``M`` (``k x S``) and a wide ``X`` (``S x n``), single-threaded.
-
-    ``einsum`` runs its own vectorised loops instead of a multi-threaded BLAS; on a shared
-    machine (other processes, a ROS node) BLAS threads waiting for a busy core made the
-    leaf level several times slower, and these products are memory-bound anyway.
-    """
-    return np.einsum("ks,sn->kn", M, X)
 
 
-def _xlogx(x: np.ndarray) -> np.ndarray:
-    return np.where(x > 0.0, x * np.log(np.where(x > 0.0, x, 1.0)), 0.0)
+#: What :meth:`Planner._run` returns.
+_Run = tuple[np.ndarray, tuple[int, ...], "tuple[int, int] | None", bool, int, np.ndarray]
+#: The engines a planner may be asked for (:class:`Planner`'s ``kernel``).
+KERNELS = ("auto", "c", "numpy")
+#: The belief rule's tolerance (:func:`~.belief.check_belief`'s default), as the kernel applies it.
+BELIEF_ATOL = 1e-6
 
 
 class Planner:
@@ -378,14 +389,22 @@ class Planner:
     finer deadline checks). ``memory_budget`` bounds the memory of one search: a depth whose
     :func:`search_memory_estimate` exceeds it is refused before it starts
     (:class:`SearchMemoryError`), as is a depth beyond :data:`MAX_SEARCH_DEPTH`. ``clock`` is
-    the wall clock used for deadlines and timings (injectable for tests). ``fused``: build the
-    fused leaf table (module docstring, "Leaf tables"; ``None``: :func:`uses_fused_table` decides
-    by its size); both ways give the same values up to rounding.
+    the wall clock used for deadlines and timings (injectable for tests). ``fused``: the numpy
+    engine builds its fused leaf table (:mod:`.search_reference`, "Leaf tables"; ``None``:
+    :func:`uses_fused_table` decides by its size); both ways give the same values up to rounding.
+    ``kernel``: ``"auto"`` (the compiled kernel when it is installed and takes the model, else
+    the numpy reference; a missing kernel is warned about once per process), ``"c"`` (the
+    kernel, or an :class:`~.errors.OptionError` saying why not) or ``"numpy"``; the attribute
+    :attr:`kernel` says which one the planner uses.
+
+    ``checked=True`` (:meth:`search`, :meth:`plan`, :meth:`q_values_batch`) skips the belief
+    check: the caller promises beliefs of ``S`` finite float entries on the simplex, e.g.
+    beliefs that :func:`~.belief.check_belief` (or the planner) already returned.
     """
 
     def __init__(self, model: POMDP, bounds: Bounds | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
                  clock: Callable[[], float] = time.perf_counter, guaranteed: bool = False,
-                 memory_budget: int = DEFAULT_MEMORY_BUDGET, fused: bool | None = None):
+                 memory_budget: int = DEFAULT_MEMORY_BUDGET, fused: bool | None = None, kernel: str = "auto"):
         self.model = model
         self.clock = clock
         self.guaranteed = bool(guaranteed) and bounds is not None
@@ -397,38 +416,32 @@ class Planner:
             bm = self.bounds.model
             if (bm.S, bm.A, bm.Z) != (model.S, model.A, model.Z):
                 raise ValueError("bounds: built for a model of different size")
-        self._bound_cache: tuple[Any, np.ndarray] | None = None
-        ar = np.arange(model.A)
-        lo, up = ar[None, :, None], ar[None, None, :]
-        # _range_mask[a, lo, up]: a in [lo, up]; crossed bounds (lo > up) keep every action
-        self._range_mask = ((ar[:, None, None] >= lo) & (ar[:, None, None] <= up)) | (lo > up)
+        if kernel not in KERNELS:
+            raise OptionError(f"kernel: must be one of {', '.join(KERNELS)}, got {short_repr(kernel)}")
         S, A, Z = model.S, model.A, model.Z
-        P, O, r = model.P, model.O, model.r
         self.fused = uses_fused_table(S, A, Z, fused)
-        self._OT = np.ascontiguousarray(np.swapaxes(O, 1, 2))  # (A, Z, S)
-        self._r = np.ascontiguousarray(r)
-        self._WT: np.ndarray | None = None
-        if self.fused:
-            # Transposed leaf matrices: WT[a] rows = O[a][:, z] (z = 0..Z-1), then O[a][:, z] * r[:, a']
-            # for a' = 0..A-1 (Z rows each). Filled in place: A^2 S Z floats (planner_table_bytes).
-            self._WT = np.empty((A, Z * (A + 1), S))
-            self._WT[:, :Z] = self._OT
-            for k in range(A):
-                np.multiply(self._OT, r[:, k], out=self._WT[:, Z * (k + 1):Z * (k + 2)])
-        self._PT = np.ascontiguousarray(np.swapaxes(P, 1, 2))
-        self._PTs = self._PT.reshape(A * S, S)  # stacked P[a]^T
-        self._OS = np.ascontiguousarray(np.swapaxes(O, 0, 1))  # (S, A, Z)
-        self._w = np.asarray(model.w, dtype=float)
-        self._rT = np.ascontiguousarray(r.T)
-        self._gamma = float(model.gamma)
-        self._kind = model.uncertainty.name if model.uncertainty.name in ("none", "renyi2", "shannon") else "generic"
-        if self._kind != "none" and not np.any(self._w):
-            self._kind = "none"
-        # only the leaf formula of the model's uncertainty needs its table
-        self._O2T = np.ascontiguousarray(np.swapaxes(O * O, 1, 2)) if self._kind == "renyi2" else None
-        self._OlogOT = np.ascontiguousarray(np.swapaxes(_xlogx(O), 1, 2)) if self._kind == "shannon" else None
-        self._count_tables: tuple[np.ndarray, np.ndarray] | None = None  # count_nodes only: built on first use
-        self._leaf_chunk, self._expand_chunk, _ = _chunk_sizes(S, A, Z, chunk_bytes)
+        self._leaf_chunk, self._expand_chunk, _ = chunk_sizes(S, A, Z, chunk_bytes)
+        self._cost = np.zeros(A)
+        self._priced = False  # whether _cost holds a non-zero price
+        self._A = A
+        self._checked_depths: set[int] = set()
+        self._complete = [1]
+        self._reference: ReferenceEngine | None = None
+        self._kernel: search_kernel.KernelEngine | None = None
+        why = "" if kernel == "numpy" else (search_kernel.load()[1] or search_kernel.unsupported(model, self.bounds))
+        if kernel == "c" and why:
+            raise OptionError(f"kernel: the compiled kernel cannot be used: {why}")
+        if kernel != "numpy" and not why:
+            self._kernel = search_kernel.KernelEngine(model, self.bounds, self.fused)
+        else:
+            if kernel == "auto" and not search_kernel.available():
+                search_kernel.warn_fallback()
+            self._engine()  # the numpy tables, now rather than in the first decision
+
+    @property
+    def kernel(self) -> str:
+        """The engine this planner searches with: ``"c"`` (the compiled kernel) or ``"numpy"``."""
+        return "c" if self._kernel is not None else "numpy"
 
     @property
     def has_bounds(self) -> bool:
@@ -438,12 +451,11 @@ class Planner:
     # ----------------------------------------------------------------- public
     def root_bounds(self, belief: np.ndarray) -> tuple[int, int]:
         """0-based ``(lower, upper)`` myopic bound actions at ``belief``."""
-        b = check_belief(self.model, belief)
-        rb = self._root(b, self.bounds)[3]
+        rb = self._run(self._belief(belief), 0, True, False, None, check=True)[2]
         return (0, self.model.A - 1) if rb is None else rb
 
     def search(self, belief: np.ndarray, depth: int, use_bounds: bool = True, *, all_root_actions: bool = False,
-               deadline: float | None = None) -> SearchResult:
+               deadline: float | None = None, checked: bool = False) -> SearchResult:
         """Algorithm 1 to ``depth`` action-observation levels (``Search(b, depth + 1)``).
 
         Always searches the full requested depth (also when the root bounds agree; then
@@ -451,30 +463,29 @@ class Planner:
         ``all_root_actions``: every root action is expanded (the bounds prune below the root
         only), so every Q value is finite; a caller that must compare the root actions under a
         constraint the bounds do not know (the multi-target budget) needs them all.
-        ``deadline`` (a reading of :attr:`clock`): checked before every chunk;
-        :class:`DeadlineExceeded` is raised when it has passed.
+        ``deadline`` (a reading of :attr:`clock`): read before every step (module docstring);
+        :class:`DeadlineExceeded` is raised when it has passed. ``checked``: see the class.
         """
-        depth = check_depth(depth)
-        self.check_memory(depth, "depth")
-        b = check_belief(self.model, belief)
+        depth = self._depth(depth, "depth")
+        B = self._belief(belief)
         t0 = self.clock()
-        bounds = self.bounds if use_bounds else self.trivial
-        root = self._root(b, bounds)
-        if all_root_actions:
-            root = (*root[:2], np.ones_like(root[2]), root[3])
-        q, sizes = self._run(root, depth, bounds, deadline)
+        q, sizes, rb, stopped, action, _ = self._run(B, depth, use_bounds, all_root_actions, deadline,
+                                                     check=not checked)
+        if stopped:
+            raise DeadlineExceeded
         t = self.clock() - t0
-        return self._result(q, sizes, depth, root[3], t, False, (t,))
+        return self._result(q[0], action, sizes, depth, rb, t, False, (t,))
 
     def plan(self, belief: np.ndarray, max_depth: int, time_budget: float | None = None,
-             use_bounds: bool = True, predict_stop: bool = True) -> SearchResult:
+             use_bounds: bool = True, predict_stop: bool = True, *, checked: bool = False) -> SearchResult:
         """Anytime search: iterative deepening ``1, 2, ..., max_depth`` under a deadline.
 
-        The deadline (``time_budget`` seconds from the call) is checked between chunks inside
-        a depth; an interrupted depth is discarded and the result of the deepest completed
-        depth is returned (``deadline_hit=True``). Depth 1 always completes. If guaranteed
-        bounds agree at the root the action is certified: the planner returns at once after the
-        (tiny) depth-1 search of that single action, so the other Q values are ``nan``.
+        The deadline (``time_budget`` seconds from the call) is read before every step of every
+        depth. An interrupted depth ``>= 2`` is discarded and the result of the deepest completed
+        depth is returned (``deadline_hit=True``); an interrupted depth 1 returns the root actions
+        it finished (``partial=True``: module docstring), so an action always comes back. If
+        guaranteed bounds agree at the root the action is certified: the planner returns at once
+        after the (tiny) depth-1 search of that single action, so the other Q values are ``nan``.
         Bounds without the guarantee never stop it early (module docstring).
 
         ``predict_stop``: after two completed depths, depth ``d + 1`` is not started when it
@@ -482,32 +493,39 @@ class Planner:
         exceeds :data:`PREDICT_MARGIN` times the budget left. An interrupted depth is discarded
         anyway, so this returns the same decision sooner (``deadline_hit`` and
         ``predicted_stop`` set); the growth measured at shallow depths underestimates the real
-        one (fixed per-call costs), so the rule errs towards trying.
+        one (fixed per-call costs), so the rule errs towards trying. ``checked``: see the class.
         """
-        max_depth = check_depth(max_depth, "max_depth")
-        self.check_memory(max_depth, "max_depth")
+        max_depth = self._depth(max_depth, "max_depth")
         if time_budget is not None:
             time_budget = check_time_budget(time_budget)
-        b = check_belief(self.model, belief)
+        B = self._belief(belief)
+        check = not checked  # at the first depth, which returns the checked belief
         t0 = self.clock()
         deadline = None if time_budget is None else t0 + time_budget
-        bounds = self.bounds if use_bounds else self.trivial
-        best: tuple[np.ndarray, list[int], int] | None = None
-        hit = predicted = False
+        best: tuple[np.ndarray, int, Any, int] | None = None
+        hit = predicted = partial = False
+        rb: tuple[int, int] | None = None
         times: list[float] = []
-        root = self._root(b, bounds)  # rho, allowed actions and bounds at b: once per call
-        last = 1 if self._is_certified(root[3]) else max_depth
-        for d in range(1, last + 1):
+        last = max_depth
+        for d in range(1, max_depth + 1):
             ts = self.clock()
-            try:
-                q, sizes = self._run(root, d, bounds, None if d == 1 else deadline)
-            except DeadlineExceeded:
+            q, sizes, rb, stopped, action, B = self._run(B, d, use_bounds, False, deadline, first_free=d == 1,
+                                                         check=check)
+            check = False
+            if stopped:
                 hit = True
+                if d == 1:  # the root actions finished (at least the first): module docstring
+                    best, partial = (q, action, sizes, 1), True
+                    times.append(self.clock() - ts)
                 break
-            best = (q, sizes, d)
+            best = (q, action, sizes, d)
             now = self.clock()
             times.append(now - ts)
-            if deadline is None or d == last:
+            if d == 1 and self._is_certified(rb):
+                last = 1
+            if d == last:
+                break
+            if deadline is None:
                 continue
             if now >= deadline:
                 hit = True
@@ -515,21 +533,23 @@ class Planner:
             if predict_stop and next_depth_cannot_finish(times, deadline - now):
                 hit = predicted = True
                 break
-        assert best is not None  # depth 1 runs without a deadline
-        q, sizes, d = best
-        return self._result(q, sizes, d, root[3], self.clock() - t0, hit, tuple(times), predicted)
+        assert best is not None  # depth 1 always finishes its first root action
+        q, action, sizes, d = best
+        return self._result(q[0], action, sizes, d, rb, self.clock() - t0, hit, tuple(times), predicted, partial)
 
     def priced(self, action_cost: np.ndarray | Sequence[float]) -> Planner:
         """This planner for the rewards ``r[s, a] - action_cost[a]``: an action-only price, e.g.
         ``lambda e(a)`` of the multi-target relaxation (``core/multitarget``).
 
-        A shallow copy; only the reward arrays differ (``rho(b, a) - action_cost[a]`` everywhere,
-        leaves included), so a copy costs microseconds. The bounds and ``guaranteed`` carry over
-        unchanged: an action-only term changes neither Assumption 1 (``P``, ``O`` only) nor the
-        Theorem 2 LP (its rows hold differences of ``r_a`` over states, where a constant per action
-        cancels), so the same ``g, h`` bound the optimal policy of the priced problem for every
-        price (docs/THEORY.md, "Several targets: an action-only price"). The myopic bound actions
-        move with the price; the guarantee does not. ``self.model`` stays the unpriced model.
+        A shallow copy sharing every table: the price goes into the search as a cost vector
+        (``rho(b, a) - action_cost[a]`` everywhere, leaves included), so a copy costs
+        microseconds. The bounds and ``guaranteed`` carry over unchanged: an action-only term
+        changes neither Assumption 1 (``P``, ``O`` only) nor the Theorem 2 LP (its rows hold
+        differences of ``r_a`` over states, where a constant per action cancels), so the same
+        ``g, h`` bound the optimal policy of the priced problem for every price (docs/THEORY.md,
+        "Several targets: an action-only price"). The myopic bound actions move with the price;
+        the guarantee does not. ``self.model`` stays the unpriced model; prices add up
+        (``p.priced(c1).priced(c2)`` is priced by ``c1 + c2``).
         """
         A = self.model.A
         try:
@@ -540,38 +560,31 @@ class Planner:
             raise OptionError(f"action_cost: expected {A} finite numbers (one per action), "
                               f"got {short_repr(action_cost)}")
         new = copy.copy(self)
-        # every table that holds r: r itself (the unfused leaf products), r^T (rho, bounds), and
-        # the fused leaf table when there is one
-        new._r = np.ascontiguousarray(self._r - c[None, :])
-        new._rT = np.ascontiguousarray(new._r.T)
-        if self._WT is not None:
-            # _WT[a] = [O[a]^T; (O[a] * r[:, a'])^T for a' = 0..A-1]: the reward blocks lose c[a'] O[a]^T.
-            WT = self._WT.reshape(A, 1 + A, self.model.Z, self.model.S).copy()
-            WT[:, 1:] -= c[None, :, None, None] * WT[:, :1]
-            new._WT = np.ascontiguousarray(WT.reshape(self._WT.shape))
-        new._bound_cache = None
+        new._cost = self._cost + c
+        new._cost.setflags(write=False)
+        new._priced = bool(new._cost.any())
         return new
 
     def q_values_batch(self, beliefs: np.ndarray, depth: int, use_bounds: bool = True, *,
-                       deadline: float | None = None) -> np.ndarray:
+                       deadline: float | None = None, checked: bool = False) -> np.ndarray:
         """``Q(b, a)`` for every row ``b`` of ``beliefs`` (``n x S``) and every action, ``n x A``: the
         root Q values of :meth:`search` with ``all_root_actions=True``, for ``n`` roots in one
-        vectorised pass (the roots are columns of the first level, as every level's beliefs are).
-        ``depth = 0`` gives ``rho(b, a)``. ``deadline`` as in :meth:`search`."""
+        pass (the roots are the first level's nodes, as every level's beliefs are).
+        ``depth = 0`` gives ``rho(b, a)``. ``deadline`` as in :meth:`search`. ``checked``: the rows
+        are beliefs already checked (see the class)."""
         depth = check_depth(depth, "depth", (0, None))
         B = np.asarray(beliefs, dtype=float)
         if B.ndim != 2 or B.shape[1] != self.model.S:
             raise BeliefError(f"beliefs: expected shape n x {self.model.S}, got {B.shape}")
-        BT = np.ascontiguousarray(np.stack([check_belief(self.model, b, field=f"beliefs[{i}]")
-                                            for i, b in enumerate(B)], axis=1) if len(B) else B.T)
-        rhoT = self._rho(BT)
-        if depth == 0 or not len(B):
-            return np.ascontiguousarray(rhoT.T)
-        self.check_memory(depth, "depth")
-        bounds = self.bounds if use_bounds else self.trivial
-        sizes = [B.shape[0]] + [0] * depth
-        QT = self._values(BT, rhoT, np.ones((self.model.A, B.shape[0]), dtype=bool), depth, 0, sizes, bounds, deadline)
-        return np.ascontiguousarray(QT.T)
+        if not len(B):
+            return np.empty((0, self.model.A))
+        if depth:
+            self._check_memory_once(depth, "depth")
+        q, _, _, stopped, _, _ = self._run(np.array(B, order="C"), depth, use_bounds, True, deadline,
+                                           rho_order=False, check=not checked, field="beliefs")
+        if stopped:
+            raise DeadlineExceeded
+        return q
 
     def count_nodes(self, belief: np.ndarray, depth: int, use_bounds: bool = True) -> tuple[int, ...]:
         """Level sizes ``(n_0, ..., n_depth)`` of the search tree, without valuing the leaves.
@@ -579,14 +592,8 @@ class Planner:
         Much cheaper than :meth:`search` at the same depth (the leaf level only needs
         ``eta``); ``nodes_expanded`` of depth ``i`` is ``sum(level_sizes[:i + 1])``.
         """
-        depth = check_depth(depth)
-        self.check_memory(depth, "depth")
-        b = check_belief(self.model, belief)
-        bounds = self.bounds if use_bounds else self.trivial
-        sizes = [1] + [0] * depth
-        BT = np.ascontiguousarray(b[:, None])
-        self._count(BT, self._rho_allowed(bounds, BT)[1], depth, 0, sizes, bounds)
-        return tuple(sizes)
+        depth = self._depth(depth, "depth")
+        return tuple(self._run(self._belief(belief), depth, use_bounds, False, None, count_only=True, check=True)[1])
 
     def memory_estimate(self, depth: int) -> int:
         """:func:`search_memory_estimate` for this planner's model and chunk size."""
@@ -605,307 +612,103 @@ class Planner:
         check_search_memory(m.S, m.A, m.Z, depth, self.memory_budget, name, self.chunk_bytes)
 
     # --------------------------------------------------------------- internals
-    def _root(self, b: np.ndarray, bounds: Bounds
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int] | None]:
-        """``(BT, rho, allowed, root bounds)`` at ``b``: its column, ``rho(b, .)``, the allowed
-        actions and the 0-based ``(lower, upper)`` (``None`` for :class:`TrivialBounds`)."""
-        BT = np.ascontiguousarray(b[:, None])
-        rhoT, lo, up = self._rho_bounds(bounds, BT)
+    def _depth(self, depth: int, name: str) -> int:
+        """``depth`` checked (an integer >= 1 whose search fits the memory budget)."""
+        if type(depth) is int and depth in self._checked_depths:  # checked before
+            return depth
+        depth = check_depth(depth, name)
+        self._check_memory_once(depth, name)
+        return depth
+
+    def _check_memory_once(self, depth: int, name: str) -> None:
+        if depth not in self._checked_depths:  # the estimate depends on the depth only
+            self.check_memory(depth, name)
+            self._checked_depths.add(depth)
+
+    def _belief(self, belief: np.ndarray) -> np.ndarray:
+        """A copy of ``belief`` as one C-contiguous float row ``(1, S)`` (the belief rule itself is
+        checked with the search: :meth:`_run`, which normalises the copy in place)."""
+        b = np.array(belief, dtype=float)
+        if b.shape != (self.model.S,):
+            check_belief(self.model, b)  # its message for a wrong shape
+        return np.ascontiguousarray(b).reshape(1, -1)
+
+    def _engine(self) -> ReferenceEngine:
+        if self._reference is None:
+            self._reference = ReferenceEngine(self.model, self.fused, self._leaf_chunk, self._expand_chunk)
+        return self._reference
+
+    def _run(self, B: np.ndarray, depth: int, use_bounds: bool, all_root: bool, deadline: float | None,
+             first_free: bool = False, rho_order: bool = True, count_only: bool = False, check: bool = False,
+             field: str = "belief") -> _Run:
+        """One search from the roots ``B (n, S)`` by the planner's engine: ``(Q (n, A), level sizes,
+        the first root's bounds or None, interrupted by the deadline, the first root's best searched
+        action, the roots searched)``. ``Q`` is ``nan`` where not searched. ``rho_order``: the root
+        actions in decreasing ``rho`` (one root only). ``check``: the roots are checked and
+        normalised by the belief rule first (:func:`~.belief.check_belief`; its error names
+        ``field``, with the row for several roots): the kernel checks and normalises ``B`` in place."""
+        n, A = B.shape[0], self._A
+        cost = self._cost
+        k = self._kernel
+        if k is not None:
+            Q = None if count_only else np.empty((n, A))
+            args = [k.tables, B, n, depth, bool(use_bounds) and k.has_bounds, all_root, rho_order and n == 1,
+                    cost if self._priced else None, self._leaf_chunk, self._expand_chunk, deadline,
+                    None if search_kernel.native_clock(self.clock) else self.clock, first_free, count_only,
+                    BELIEF_ATOL if check else None, Q]
+            status, index, sizes, lo, up = k.mod.search(*args)
+            if status == 2:  # a root breaks the belief rule: its message (or, at the rule's edge, its verdict)
+                B = self._checked(B, field)
+                args[1], args[14] = B, None
+                status, index, sizes, lo, up = k.mod.search(*args)
+            return Q, sizes, (None if lo < 0 else (lo, up)), status == 1, index, B
+        if check:
+            B = self._checked(B, field)
+        eng = self._engine()
+        bounds = self.bounds if use_bounds else self.trivial
+        BT = np.ascontiguousarray(B.T)
+        rhoT, lo, up = eng.rho_bounds(bounds, BT, cost)
         rb = None if lo is None else (int(lo[0]), int(up[0]))
-        return BT, rhoT, self._allowed(lo, up, 1), rb
+        order = np.argsort(-rhoT[:, 0], kind="stable").tolist() if rho_order and n == 1 else range(A)
+        tr = Traversal(bounds, cost, order, [n] + [0] * depth, deadline, self.clock, first_free, count_only)
+        QT = np.full((A, n), -np.inf)
+        stopped = False
+        if depth == 0:
+            QT = rhoT
+        else:
+            allowed = np.ones((A, n), dtype=bool) if all_root else eng._allowed(lo, up, n)
+            try:
+                eng._values(BT, rhoT, allowed, depth, 0, tr, QT)
+            except DeadlineExceeded:
+                stopped = True
+        Q = np.ascontiguousarray(QT.T)
+        index = int(np.argmax(Q[0])) if np.isfinite(Q[0]).any() else -1
+        Q[Q == -np.inf] = np.nan
+        return Q, tuple(tr.sizes), rb, stopped, index, B
+
+    def _checked(self, B: np.ndarray, field: str) -> np.ndarray:
+        """The rows of ``B`` checked and normalised by :func:`~.belief.check_belief`."""
+        if B.shape[0] == 1 and field == "belief":
+            return np.ascontiguousarray(check_belief(self.model, B[0])).reshape(1, -1)
+        return np.stack([check_belief(self.model, b, field=f"{field}[{i}]") for i, b in enumerate(B)])
 
     def _is_certified(self, rb: tuple[int, int] | None) -> bool:
         """Guaranteed root bounds agree (Proposition 1), or there is only one action."""
-        return self.model.A == 1 or (rb is not None and self.guaranteed and rb[0] == rb[1])
+        return self._A == 1 or (rb is not None and self.guaranteed and rb[0] == rb[1])
 
-    def _rho(self, BT: np.ndarray, linear: np.ndarray | None = None) -> np.ndarray:
-        """``rho(b, a)`` (Eq. 3) for beliefs given as columns ``BT (S, n)``; returns ``(A, n)``.
+    def _complete_nodes(self, depth: int) -> list[int]:
+        """:func:`complete_tree_nodes` for depths ``0..depth`` (cached)."""
+        c, AZ = self._complete, self.model.A * self.model.Z
+        while len(c) <= depth:
+            c.append(c[-1] + AZ ** len(c))
+        return c
 
-        ``linear`` may carry ``r^T BT`` if already computed (fused with the bounds' product).
-        """
-        out = _mm(self._rT, BT) if linear is None else linear
-        kind = self._kind
-        if kind == "none":
-            return out
-        if kind == "renyi2":
-            f = -np.log(np.einsum("sn,sn->n", BT, BT))
-        elif kind == "shannon":
-            f = -_xlogx(BT).sum(axis=0)
-        else:
-            f = self.model.uncertainty.value(BT.T)
-        out -= self._w[:, None] * f[None, :]
-        return out
-
-    def _rho_bounds(self, bounds: Bounds, BT: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """``(rho, lower, upper)`` for the columns ``BT``; ``lower = upper = None`` for
-        :class:`TrivialBounds`. For ``MyopicBounds`` one product gives both ``r^T b`` and the
-        bound terms ``C_g b``, ``C_h b`` of Eq. 8."""
-        if isinstance(bounds, TrivialBounds):
-            return self._rho(BT), None, None
-        if type(bounds) is not MyopicBounds:
-            rhoT = self._rho(BT)
-            lo, up = bounds.actions(np.ascontiguousarray(BT.T), np.ascontiguousarray(rhoT.T))
-            return rhoT, lo, up
-        A = self.model.A
-        X = _mm(self._bound_matrix(bounds), BT)  # rows: r^T b (A), C_g b (A), C_h b reversed (A)
-        rhoT = self._rho(BT, X[:A])
-        T = X[A:].reshape(2, A, -1)
-        T[0] += rhoT
-        T[1] += rhoT[::-1]
-        lo, up = self._first_maximisers(T)
-        return rhoT, lo, up
-
-    def _rho_allowed(self, bounds: Bounds, BT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(rho, allowed)``: boolean ``(A, n)`` of the actions in ``[lower(b), upper(b)]``
-        (all of them if the bounds cross, or for :class:`TrivialBounds`)."""
-        rhoT, lo, up = self._rho_bounds(bounds, BT)
-        return rhoT, self._allowed(lo, up, BT.shape[1])
-
-    def _allowed(self, lo: np.ndarray | None, up: np.ndarray | None, n: int) -> np.ndarray:
-        """Boolean ``(A, n)``: ``a`` in ``[lo, up]`` (every action if the bounds cross or are absent)."""
-        if lo is None:
-            return np.ones((self.model.A, n), dtype=bool)
-        return self._range_mask[:, lo, up]
-
-    def _bound_matrix(self, bounds: MyopicBounds) -> np.ndarray:
-        """``[r^T; C_g; C_h reversed]`` (``3A x S``), cached for the last bounds object."""
-        cache = self._bound_cache
-        if cache is None or cache[0] is not bounds:
-            Ch = transform_matrix(self.model, bounds.h)[::-1]  # upper: actions in reversed order
-            M = np.concatenate([self._rT, transform_matrix(self.model, bounds.g), Ch])
-            cache = (bounds, np.ascontiguousarray(M))
-            self._bound_cache = cache
-        return cache[1]
-
-    def _first_maximisers(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Smallest maximiser of ``T[0]`` (lower) and largest of the un-reversed ``T[1]`` (upper):
-        the tie rule of :mod:`~pomdp_planner.core.myopic`, over the action axis of columns."""
-        first = argmax_smallest(T, axis=1)
-        return first[0], self.model.A - 1 - first[1]
-
-    def _result(self, q: np.ndarray, sizes: Sequence[int], depth: int, rb: tuple[int, int] | None,
-                t: float, hit: bool, times: tuple[float, ...], predicted: bool = False) -> SearchResult:
-        A, Z = self.model.A, self.model.Z
-        finite = np.isfinite(q)
-        action = int(np.argmax(np.where(finite, q, -np.inf)))
-        q = np.where(finite, q, np.nan)
+    def _result(self, q: np.ndarray, action: int, sizes: Sequence[int], depth: int, rb: tuple[int, int] | None,
+                t: float, hit: bool, times: tuple[float, ...], predicted: bool = False,
+                partial: bool = False) -> SearchResult:
         q.setflags(write=False)
-        expanded = tuple(int(sum(sizes[: i + 2])) for i in range(depth))
-        pruned = tuple(complete_tree_nodes(A, Z, i + 1) - expanded[i] for i in range(depth))
-        certified = self._is_certified(rb)
-        return SearchResult(
-            action=action, priority=int(priority_of(action)), q_values=q, depth=int(depth),
-            nodes_expanded=expanded, nodes_pruned=pruned, certified=bool(certified), root_bounds=rb,
-            time_used=float(t), deadline_hit=bool(hit), value=float(q[action]),
-            level_sizes=tuple(int(x) for x in sizes), used_bounds=rb is not None,
-            depth_times=times, predicted_stop=bool(predicted), guaranteed=self.guaranteed and rb is not None,
-        )
-
-    def _run(self, root: tuple, depth: int, bounds: Bounds, deadline: float | None
-             ) -> tuple[np.ndarray, list[int]]:
-        """Root Q values and level sizes of the depth-``depth`` search from ``root`` (:meth:`_root`)."""
-        BT, rhoT, allowed, _ = root
-        sizes = [1] + [0] * depth
-        QT = self._values(BT, rhoT, allowed, depth, 0, sizes, bounds, deadline)
-        return QT[:, 0], sizes
-
-    def _check_deadline(self, deadline: float | None) -> None:
-        if deadline is not None and self.clock() > deadline:
-            raise DeadlineExceeded
-
-    def _values(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray, remaining: int, level: int,
-                sizes: list[int], bounds: Bounds, deadline: float | None) -> np.ndarray:
-        """``Q(b, a)`` as ``(A, n)`` (``-inf`` where not allowed) for the belief columns ``BT (S, n)``
-        with ``remaining`` action-observation levels below them (chunked, depth-first)."""
-        A, n = self.model.A, BT.shape[1]
-        QT = np.empty((A, n))
-        if remaining == 1:
-            step = self._leaf_chunk
-            for s in range(0, n, step):
-                self._check_deadline(deadline)
-                QT[:, s:s + step], cnt = self._leaf_q(BT[:, s:s + step], rhoT[:, s:s + step], allowed[:, s:s + step])
-                sizes[level + 1] += cnt
-            return QT
-        step = self._expand_chunk
-        for s in range(0, n, step):
-            self._check_deadline(deadline)
-            al = allowed[:, s:s + step]
-            m = al.shape[1]
-            CT, key, eta = self._expand(BT[:, s:s + step], al)
-            sizes[level + 1] += CT.shape[1]
-            rho_c, allowed_c = self._rho_allowed(bounds, CT)
-            Qc = self._values(CT, rho_c, allowed_c, remaining - 1, level + 1, sizes,
-                              bounds, deadline)
-            Vc = Qc.max(axis=0)
-            acc = np.bincount(key, weights=eta * Vc, minlength=m * A).reshape(m, A).T
-            QT[:, s:s + step] = np.where(al, rhoT[:, s:s + step] + self._gamma * acc, -np.inf)
-            del CT, key, eta, rho_c, allowed_c, Qc, Vc, acc  # not held while the next chunk recurses
-        return QT
-
-    def _expand(self, BT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Children of the columns ``BT (S, n)`` under allowed actions and possible observations.
-
-        Eqs. 1-2: ``b^a = b @ P[a]``, ``u = b^a * O[a][:, z]``, ``eta = sum u``, ``tau = u / eta``,
-        for all actions at once (then the allowed, possible ones are kept). Returns posteriors as
-        columns ``(S, m)`` ordered by (action, observation, parent), key ``parent * A + action``
-        and ``eta``.
-        """
-        S, A, Z = self.model.S, self.model.A, self.model.Z
-        n = BT.shape[1]
-        Ba = _mm(self._PTs, BT).reshape(A, S, n).transpose(1, 0, 2)  # (S, A, n)
-        unnorm = (self._OS[:, :, :, None] * Ba[:, :, None, :]).reshape(S, A * Z * n)  # column (a, z, parent)
-        eta = unnorm.sum(axis=0)
-        keep = (eta.reshape(A, Z, n) > ETA_SKIP) & allowed[:, None, :]
-        sel = np.flatnonzero(keep)
-        e = eta[sel]
-        key = (sel % n) * A + sel // (Z * n)
-        return unnorm[:, sel] / e, key, e
-
-    def _leaf_q(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int]:
-        """``Q(b, a) = rho(b, a) + gamma sum_z eta max_a' rho(tau(b,a,z), a')`` for leaf parents.
-
-        Fused formulas (module docstring): no posterior belief is formed; every per-leaf
-        quantity is a contiguous ``Z x n`` block. Returns ``Q`` as ``(A, n)`` (``-inf`` where
-        not allowed) and the number of leaves (branches with ``eta > ETA_SKIP``).
-        """
-        A = self.model.A
-        n = BT.shape[1]
-        w, kind = self._w, self._kind
-        if n <= LEAF_STACK_MAX and kind != "generic" and self._WT is not None:
-            out = self._leaf_q_stacked(BT, rhoT, allowed)
-            if out is not None:
-                return out
-        QT = np.full((A, n), -np.inf)
-        count = 0
-        n_allowed = allowed.sum(axis=1)
-        for a in range(A):
-            masked = None  # columns computed but not allowed (cheaper than gathering when few)
-            if n_allowed[a] == 0:
-                continue
-            if n_allowed[a] >= LEAF_GATHER_FRACTION * n:
-                idx = slice(None)
-                Ba = _mm(self._PT[a], BT)  # predicted beliefs as columns, (S, m)
-                if n_allowed[a] < n:
-                    masked = ~allowed[a]
-            else:
-                idx = np.flatnonzero(allowed[a])
-                Ba = _mm(self._PT[a], BT[:, idx])
-            XT = self._leaf_products(a, Ba)  # eta (Z x m), then u . r_a' for each a' (Z x m each)
-            eta = XT[0]
-            ok = eta > ETA_SKIP
-            if kind == "none":
-                val = XT[1].copy()
-                for k in range(1, A):
-                    np.maximum(val, XT[1 + k], out=val)
-            elif kind == "generic":
-                val = self._leaf_generic(Ba, a, eta, ok)
-            else:
-                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                    if kind == "renyi2":
-                        t = _mm(self._O2T[a], Ba * Ba)  # sum_s u_s^2, (Z, m)
-                        np.divide(t, eta * eta, out=t)
-                        np.log(t, out=t)
-                        t *= eta  # -eta f(tau)
-                    else:  # shannon
-                        t = _mm(self._OT[a], _xlogx(Ba))
-                        t += _mm(self._OlogOT[a], Ba)  # sum_s u_s log u_s
-                        t -= eta * np.log(eta)  # -eta f(tau)
-                    val = XT[1] + w[0] * t
-                    for k in range(1, A):
-                        np.maximum(val, XT[1 + k] + w[k] * t, out=val)
-                tiny = ok & (eta < ETA_FUSED_MIN)
-                if tiny.any():
-                    val[tiny] = self._leaf_generic(Ba, a, eta, tiny)[tiny]
-            if not ok.all():
-                val = np.where(ok, val, 0.0)
-            if masked is None:
-                count += int(np.count_nonzero(ok))
-                QT[a, idx] = rhoT[a, idx] + self._gamma * val.sum(axis=0)
-            else:
-                count += int(np.count_nonzero(ok[:, ~masked]))
-                QT[a] = np.where(masked, -np.inf, rhoT[a] + self._gamma * val.sum(axis=0))
-        return QT, count
-
-    def _leaf_products(self, a: int, Ba: np.ndarray) -> np.ndarray:
-        """``(A + 1, Z, m)``: ``eta = O[a]^T b^a`` and ``u . r_a'`` for every ``a'``, for the predicted
-        beliefs ``Ba (S, m)`` (module docstring, "Leaf tables"): one product with the fused table
-        ``WT[a]``, or, without it, ``O[a]^T`` times ``b^a`` stacked with ``r_a' * b^a``."""
-        A, Z = self.model.A, self.model.Z
-        m = Ba.shape[1]
-        if self._WT is not None:
-            return _mm(self._WT[a], Ba).reshape(A + 1, Z, m)
-        R = np.empty((Ba.shape[0], A + 1, m))
-        R[:, 0] = Ba
-        np.multiply(self._r[:, :, None], Ba[:, None, :], out=R[:, 1:])
-        return _mm(self._OT[a], R.reshape(Ba.shape[0], (A + 1) * m)).reshape(Z, A + 1, m).transpose(1, 0, 2)
-
-    def _leaf_q_stacked(self, BT: np.ndarray, rhoT: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, int] | None:
-        """:meth:`_leaf_q` for a few parents: all actions in one batch (fewer numpy calls), then
-        the allowed ones kept. Same formulas; ``None`` if some ``eta`` needs the safe path."""
-        A, Z = self.model.A, self.model.Z
-        w, kind = self._w, self._kind
-        Ba = _mm(self._PTs, BT).reshape(A, self.model.S, -1)  # (A, S, n)
-        XT = np.einsum("aks,asn->akn", self._WT, Ba)  # (A, Z + Z A, n)
-        eta = XT[:, :Z]
-        ok = eta > ETA_SKIP
-        if kind == "none":
-            val = XT[:, Z:2 * Z].copy()
-            for k in range(1, A):
-                np.maximum(val, XT[:, Z * (1 + k):Z * (2 + k)], out=val)
-        else:
-            if np.any(ok & (eta < ETA_FUSED_MIN)):
-                return None
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                if kind == "renyi2":
-                    t = np.einsum("azs,asn->azn", self._O2T, Ba * Ba)
-                    np.divide(t, eta * eta, out=t)
-                    np.log(t, out=t)
-                    t *= eta
-                else:  # shannon
-                    t = np.einsum("azs,asn->azn", self._OT, _xlogx(Ba))
-                    t += np.einsum("azs,asn->azn", self._OlogOT, Ba)
-                    t -= eta * np.log(eta)
-                val = XT[:, Z:2 * Z] + w[0] * t
-                for k in range(1, A):
-                    np.maximum(val, XT[:, Z * (1 + k):Z * (2 + k)] + w[k] * t, out=val)
-        val = np.where(ok, val, 0.0)
-        count = int(np.count_nonzero(ok & allowed[:, None, :]))
-        return np.where(allowed, rhoT + self._gamma * val.sum(axis=1), -np.inf), count
-
-    def _leaf_generic(self, BaT: np.ndarray, a: int, eta: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """``eta max_a' rho(tau, a')`` from explicit posteriors, for the ``(z, parent)`` in ``mask``."""
-        out = np.zeros(eta.shape)
-        zi, pi = np.nonzero(mask)
-        if pi.size:
-            unnorm = BaT[:, pi].T * self._OT[a][zi]
-            tau = unnorm / unnorm.sum(axis=1, keepdims=True)
-            out[zi, pi] = eta[zi, pi] * self._rho(np.ascontiguousarray(tau.T)).max(axis=0)
-        return out
-
-    def _count(self, BT: np.ndarray, allowed: np.ndarray, remaining: int, level: int, sizes: list[int],
-               bounds: Bounds) -> None:
-        n = BT.shape[1]
-        if remaining == 1:
-            if self._count_tables is None:
-                PO = self.model.P @ self.model.O  # (A, S, Z): eta(z | b, a) = b @ PO[a][:, z]
-                self._count_tables = (np.ascontiguousarray(np.swapaxes(PO, 1, 2)), PO.min(axis=1) > 2.0 * ETA_SKIP)
-            POT, sure_obs = self._count_tables
-            step = self._leaf_chunk
-            for s in range(0, n, step):
-                Bp, al = BT[:, s:s + step], allowed[:, s:s + step]
-                for a in range(self.model.A):
-                    idx = np.flatnonzero(al[a])
-                    if not idx.size:
-                        continue
-                    sure = sure_obs[a]  # eta >= min_s (P O)[a][s, z] > ETA_SKIP for any belief
-                    sizes[level + 1] += idx.size * int(np.count_nonzero(sure))
-                    if not sure.all():
-                        eta = _mm(POT[a][~sure], Bp[:, idx])
-                        sizes[level + 1] += int(np.count_nonzero(eta > ETA_SKIP))
-            return
-        step = self._expand_chunk
-        for s in range(0, n, step):
-            CT, _, _ = self._expand(BT[:, s:s + step], allowed[:, s:s + step])
-            sizes[level + 1] += CT.shape[1]
-            self._count(CT, self._rho_allowed(bounds, CT)[1], remaining - 1, level + 1, sizes, bounds)
+        expanded = tuple(itertools.accumulate(sizes))[1:]
+        pruned = tuple([c - e for c, e in zip(self._complete_nodes(depth)[1:depth + 1], expanded, strict=True)])
+        return SearchResult(action, int(priority_of(action)), q, depth, expanded, pruned, self._is_certified(rb), rb,
+                            float(t), hit, float(q[action]), tuple(sizes), rb is not None, times, predicted,
+                            self.guaranteed and rb is not None, partial)

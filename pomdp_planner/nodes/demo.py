@@ -4,11 +4,12 @@
 [--keep-logs] [--record FILE]`` starts ``target_simulator``, ``belief_filter`` and ``planner`` as separate
 processes (the installed console scripts next to this Python if present, as ``ros2 run`` would
 start them, else ``python -m pomdp_planner.nodes.<name>``) with ``config/<node>_<model>.yaml``, on
-this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and a ROS domain of its own
-(``ROS_DOMAIN_ID``, random unless ``--domain-id``). ``--model`` is one of the shipped parameter
-sets (``processes.PARAMETER_SETS``): ``s3``, ``s8`` (the paper's tracking models) or
-``perimeter_s3``, ``perimeter_s8`` (greedy loses there and lookahead pays; the default, what
-``make demo`` runs, because there the planner searches and differs from greedy).
+this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) in the ROS domain ``--domain-id``,
+else the exported ``ROS_DOMAIN_ID``, else a random one in 1..101 (:func:`choose_domain_id`).
+``--model`` is one of the shipped parameter sets (``processes.PARAMETER_SETS``): ``s3``, ``s8``
+(the paper's tracking models) or ``perimeter_s3``, ``perimeter_s8`` (greedy loses there and
+lookahead pays; the default, what ``make demo`` runs, because there the planner searches and
+differs from greedy).
 
 A legend says what the columns mean on the model (its priorities, the bounds, "certified"). A
 monitor node pairs the loop's topics into rows by the run recorder's rule
@@ -28,7 +29,8 @@ return ``sum_t gamma^t rho(b_t, a_t)`` of the planner's policy (the core's ``bnb
 planner's parameters) beside greedy's over as many steps, both simulated by the core
 (``core.simulate``) from the simulator's seed, so with the same random numbers. ``--record FILE``
 writes the table's rows as a run record (``core/io/run_record.py``; ``pomdp-planner plot FILE -o
-run.png`` draws it), and says where at the end. The nodes' logs go to a temporary directory,
+run.png`` draws it; a FILE ending in ``.mcap`` is a rosbag2 bag with the loop's topics and readings,
+``core/io/run_bag.py``), and says where at the end. The nodes' logs go to a temporary directory,
 removed at the end unless ``--keep-logs`` (which prints where they are, and records the run into
 ``run.csv`` there unless ``--record``). Exit code 0 if all three processes exited cleanly (code 0,
 no traceback).
@@ -65,16 +67,20 @@ from std_msgs.msg import Int64MultiArray
 from ..core.errors import OptionError
 from ..core.io.model_yaml import load_model
 from ..core.io.outputs import check_output_file
-from ..core.io.run_record import RunRecordError, open_run_record
+from ..core.io.run_bag import RunBagWriter, open_run_output, write_row
+from ..core.io.run_record import RunRecordError
 from ..core.loop.recorder_loop import RecorderLoop, RecordRow
 from ..core.loop.run_summary import RowFacts, RunSummary
 from ..core.model import POMDP
 from ..core.policies import make_policy
 from ..core.simulate import simulate
+from .messages import MessageError, decode_observation
 from .processes import PARAMETER_SETS, parameter_set_model, parameter_set_values, ros_env, start_nodes, stop_nodes
 from .qos import RECORDER_QOS
 from .run_recorder import RunInputs
 
+#: Readings waiting to be written into a bag (the oldest forgotten first; the demo writes them at once).
+READINGS_KEPT = 1000
 #: Seconds a row of the table waits for its plan_info or true state when their topic has not moved
 #: past it (the first row waits for the simulator, started last, to publish its initial state).
 ROW_TIMEOUT = 30.0
@@ -97,9 +103,18 @@ class Monitor:
         self.loop = RecorderLoop(self.model.S, self.model.A, now=time.monotonic(), row_timeout=ROW_TIMEOUT,
                                  expect_true_state=True)
         self.inputs = RunInputs(self.node, self.loop, lambda out: self.rows.extend(out.rows))
+        #: the loop's readings (epoch, priority, z) not yet written into a bag (--record x.mcap)
+        self.observations: deque[tuple[int, int, int]] = deque(maxlen=READINGS_KEPT)
         self.subs = {**self.inputs.subscriptions,
-                     "observation": self.node.create_subscription(Int64MultiArray, "observation", lambda msg: None,
-                                                                  RECORDER_QOS)}
+                     "observation": self.node.create_subscription(Int64MultiArray, "observation",
+                                                                  self._on_observation, RECORDER_QOS)}
+
+    def _on_observation(self, msg: Int64MultiArray) -> None:
+        try:
+            obs = decode_observation(msg, self.model.A, self.model.Z)
+        except MessageError:
+            return
+        self.observations.append((obs.epoch, obs.priority, obs.observation))
 
     def matched(self, topic: str) -> bool:
         """Whether the monitor's subscription to ``topic`` has matched a publisher."""
@@ -179,6 +194,30 @@ def compare_with_greedy(model: POMDP, planner: dict, steps: int, seed: int) -> s
             f"for both; one run, not an average): planner {ours:.4f}, greedy {greedy:.4f}")
 
 
+#: ROS domain IDs a DDS participant may use (the ROS 2 docs' range for Linux).
+DOMAIN_ID_RANGE = (0, 232)
+
+
+def choose_domain_id(given: int | None, env: dict[str, str]) -> tuple[int, str]:
+    """The demo's ROS domain and where it comes from: ``--domain-id`` (``given``), else the
+    environment's ``ROS_DOMAIN_ID`` when set (non-empty), else a random one in 1..101 (a domain of
+    its own, away from 0, the default of every other ROS program). A value outside
+    :data:`DOMAIN_ID_RANGE` is an :class:`OptionError` naming where it came from."""
+    lo, hi = DOMAIN_ID_RANGE
+    if given is not None:
+        value, source = given, "--domain-id"
+    elif env.get("ROS_DOMAIN_ID", "").strip():
+        text = env["ROS_DOMAIN_ID"].strip()
+        if not text.isdigit():
+            raise OptionError(f"ROS_DOMAIN_ID: must be an integer {lo}..{hi}, got {text!r}")
+        value, source = int(text), "ROS_DOMAIN_ID"
+    else:
+        return random.randint(1, 101), "random"
+    if not lo <= value <= hi:
+        raise OptionError(f"{source}: must be an integer {lo}..{hi}, got {value}")
+    return value, source
+
+
 def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, keep_logs: bool = False,
         out=sys.stdout, record: str | os.PathLike | None = None) -> int:
     """Run the demo (module docstring); node logs go to a temporary directory, removed at the end
@@ -201,7 +240,7 @@ def run(steps: int, model_key: str, time_budget: float | None, domain_id: int | 
 
 def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int | None, log_dir: Path,
          keep_logs: bool, out, record: Path | None, written: list[int]) -> int:
-    domain_id = random.randint(1, 101) if domain_id is None else domain_id
+    domain_id, source = choose_domain_id(domain_id, dict(os.environ))
     os.environ.update(ros_env(domain_id))
     model_path = parameter_set_model(model_key)
     planner_params = dict(parameter_set_values(model_key, "planner"))
@@ -215,11 +254,12 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
     model = monitor.model
     writer = None
     if record is not None:
-        writer = open_run_record(record, "--record", model.name, model.S, model.A, planner_params["time_budget"])
+        writer = open_run_output(record, "--record", model.name, model.S, model.A, planner_params["time_budget"])
         written.append(0)
     summary = RunSummary(model)
+    where = {"random": "a random domain", "ROS_DOMAIN_ID": "from the environment", "--domain-id": "--domain-id"}
     print(f"pomdp_planner demo: {model.describe()}; three processes on ROS_DOMAIN_ID={domain_id} "
-          f"(localhost only){f'; node logs in {log_dir}' if keep_logs else ''}", file=out)
+          f"({where[source]}; localhost only){f'; node logs in {log_dir}' if keep_logs else ''}", file=out)
     header = f"{'step':>4} {'true':>4} {'mode':>4} {'p(mode)':>7} {'entropy':>7} {'action':>6} {'bounds':>8} " \
              f"{'greedy':>6} {'depth':>5} {'certified':>9} {'latency ms':>10}"
     code = 0
@@ -247,13 +287,21 @@ def _run(steps: int, model_key: str, time_budget: float | None, domain_id: int |
                 print(table_row(summary.add(row)), file=out, flush=True)
                 if writer is not None:
                     try:
-                        writer.write(row.epoch, row.belief, row.priority, **row.record_fields())
+                        write_row(writer, row.epoch, row.belief, row.priority, info=row.info, **row.record_fields())
                         written[0] += 1
                     except RunRecordError as exc:  # a full disk: the file ends on its last whole row
                         print(f"demo: {exc}; recording stopped", file=sys.stderr)
                         writer.close()
                         writer = None
                 last_progress = time.monotonic()
+            if isinstance(writer, RunBagWriter):  # a bag keeps the loop's readings as they come
+                try:
+                    while monitor.observations:
+                        writer.observation(*monitor.observations.popleft())
+                except RunRecordError as exc:
+                    print(f"demo: {exc}; recording stopped", file=sys.stderr)
+                    writer.close()
+                    writer = None
             dead = [n for n, (p, _) in procs.items() if p.poll() is not None]
             if dead or time.monotonic() - last_progress > 60.0:
                 print(f"demo: {'process(es) ' + ', '.join(dead) + ' exited' if dead else 'no progress for 60 s'}; "
@@ -289,20 +337,23 @@ def main(argv=None) -> int:
                         help="shipped parameter set config/<node>_<model>.yaml: s3, s8 (the paper's tracking "
                              "models), perimeter_s3, perimeter_s8 (models where lookahead pays; the default)")
     parser.add_argument("--time-budget", type=float, default=None, help="planner time_budget override (s)")
-    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: random 1..101)")
+    parser.add_argument("--domain-id", type=int, default=None,
+                        help="ROS_DOMAIN_ID (default: the exported ROS_DOMAIN_ID, else a random one in 1..101)")
     parser.add_argument("--keep-logs", action="store_true",
                         help="keep the nodes' log files and the run record run.csv (printed at the end; default: "
                              "removed with their directory)")
     parser.add_argument("--record", default=None, metavar="FILE",
-                        help="write the table's rows as a run record (CSV; pomdp-planner plot FILE draws it)")
+                        help="write the table's rows as a run record (CSV; a name ending in .mcap: a rosbag2 MCAP "
+                             "bag); pomdp-planner plot FILE draws it")
     args = parser.parse_args(argv)
     if args.steps < 1:
         parser.error("--steps: must be at least 1")
-    if args.record is not None:
-        try:
+    try:
+        choose_domain_id(args.domain_id, dict(os.environ))
+        if args.record is not None:
             check_output_file(args.record, "--record", stdout=False)
-        except OptionError as exc:
-            parser.error(str(exc))
+    except OptionError as exc:
+        parser.error(str(exc))
     return run(args.steps, args.model, args.time_budget, args.domain_id, args.keep_logs, record=args.record)
 
 

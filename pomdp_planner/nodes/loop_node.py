@@ -38,7 +38,7 @@ from ..core.gate import SetupStages
 from ..core.io.sensors import load_model_file
 from ..core.loop import LOOP_STATES, Log, Report, state_report
 from ..core.model import POMDP
-from .diagnostics import array, status
+from .diagnostics import array, log_line, status
 from .inputs import CheckedInputs, Input
 from .messages import MessageError, WireBound, decode_action, wire_bounds
 from .params import (
@@ -184,15 +184,8 @@ class LoopNode(ParameterNode):
 
     def log(self, logs: Iterable[Log]) -> None:
         logger = self.get_logger()
-        for line in logs:  # one call site per severity: rclpy refuses two severities at one site
-            if line.level == "debug":
-                logger.debug(line.text)
-            elif line.level == "info":
-                logger.info(line.text)
-            elif line.level == "warning":
-                logger.warning(line.text)
-            else:
-                logger.error(line.text)
+        for line in logs:
+            log_line(logger, line)
 
     def subscribe_actions(self, qos) -> Input:
         """The ``action`` input of a loop that takes actions (the filter's and the target's)."""

@@ -50,10 +50,11 @@ def descriptor(description: str, *, read_only: bool = False, float_range: tuple[
 
 
 def declare_optional_array(node: Node, name: str, kind: str, description: str) -> None:
-    """Declare a read-only, statically typed array parameter without a default (``kind``: string/double)."""
+    """Declare a read-only, statically typed array parameter without a default (``kind``: string/double/integer)."""
     ptype, ros_type = {
         "string": (Parameter.Type.STRING_ARRAY, ParameterType.PARAMETER_STRING_ARRAY),
         "double": (Parameter.Type.DOUBLE_ARRAY, ParameterType.PARAMETER_DOUBLE_ARRAY),
+        "integer": (Parameter.Type.INTEGER_ARRAY, ParameterType.PARAMETER_INTEGER_ARRAY),
     }[kind]
     _convert_override(node, name, ros_type)
     node.declare_parameter(name, ptype, descriptor(description, read_only=True, type_=ros_type))

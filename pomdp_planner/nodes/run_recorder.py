@@ -33,7 +33,7 @@ from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.errors import InputError
 from ..core.io.outputs import check_output_file
-from ..core.io.run_record import RunRecordWriter, open_run_record
+from ..core.io.run_bag import is_bag, open_run_output, write_row
 from ..core.io.sensors import load_model_file
 from ..core.loop import Level
 from ..core.loop.epochs import DEFAULT_EPOCH_WINDOW
@@ -42,7 +42,15 @@ from ..core.options import TIME_BUDGET_RANGE
 from .diagnostics import array, status
 from .inputs import CheckedInputs
 from .loop_node import OneShot
-from .messages import MessageError, decode_action, decode_belief, decode_plan_info, decode_true_state, wire_bounds
+from .messages import (
+    MessageError,
+    decode_action,
+    decode_belief,
+    decode_observation,
+    decode_plan_info,
+    decode_true_state,
+    wire_bounds,
+)
 from .params import ParameterNode, declare_double, declare_model_file, descriptor
 from .qos import RECORDER_QOS
 from .runtime import NodeConfigError, callback, config_errors, main_for
@@ -130,8 +138,8 @@ class RunRecorderNode(ParameterNode):
         with config_errors():
             self.model = load_model_file(self.model_file)
             check_output_file(path, "file", stdout=False)
-            self.writer: RunRecordWriter | None = open_run_record(path, "file", self.model.name, self.model.S,
-                                                                  self.model.A, budget if budget > 0 else None)
+            self.writer = open_run_output(path, "file", self.model.name, self.model.S, self.model.A,
+                                          budget if budget > 0 else None, namespace=self.get_namespace())
         self.path = path
         self.write_error = ""
         self.last_row: int | None = None
@@ -141,6 +149,8 @@ class RunRecorderNode(ParameterNode):
                                  epoch_window=value("epoch_window").value,
                                  expect_true_state=value("expect_true_state").value)
         self.inputs = RunInputs(self, self.loop, self._emit)
+        if is_bag(path):  # a bag also keeps the loop's readings, as they come (for replay)
+            self.create_subscription(Int64MultiArray, "observation", self._on_observation, RECORDER_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"recording {self.model.name} (S={self.model.S}, A={self.model.A}) to {path}")
@@ -152,13 +162,31 @@ class RunRecorderNode(ParameterNode):
             return
         try:
             for row in out.rows:
-                self.writer.write(row.epoch, row.belief, row.priority, **row.record_fields())
+                write_row(self.writer, row.epoch, row.belief, row.priority, info=row.info, **row.record_fields())
                 self.last_row = row.epoch
         except InputError as exc:  # a full disk (the rows are valid: the loop checked their parts)
             ends = "no row" if self.last_row is None else f"the row of epoch {self.last_row}"
             self.write_error = f"{exc}; recording stopped (the file ends on {ends})"
             self.get_logger().error(self.write_error)
             self._close_file()
+
+    @callback
+    def _on_observation(self, msg: Int64MultiArray) -> None:
+        """A reading of the loop, written into the bag as it comes (only recorded: a malformed one is
+        left out; the rows' rules do not use it)."""
+        try:
+            obs = decode_observation(msg, self.model.A, self.model.Z)
+        except MessageError:
+            return
+        with self.inputs.lock:
+            if self.writer is None:
+                return
+            try:
+                self.writer.observation(obs.epoch, obs.priority, obs.observation)
+            except InputError as exc:
+                self.write_error = f"{exc}; recording stopped"
+                self.get_logger().error(self.write_error)
+                self._close_file()
 
     def _close_file(self) -> None:
         writer, self.writer = self.writer, None

@@ -278,10 +278,12 @@ def _parse_first_line(text: str, where: str) -> tuple[str, int, int, float | Non
     return fields["model"], S, A, budget
 
 
-def read_run_record(path: str | os.PathLike) -> RunRecord:
+def read_run_record(path: str | os.PathLike, text: str | None = None) -> RunRecord:
     """Read and check a run record (module docstring); any problem is one :class:`RunRecordError`
     line ``FILE:LINE: column NAME: problem``. A last row without its line end is left out with one
-    :class:`~..errors.InputWarning` ``FILE:LINE: ...`` (and :attr:`RunRecord.cut_line`)."""
+    :class:`~..errors.InputWarning` ``FILE:LINE: ...`` (and :attr:`RunRecord.cut_line`). ``text``:
+    the record's text, read instead of the file (a record kept in a bag, :mod:`.run_bag`; ``path``
+    names it in messages)."""
     where = str(path)
     cut: list[int] = []
 
@@ -294,7 +296,7 @@ def read_run_record(path: str | os.PathLike) -> RunRecord:
                 cut.append(k)
 
     try:
-        with open(path, encoding="utf-8", newline="") as fh:
+        with io.StringIO(text, newline="") if text is not None else open(path, encoding="utf-8", newline="") as fh:
             first = fh.readline()
             if not first.endswith("\n") and first:
                 raise _fail(where, 1, None, "the first line is cut off (no line end)")

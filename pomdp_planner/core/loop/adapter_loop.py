@@ -71,12 +71,14 @@ from ..checks import check_choice, check_number
 from ..errors import BeliefError, OptionError
 from ..model import POMDP
 from .epochs import EpochLine, JoinWait, Liveness, Resender
-from .health import InputWatch, Log, LoopHealth, Report
+from .health import InputWatch, Log, LoopHealth, PeriodWatch, Report
 from .samples import ActionSample, LikelihoodSample, ObservationSample
 
 #: The adapter's inputs (parameter ``input_type``): ``std_msgs/Float64``, ``sensor_msgs/Range``,
 #: ``geometry_msgs/PointStamped`` (scalars, binned), ``std_msgs/Float64MultiArray`` (a likelihood).
 INPUT_TYPES = ("float64", "range", "point", "likelihood")
+#: Rule "Pace": actions this many times slower than the readings (medians) are one warning.
+PACE_FACTOR = 1.5
 #: What a ``point`` input gives (parameter ``point_field``): a coordinate or the Euclidean norm.
 POINT_FIELDS = ("x", "y", "z", "norm")
 
@@ -187,6 +189,9 @@ class AdapterLoop:
         self.line = EpochLine(live.epoch_window, now=now)
         self.action_watch = InputWatch("action", "action", started=now)
         self.sensor_watch = InputWatch(input_name, "reading", started=now)
+        # rule "Pace": a sensor's bursts must not shorten its period, a planner's pause not lengthen the actions'
+        self.reading_pace, self.action_pace = PeriodWatch("mean"), PeriodWatch("median")
+        self._pace_warned = False
         self.health = LoopHealth(COUNTERS, PROBLEMS, [self.sensor_watch, self.action_watch], live.stall)
         self.resender = Resender(live.resend_period)
         self._last: ObservationSample | LikelihoodSample | None = None
@@ -215,6 +220,7 @@ class AdapterLoop:
         if reading is None or not self._valid_stamp(stamp, now):
             self.sensor_watch.arrived(now, False)
             return self._result(now)
+        self.reading_pace.arrived(now)
         taken = stamp if stamp and self.max_age > 0 else now  # max_age 0: stamps not on this clock
         self._try_join(now)
         pending, answered = self.pending, None
@@ -226,6 +232,7 @@ class AdapterLoop:
                                 "(counted as before_first_action)")
         elif pending.answered:
             self.health.count("surplus_readings")
+            self._check_pace()
         elif taken < pending.heard_at + self.settle_time:
             self.health.count("early_readings")
         else:
@@ -233,6 +240,19 @@ class AdapterLoop:
             answered = pending.epoch
         self.sensor_watch.arrived(now, True, answered)  # a valid reading is the sensor's progress
         return self._result(now)
+
+    def _check_pace(self) -> None:
+        """Rule "Pace": actions slower than the sensor's readings (the median period of the actions
+        over :data:`PACE_FACTOR` times the readings' mean period) is one warning: the decisions (the
+        planner's ``time_budget`` and its overhead) take longer than the sensor period."""
+        readings, actions = self.reading_pace.period(), self.action_pace.period()
+        if self._pace_warned or readings is None or actions is None or actions <= PACE_FACTOR * readings:
+            return
+        self._pace_warned = True
+        self.health.log("warning", f"actions come every {actions:.3g} s, {self.input_name} readings every "
+                        f"{readings:.3g} s (median, mean): a decision takes longer than the sensor period and the "
+                        "readings in between are not used (surplus_readings); keep the planner's time_budget below "
+                        "the sensor period")
 
     def rejected_measurement(self, problem: str, now: float) -> AdapterOutput:
         """A sensor message that could not be decoded (``problem``, e.g. a wrong layout)."""
@@ -250,6 +270,7 @@ class AdapterLoop:
         verdict = self.line.classify(act.epoch)
         if verdict in ("next", "ahead"):
             self.action_watch.arrived(now, True, act.epoch)
+            self.action_pace.arrived(now)
             self._accept(act, now)
             return self._result(now)
         self.action_watch.arrived(now, False)

@@ -1,12 +1,15 @@
 """A loop's health: its counters, the stall watch of each input, the writers of each input stream,
 the node's ROS time, throttled warnings, and the report rule every node's diagnostics follow
-(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report").
+(docs/ros.md, "The loop's rules": rules "Stall levels", "One writer", "Time" and "Report"), the
+console line for each change of a node's level (:class:`HealthChanges`), and the period of an
+input (:class:`PeriodWatch`: the rule "Pace").
 
 Times are passed in (``now``, seconds on a monotonic clock); nothing here reads a clock.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
@@ -298,3 +301,68 @@ class LoopHealth:
         if self.clock is not None:
             all_values.update(self.clock.values(now))
         return Report(level, "; ".join(texts) or idle, all_values)
+
+
+class HealthChanges:
+    """The console side of the rule "Report": a node logs each change of its diagnostics' level
+    once, as its report changes it (OK -> WARN or ERROR, WARN <-> ERROR, and back to OK with how
+    long it was not), not on every report at the same level. Starts at OK."""
+
+    def __init__(self):
+        self.level = Level.OK
+        self.since: float | None = None  # when the level last left OK
+
+    def update(self, level: Level, message: str, now: float) -> Log | None:
+        """The line for a report at ``level`` with ``message`` at ``now``, or ``None`` if the level
+        did not change."""
+        if level == self.level:
+            return None
+        before, self.level = self.level, level
+        if level == Level.OK:
+            took = "" if self.since is None else f" after {now - self.since:.1f} s"
+            self.since = None
+            return Log("info", f"health OK again{took} (was {before.name})")
+        if before == Level.OK:
+            self.since = now
+        text = f"health {level.name}: {message}" if message else f"health {level.name}"
+        return Log("error" if level == Level.ERROR else "warning", text)
+
+
+#: Intervals a :class:`PeriodWatch` keeps, and how many it needs before it says a period.
+PERIOD_WINDOW = 20
+PERIOD_MIN_INTERVALS = 10
+
+
+class PeriodWatch:
+    """The period of an input (rule "Pace") over its last :data:`PERIOD_WINDOW` intervals between
+    arrivals (``None`` until :data:`PERIOD_MIN_INTERVALS` are known): ``how="mean"`` (the window's
+    span over its intervals: a rate, which a burst of samples does not move, a pause lengthens) or
+    ``"median"`` (which one pause does not move, a burst shortens). Each caller takes the one whose
+    error cannot raise a false warning."""
+
+    def __init__(self, how: str = "mean", window: int = PERIOD_WINDOW, min_intervals: int = PERIOD_MIN_INTERVALS):
+        if how not in ("mean", "median"):
+            raise ValueError(f"how: mean or median, got {how!r}")
+        self.how = how
+        self.min_intervals = min_intervals
+        self._last: float | None = None
+        self._intervals: deque[float] = deque(maxlen=window)
+
+    def arrived(self, now: float) -> None:
+        if self._last is not None:
+            self._intervals.append(now - self._last)
+        self._last = now
+
+    @property
+    def intervals(self) -> int:
+        """How many intervals the period is the median of."""
+        return len(self._intervals)
+
+    def period(self) -> float | None:
+        if len(self._intervals) < self.min_intervals:
+            return None
+        if self.how == "mean":
+            return sum(self._intervals) / len(self._intervals)
+        ordered = sorted(self._intervals)
+        n = len(ordered)
+        return ordered[n // 2] if n % 2 else (ordered[n // 2 - 1] + ordered[n // 2]) / 2

@@ -30,7 +30,7 @@ from ..gate import MAX_SETUP_SECONDS, PlannerSetup, build_planner
 from ..model import POMDP, format_bytes, priority_of
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
 from .epochs import EpochLine, JoinWait, Liveness, Resender, off_stream_belief
-from .health import InputWatch, Level, Log, LoopHealth, Report
+from .health import InputWatch, Level, Log, LoopHealth, PeriodWatch, Report
 from .samples import ActionSample, BeliefSample
 
 #: Parameters that may change while the loop runs (in force from the next decision).
@@ -183,6 +183,8 @@ class PlannerLoop:
         self._planner_key: tuple[str, str] | None = None
         self._refused_setups: set[tuple[str, str]] = set()  # run-time choices the gate refused
         self.health = LoopHealth(COUNTERS, PROBLEMS, [InputWatch("belief", "belief", started=now)], live.stall)
+        self.pace = PeriodWatch("mean")  # the period of new beliefs (rule "Pace"; a burst does not shorten it)
+        self._pace_warned: float | None = None  # the time_budget warned about
         bounds_warning = self._ensure_planner(self.params["bound_variant"], self.params["bound_constant"])
         self.assumptions = self.setup.report  # Assumption 1, checked once by the gate (cached per model)
         self.refusing = self.setup.mode == "refuse"
@@ -309,7 +311,11 @@ class PlannerLoop:
         self.health.watches[0].arrived(now, new, bel.epoch)
         if new:
             self.resender.answered()
+            if verdict != "join":
+                self.pace.arrived(now)
             if self._mailbox is None or bel.epoch > self._mailbox[0].epoch:
+                if self._mailbox is not None and self.active and verdict != "join":
+                    self._check_pace(self._mailbox[0].epoch)  # an unplanned belief is skipped
                 self._mailbox = (bel, now)
             if verdict == "join":
                 # the newest of what comes within JOIN_DELAY (a restarted filter's history starts with
@@ -325,6 +331,17 @@ class PlannerLoop:
                               window=self.live.epoch_window, stall_warn=self.live.stall.warn_after, now=now)
         resynced = self._resync_if_due(now)
         return self._result(now, plan_now=self.active and self._mailbox is not None and (resynced or planner_ahead))
+
+    def _check_pace(self, skipped: int) -> None:
+        """Rule "Pace": a belief skipped (replaced in the mailbox before it was planned) while
+        ``time_budget`` exceeds the period of the beliefs is one warning per ``time_budget``."""
+        period, budget = self.pace.period(), self.params["time_budget"]
+        if period is None or budget <= period or self._pace_warned == budget:
+            return
+        self._pace_warned = budget
+        self.health.log("warning", f"time_budget {budget:g} s exceeds the period of the beliefs ({period:.3g} s, the "
+                        f"mean of the last {self.pace.intervals} intervals): beliefs come faster than decisions and "
+                        f"are skipped (epoch {skipped} was); keep time_budget below the sensor period")
 
     def rejected_belief(self, problem: str, now: float) -> PlannerOutput:
         self.health.reject(self.health.watches[0], "bad_beliefs", f"ignored {problem}; no action published", now)
@@ -478,7 +495,8 @@ class PlannerLoop:
                 "last.pruned_percent": float(r.percent_pruned[-1]) if r.percent_pruned else 0.0,
                 **({"last.certified": lp["certified"]} if lp["guaranteed"] else {}),
                 "last.time_used": float(r.time_used), "last.latency": float(lp["latency"]),
-                "last.deadline_hit": bool(r.deadline_hit), "last.time_budget": lp["time_budget"],
+                "last.deadline_hit": bool(r.deadline_hit), "last.partial": bool(r.partial),
+                "last.time_budget": lp["time_budget"],
                 "last.max_depth": lp["max_depth"], "last.use_bounds": lp["use_bounds_effective"],
                 "last.bound_variant": lp["bound_variant"], "last.bound_constant": lp["bound_constant"],
             })

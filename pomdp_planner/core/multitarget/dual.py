@@ -9,17 +9,23 @@ levels below the root, so ``d + 1`` decisions, ``t = 0..d``) and a price ``lambd
   (the root epoch's budget kept exactly by the knapsack, only the later epochs priced);
 
 ``V* <= U(lambda) <= L(lambda)`` for the depth-``d`` joint lookahead value ``V*`` whenever the
-per-target values are the exact depth-``d`` values of the priced problems. Both are convex in
-``lambda`` (maxima of functions affine in ``lambda``). The planner minimises ``U``.
+per-target values are the exact depth-``d`` values of the priced problems (exhaustive search);
+then both are also convex in ``lambda`` (maxima of functions affine in ``lambda``). With
+branch-and-bound values (a maximum over the actions the bounds keep, which change with the
+price) ``U`` is an estimate: it may fall below ``V*`` and need not be convex. The planner
+minimises ``U``.
 
 **The search for lambda** (:func:`minimise_convex`): warm-started at the previous epoch's (or the
 previous depth's) price ``x0``; a bracket is found by stepping from ``x0`` (step ``x0 / 4``, at
 least the ceiling / 1024; from 0, :func:`lambda_ceiling` / 32) and doubling the step while ``U``
-decreases; then golden-section search inside the bracket. Every evaluation is a valid bound (weak duality holds at every
-``lambda >= 0``), so a search stopped early by its evaluation budget still returns the least
-bound it has seen (ties: the smallest price). The price never needs to exceed
+decreases; then golden-section search inside the bracket. It returns the least value it has
+evaluated (ties: the smallest price), also when its evaluation budget stops it early: with exact
+values every evaluation is a valid bound (weak duality holds at every ``lambda >= 0``), so that
+is the best bound found, and on a convex ``U`` the bracket holds a minimiser. With
+branch-and-bound estimates the search is a heuristic: it returns the least estimate it has seen,
+which need not be near a minimiser of a non-convex ``U``. The price never needs to exceed
 :func:`lambda_ceiling`: above it every target's priced optimum uses its least effort at every
-node below the root, so ``U`` no longer decreases (docs/THEORY.md).
+node below the root, so the exact ``U`` no longer decreases (docs/THEORY.md).
 """
 
 from __future__ import annotations

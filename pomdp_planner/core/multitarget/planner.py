@@ -67,7 +67,7 @@ from typing import Any
 
 import numpy as np
 
-from ..belief import ETA_MIN, check_belief, posteriors_all
+from ..belief import ETA_MIN, check_belief_rows, posteriors_all
 from ..bounds import DEFAULT_CONSTANT
 from ..checks import check_choice, check_number
 from ..errors import BeliefError, ModelError, OptionError
@@ -77,7 +77,7 @@ from ..options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE, check_depth, check_tim
 from ..policies import search_guards
 from ..search import DEFAULT_MEMORY_BUDGET, DeadlineExceeded, next_depth_cannot_finish
 from .dual import horizon_sum, lambda_ceiling, minimise_convex
-from .knapsack import solve_knapsack
+from .knapsack import knapsack_optimum, near_optimal, solve_padded
 from .problem import MultiTargetProblem
 
 #: How the per-target searches run: branch-and-bound where the gate allows it, or exhaustive.
@@ -87,6 +87,17 @@ PRICE_RANGE = (0.0, 1e9)
 #: Most evaluations of ``U(lambda)`` (each one search per target) per depth, and the default.
 MAX_EVALUATIONS_RANGE = (2, 200)
 DEFAULT_EVALUATIONS = 12
+#: The lookahead depth of every joint policy unless one is given (the planner, the fixed price, the
+#: equal split and the exact joint planner alike, so their bounds and values compare like with like).
+DEFAULT_JOINT_DEPTH = 2
+#: How the joint action is chosen among the knapsack's near-ties at the chosen price (class docstring).
+TIE_BREAKS = ("knapsack", "lower_bound")
+DEFAULT_TIE_BREAK = "knapsack"
+#: Joint actions within this much of the knapsack's optimum count as tied (``tie_break="lower_bound"``).
+DEFAULT_TIE_TOLERANCE = 1e-3
+TIE_TOLERANCE_RANGE = (0.0, 1e9)
+#: Most tied joint actions whose lower bounds are compared.
+TIE_CANDIDATES = 16
 
 
 @dataclass(frozen=True)
@@ -173,13 +184,15 @@ class JointDecision:
 
 @dataclass(frozen=True)
 class _Evaluation:
-    """Every target searched at one price: the knapsack's choice and both bounds."""
+    """Every target searched at one price: the knapsack's values ``V`` (``K x max_k A_k``, row ``k``
+    = target ``k``'s ``Q_k + lambda e_k``, ``-inf`` past its actions), ``V_k^lambda(b_k)`` per target,
+    the knapsack's optimum and both bounds. The joint action is found for the chosen price only
+    (:meth:`MultiTargetPlanner._joint`)."""
 
     lam: float
-    q: tuple[np.ndarray, ...]
-    values: tuple[np.ndarray, ...]
+    values: np.ndarray
+    target_values: np.ndarray
     knapsack: float
-    actions: tuple[int, ...]
     upper: float
     lagrangian: float
 
@@ -234,21 +247,33 @@ class MultiTargetPlanner:
     """Per-epoch decisions for a :class:`~.problem.MultiTargetProblem` (module docstring).
 
     ``search``: :data:`SEARCH_MODES` (``"bnb"``: prune where the gate allows, ``"exhaustive"``:
-    never prune; only then is the dual bound guaranteed). ``depth``: the fixed depth (default 3),
-    or ``time_budget`` seconds for the anytime search up to ``max_depth``. ``max_evaluations``:
-    evaluations of ``U(lambda)`` per depth. ``price``: a fixed price (no search for it; the
-    baseline "per-target search at an a-priori price"). ``variant``, ``constant``,
-    ``prune_without_guarantee`` go to the gate; ``no_limit`` lifts the tree-size guard of a fixed
-    depth; ``memory_budget`` per search; ``clock`` for deadlines (injectable).
+    never prune; only then is the dual bound guaranteed). ``depth``: the fixed depth (default
+    :data:`DEFAULT_JOINT_DEPTH`), or ``time_budget`` seconds for the anytime search up to
+    ``max_depth``. ``max_evaluations``: evaluations of ``U(lambda)`` per depth. ``price``: a fixed
+    price (no search for it; the baseline "per-target search at an a-priori price"). ``variant``,
+    ``constant``, ``prune_without_guarantee`` go to the gate; ``no_limit`` lifts the tree-size
+    guard of a fixed depth; ``memory_budget`` per search; ``clock`` for deadlines (injectable).
+
+    ``tie_break``: :data:`TIE_BREAKS`. ``"knapsack"``: the knapsack's optimum at the chosen price
+    (its tie rule, :mod:`.knapsack`). ``"lower_bound"``: of the joint actions whose knapsack value
+    is within ``tie_tolerance`` of the optimum (at most :data:`TIE_CANDIDATES`), the one with the
+    greatest lower bound (the value of its fixed-share continuation; ties: the knapsack's).
+    At the price that minimises the bound the knapsack's best joint actions can be near-ties (the
+    price sits where the relaxed problem is indifferent between them), and their true values can
+    differ far more than their knapsack values. Neither rule changes the dual bound; the gap
+    is always that of the joint action chosen (``dual_bound - lower_bound``).
     """
 
-    def __init__(self, problem: MultiTargetProblem, *, search: str = "bnb", depth: int = 3,
+    def __init__(self, problem: MultiTargetProblem, *, search: str = "bnb", depth: int = DEFAULT_JOINT_DEPTH,
                  time_budget: float | None = None, max_depth: int = 10,
                  max_evaluations: int = DEFAULT_EVALUATIONS, price: float | None = None,
                  variant: str = "tight", constant: str = DEFAULT_CONSTANT, prune_without_guarantee: bool = False,
                  no_limit: bool = False, memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                 clock: Callable[[], float] = time.perf_counter):
+                 clock: Callable[[], float] = time.perf_counter, tie_break: str = DEFAULT_TIE_BREAK,
+                 tie_tolerance: float = DEFAULT_TIE_TOLERANCE):
         check_choice(search, SEARCH_MODES, "search")
+        self.tie_break = check_choice(tie_break, TIE_BREAKS, "tie_break")
+        self.tie_tolerance = check_number(tie_tolerance, "tie_tolerance", *TIE_TOLERANCE_RANGE)
         self.problem = problem
         self.search_mode = search
         self.clock = clock
@@ -269,6 +294,17 @@ class MultiTargetPlanner:
         for k, (m, u) in enumerate(zip(problem.models, problem.units, strict=True)):
             groups.setdefault((id(m), u.tobytes()), []).append(k)
         self._groups = tuple(tuple(g) for g in groups.values())
+        self._members = tuple(np.array(g, dtype=np.intp) for g in self._groups)
+        # Every target's efforts as one K x max_k A_k table (the knapsack's), integer units and effort.
+        width = max(m.A for m in problem.models)
+        self._capacity = problem.knapsack_capacity
+        self._binds = problem.budget_binds
+        self._ceilings: dict[int, float] = {}  # per depth
+        self._units = np.zeros((problem.K, width), dtype=np.int64)
+        self._effort_table = np.zeros((problem.K, width))
+        for k, (u, e) in enumerate(zip(problem.units, self.efforts, strict=True)):
+            self._units[k, :u.size] = u
+            self._effort_table[k, :e.size] = e
         self.note = ""
         self._check_resources(no_limit)
         self._lam = 0.0 if price is None else price
@@ -320,15 +356,28 @@ class MultiTargetPlanner:
     # --------------------------------------------------------------- decisions
     def check_beliefs(self, beliefs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """The K beliefs, each checked against its target's model (``BeliefError`` naming ``beliefs[k]``)."""
+        return self._split(self._stacks(beliefs))
+
+    def _stacks(self, beliefs: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """The beliefs validated once, at the boundary (the searches do not validate them again),
+        as one ``n x S`` array per group of targets with the same model and efforts."""
         if len(beliefs) != self.problem.K:
             raise BeliefError(f"beliefs: {len(beliefs)} beliefs for {self.problem.K} targets")
-        return [check_belief(m, b, field=f"beliefs[{k}]") for k, (m, b) in enumerate(zip(self.problem.models,
-                                                                                          beliefs, strict=True))]
+        return [check_belief_rows(self.problem.models[g[0]], [beliefs[k] for k in g], [f"beliefs[{k}]" for k in g])
+                for g in self._groups]
+
+    def _split(self, stacks: list[np.ndarray]) -> list[np.ndarray]:
+        """Per target, its row of :meth:`_stacks`."""
+        out: list[np.ndarray] = [np.empty(0)] * self.problem.K
+        for stack, members in zip(stacks, self._groups, strict=True):
+            for i, k in enumerate(members):
+                out[k] = stack[i]
+        return out
 
     def decide(self, beliefs: Sequence[np.ndarray], started_at: float | None = None) -> JointDecision:
         """The joint action for ``beliefs`` (module docstring). ``started_at``: the :attr:`clock`
         reading the time budget counts from (default: now), e.g. when the beliefs arrived."""
-        bs = self.check_beliefs(beliefs)
+        stacks = self._stacks(beliefs)
         t0 = self.clock() if started_at is None else float(started_at)
         deadline = None if self.time_budget is None else t0 + self.time_budget
         depths = [self.depth] if self.time_budget is None else list(range(1, self.max_depth + 1))
@@ -339,7 +388,7 @@ class MultiTargetPlanner:
         for i, d in enumerate(depths):
             ts = self.clock()
             try:
-                dec = self._decide_at(bs, d, lam0, None if i == 0 else deadline)
+                dec = self._decide_at(stacks, d, lam0, None if i == 0 else deadline)
             except DeadlineExceeded:
                 hit = True
                 break
@@ -363,67 +412,91 @@ class MultiTargetPlanner:
     def evaluate(self, beliefs: Sequence[np.ndarray], lam: float, depth: int) -> JointDecision:
         """The decision at the price ``lam`` and ``depth`` (no search for the price, no warm start
         kept): what :meth:`decide` computes for one price. ``dual_bound`` is ``U(lam)``."""
-        bs = self.check_beliefs(beliefs)
+        stacks = self._stacks(beliefs)
         depth = check_depth(depth)
         lam = check_number(lam, "lam", *PRICE_RANGE)
-        ev = self._evaluate(bs, lam, depth, None)
-        return self._joint(bs, ev, depth, ((ev.lam, ev.upper),), None)
+        ev = self._evaluate(stacks, lam, depth, None)
+        return self._joint(stacks, ev, depth, ((ev.lam, ev.upper),), None)
 
-    def _decide_at(self, bs: list[np.ndarray], depth: int, lam0: float, deadline: float | None) -> JointDecision:
-        if not self.problem.budget_binds:
-            return self._independent(bs, depth, deadline)
+    def _decide_at(self, stacks: list[np.ndarray], depth: int, lam0: float, deadline: float | None) -> JointDecision:
+        if not self._binds:
+            return self._independent(stacks, depth, deadline)
         if self.fixed_price is not None:
-            ev = self._evaluate(bs, self.fixed_price, depth, deadline)
-            return self._joint(bs, ev, depth, ((ev.lam, ev.upper),), deadline)
+            ev = self._evaluate(stacks, self.fixed_price, depth, deadline)
+            return self._joint(stacks, ev, depth, ((ev.lam, ev.upper),), deadline)
         seen: dict[float, _Evaluation] = {}
 
         def upper(lam: float) -> float:
-            seen[lam] = self._evaluate(bs, lam, depth, deadline)
+            seen[lam] = self._evaluate(stacks, lam, depth, deadline)
             return seen[lam].upper
 
-        ceiling = lambda_ceiling(self.problem.models, list(self.efforts), depth)
+        ceiling = self._ceilings.get(depth)
+        if ceiling is None:  # one term per group of targets with one model and one list of efforts
+            ceiling = self._ceilings[depth] = lambda_ceiling([self.problem.models[g[0]] for g in self._groups],
+                                                             [self.efforts[g[0]] for g in self._groups], depth)
         found = minimise_convex(upper, ceiling, lam0, self.max_evaluations)
-        return self._joint(bs, seen[found.x], depth, found.evaluations, deadline)
+        return self._joint(stacks, seen[found.x], depth, found.evaluations, deadline)
 
-    def _evaluate(self, bs: list[np.ndarray], lam: float, depth: int, deadline: float | None) -> _Evaluation:
-        """Every target's priced search at ``lam`` (all root actions), the knapsack and both bounds.
-        Targets with the same model and efforts are searched in one batch (``Planner.q_values_batch``)."""
-        q: list[np.ndarray] = [np.empty(0)] * len(bs)
-        for members in self._groups:
-            k0 = members[0]
-            planner = self._planners[k0] if lam == 0.0 else self._planners[k0].priced(lam * self.efforts[k0])
-            Q = planner.q_values_batch(np.array([bs[k] for k in members]), depth, self.setups[k0].pruning,
-                                       deadline=deadline)
-            for i, k in enumerate(members):
-                q[k] = Q[i]
-        values = tuple(qk + lam * e for qk, e in zip(q, self.efforts, strict=True))
+    def _priced(self, k: int, lam: float):
+        """Target ``k``'s planner at the price ``lam`` (the gate's planner itself at 0)."""
+        return self._planners[k] if lam == 0.0 else self._planners[k].priced(lam * self.efforts[k])
+
+    def _evaluate(self, stacks: list[np.ndarray], lam: float, depth: int, deadline: float | None) -> _Evaluation:
+        """Every target's priced search at ``lam`` (all root actions), the knapsack's optimum and both
+        bounds. Targets with the same model and efforts are searched in one batch
+        (``Planner.q_values_batch``), their beliefs not validated again."""
         p = self.problem
-        knap, actions = solve_knapsack(values, p.units, p.knapsack_capacity)
+        V = np.full(self._units.shape, -np.inf)
+        top = np.empty(p.K)  # V_k^lambda(b_k)
+        for stack, members, idx in zip(stacks, self._groups, self._members, strict=True):
+            k0 = members[0]
+            Q = self._priced(k0, lam).q_values_batch(stack, depth, self.setups[k0].pruning, deadline=deadline,
+                                                     checked=True)
+            V[idx, :Q.shape[1]] = Q + lam * self.efforts[k0]
+            top[idx] = Q.max(axis=1)
+        knap = knapsack_optimum(V, self._units, self._capacity)
         B, g = float(p.budget), p.gamma
         upper = knap + lam * B * horizon_sum(g, 1, depth)
-        lagrangian = float(sum(qk.max() for qk in q)) + lam * B * horizon_sum(g, 0, depth)
-        return _Evaluation(lam, tuple(q), values, knap, actions, upper, lagrangian)
+        lagrangian = float(sum(top.tolist())) + lam * B * horizon_sum(g, 0, depth)
+        return _Evaluation(lam, V, top, knap, upper, lagrangian)
 
-    def _joint(self, bs: list[np.ndarray], ev: _Evaluation, depth: int, prices: tuple[tuple[float, float], ...],
+    def _joint(self, stacks: list[np.ndarray], ev: _Evaluation, depth: int, prices: tuple[tuple[float, float], ...],
                deadline: float | None) -> JointDecision:
-        """The decision of one evaluation, with the lower bound of its joint action."""
-        lower, shares = self._lower_bounds(bs, ev.actions, depth, deadline)
+        """The decision of one evaluation: its joint action (the knapsack's, ties as
+        :mod:`.knapsack` breaks them), with the lower bound of that joint action."""
+        _, actions = solve_padded(ev.values, self._units, self._capacity)
+        candidates = [actions]
+        if self.tie_break == "lower_bound" and self.tie_tolerance > 0.0:
+            candidates += [a for a in near_optimal(ev.values, self._units, self._capacity, self.tie_tolerance,
+                                                   TIE_CANDIDATES) if a != actions]
+        best, lower, shares = self._lower_bounds(stacks, candidates, depth, deadline)
+        actions = candidates[best]
         scale = self.problem.scale
-        targets = []
-        for k, (a, v, qk, lo, sh, s) in enumerate(zip(ev.actions, ev.values, ev.q, lower, shares, self.setups,
-                                                       strict=True)):
-            priced = self._planners[k].priced(ev.lam * self.efforts[k])
-            rb = priced.root_bounds(bs[k]) if s.pruning else None
-            targets.append(TargetDecision(a, v, float(qk.max()), lo, Fraction(sh, scale), s.guaranteed, s.pruning, rb))
+        bounds: list[tuple[int, int] | None] = [None] * self.problem.K
+        for stack, members in zip(stacks, self._groups, strict=True):
+            k0 = members[0]
+            if self.setups[k0].pruning:
+                priced = self._priced(k0, ev.lam)
+                lo, up = priced.bounds.actions(stack, priced.q_values_batch(stack, 0, checked=True))
+                for i, k in enumerate(members):
+                    bounds[k] = (int(lo[i]), int(up[i]))
+        targets = tuple(TargetDecision(a, ev.values[k, :self.problem.models[k].A].copy(), float(ev.target_values[k]),
+                                       lower[k], Fraction(int(shares[k]), scale), s.guaranteed, s.pruning, bounds[k])
+                        for k, (a, s) in enumerate(zip(actions, self.setups, strict=True)))
         total = float(sum(lower))
-        return JointDecision(ev.actions, ev.lam, ev.upper, ev.lagrangian, total, ev.upper - total,
-                             self.bound_guaranteed, self.problem.budget, self.problem.effort_of(ev.actions),
-                             self.problem.budget_binds, depth, tuple(targets), tuple(prices))
+        return JointDecision(actions, ev.lam, ev.upper, ev.lagrangian, total, ev.upper - total,
+                             self.bound_guaranteed, self.problem.budget, self._effort(actions),
+                             self._binds, depth, targets, tuple(prices))
 
-    def _independent(self, bs: list[np.ndarray], depth: int, deadline: float | None) -> JointDecision:
+    def _effort(self, actions: Sequence[int]) -> Fraction:
+        """``sum_k e_k(a_k)``, exactly (integer units over the common denominator)."""
+        return Fraction(int(self._units[np.arange(self.problem.K), np.asarray(actions)].sum()), self.problem.scale)
+
+    def _independent(self, stacks: list[np.ndarray], depth: int, deadline: float | None) -> JointDecision:
         """A budget that cannot bind: K independent searches, price 0, gap 0 (module docstring)."""
-        results = [self._planners[k].search(b, depth, use_bounds=self.setups[k].pruning, deadline=deadline)
-                   for k, b in enumerate(bs)]
+        bs = self._split(stacks)
+        results = [self._planners[k].search(b, depth, use_bounds=self.setups[k].pruning, deadline=deadline,
+                                            checked=True) for k, b in enumerate(bs)]
         actions = tuple(r.action for r in results)
         total = float(sum(r.value for r in results))
         targets = tuple(TargetDecision(r.action, np.asarray(r.q_values, dtype=float), float(r.value), float(r.value),
@@ -432,36 +505,47 @@ class MultiTargetPlanner:
         return JointDecision(actions, 0.0, total, total, total, 0.0, self.bound_guaranteed, self.problem.budget,
                              self.problem.effort_of(actions), False, depth, targets, ((0.0, total),))
 
-    def _lower_bounds(self, bs: list[np.ndarray], actions: tuple[int, ...], depth: int,
-                      deadline: float | None) -> tuple[list[float], list[int]]:
-        """The value of the best fixed-share continuation after ``actions`` (module docstring):
-        per target and share level ``beta`` (an effort of the target), the root action followed by
-        the target's own depth ``d - 1`` search on its model restricted to ``e_k <= beta`` (the
-        children of every target of a group in one batch); the shares by a knapsack
-        (``sum_k beta_k <= B``). Returns the per-target values and shares (in units)."""
+    def _lower_bounds(self, stacks: list[np.ndarray], candidates: Sequence[tuple[int, ...]], depth: int,
+                      deadline: float | None) -> tuple[int, list[float], np.ndarray]:
+        """The value of the best fixed-share continuation after each candidate joint action (module
+        docstring): per target, action and share level ``beta`` (an effort of the target), the root
+        action followed by the target's own depth ``d - 1`` search on its model restricted to
+        ``e_k <= beta`` (the children of every target of a group, for every action some candidate
+        gives it, in one batch); the shares by a knapsack (``sum_k beta_k <= B``). Returns the index
+        of the candidate with the greatest value (ties: the first), and its per-target values and
+        shares (in units)."""
         p = self.problem
-        items: list[np.ndarray] = [np.empty(0)] * p.K
-        levels: list[np.ndarray] = [np.empty(0, dtype=np.int64)] * p.K
-        for members in self._groups:
+        chosen = np.asarray(candidates, dtype=np.intp).reshape(len(candidates), p.K)
+        width = max(np.unique(u).size for u in p.units)
+        items = np.full((len(candidates), p.K, width), -np.inf)
+        levels = np.zeros((p.K, width), dtype=np.int64)
+        for stack, members, idx in zip(stacks, self._groups, self._members, strict=True):
             model = p.models[members[0]]
-            children, weights, heads = [], [], []
-            for k in members:
-                tau, eta = posteriors_all(model, bs[k][None, :])
-                possible = np.flatnonzero(eta[0, actions[k]] > ETA_MIN)
-                children.append(tau[0, actions[k], possible])
-                weights.append(eta[0, actions[k], possible])
-                heads.append(float(model.rho(bs[k])[actions[k]]))
-            sizes = np.cumsum([0] + [len(w) for w in weights])
-            stacked = np.concatenate(children)
+            n = len(members)
+            keys, pair = np.unique(np.arange(n)[None, :] * model.A + chosen[:, idx], return_inverse=True)
+            rows, acts = keys // model.A, keys % model.A  # every (target, action) some candidate needs
+            tau, eta = posteriors_all(model, stack)  # (n, A, Z, S), (n, A, Z)
+            tau, eta = tau[rows, acts], eta[rows, acts]  # their branches
+            possible = eta > ETA_MIN
+            children, weights = tau[possible], eta[possible]  # in (pair, observation) order
+            owner = np.repeat(np.arange(keys.size), possible.sum(axis=1))
+            heads = model.rho(stack)[rows, acts]
             group_levels = np.unique(p.units[members[0]])
-            values = np.empty((len(members), group_levels.size))
+            values = np.empty((keys.size, group_levels.size))
             for j, level in enumerate(group_levels):
                 setup, _ = self._restricted.get(members[0], int(level))
-                cont = setup.planner.q_values_batch(stacked, depth - 1, setup.pruning, deadline=deadline).max(axis=1)
-                for i in range(len(members)):
-                    values[i, j] = heads[i] + model.gamma * float(weights[i] @ cont[sizes[i]:sizes[i + 1]])
-            for i, k in enumerate(members):
-                items[k], levels[k] = values[i], group_levels
-        _, choice = solve_knapsack(items, levels, p.knapsack_capacity)
-        return [float(v[c]) for v, c in zip(items, choice, strict=True)], \
-            [int(lv[c]) for lv, c in zip(levels, choice, strict=True)]
+                cont = setup.planner.q_values_batch(children, depth - 1, setup.pruning, deadline=deadline,
+                                                    checked=True).max(axis=1)
+                values[:, j] = heads + model.gamma * np.bincount(owner, weights=weights * cont, minlength=keys.size)
+            items[:, idx, :group_levels.size] = values[pair.reshape(len(candidates), n)]
+            levels[idx, :group_levels.size] = group_levels
+        target_rows = np.arange(p.K)
+        best: tuple[float, int, list[float], np.ndarray] | None = None
+        for i in range(len(candidates)):
+            _, choice = solve_padded(items[i], levels, self._capacity, ties=False)  # any best shares
+            lower = items[i, target_rows, choice].tolist()
+            total = float(sum(lower))
+            if best is None or total > best[0]:
+                best = (total, i, lower, levels[target_rows, choice])
+        assert best is not None
+        return best[1], best[2], best[3]

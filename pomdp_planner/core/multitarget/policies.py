@@ -28,12 +28,22 @@ import numpy as np
 
 from ..belief import start_belief, uniform_belief
 from ..bounds import BOUND_VARIANTS, DEFAULT_CONSTANT, check_constant, check_variant
-from ..checks import check_choice, parse_flag
+from ..checks import check_choice, check_number, parse_flag
 from ..options import MAX_DEPTH_RANGE, check_depth
 from ..policies import table_entry
 from .joint_exact import ExactJointPlanner
 from .knapsack import solve_knapsack
-from .planner import SEARCH_MODES, JointDecision, MultiTargetPlanner, RestrictedPlanners
+from .planner import (
+    DEFAULT_JOINT_DEPTH,
+    DEFAULT_TIE_BREAK,
+    DEFAULT_TIE_TOLERANCE,
+    SEARCH_MODES,
+    TIE_BREAKS,
+    TIE_TOLERANCE_RANGE,
+    JointDecision,
+    MultiTargetPlanner,
+    RestrictedPlanners,
+)
 from .problem import MultiTargetProblem
 
 
@@ -144,10 +154,16 @@ def _gate(opts: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _planner(problem: MultiTargetProblem, opts: Mapping[str, Any], price: float | None) -> MultiTargetPlanner:
-    return MultiTargetPlanner(problem, search=_search(opts), depth=opts.get("depth", 3),
+    return MultiTargetPlanner(problem, search=_search(opts), depth=opts.get("depth", DEFAULT_JOINT_DEPTH),
                               time_budget=opts.get("time_budget"), max_depth=opts.get("max_depth", 10),
                               max_evaluations=opts.get("max_evaluations", 12), price=price,
-                              no_limit=_flag(opts, "no_limit"), **_gate(opts))
+                              no_limit=_flag(opts, "no_limit"), **_ties(opts), **_gate(opts))
+
+
+def _ties(opts: Mapping[str, Any]) -> dict[str, Any]:
+    return {"tie_break": check_choice(opts.get("tie_break", DEFAULT_TIE_BREAK), TIE_BREAKS, "option tie_break"),
+            "tie_tolerance": check_number(opts.get("tie_tolerance", DEFAULT_TIE_TOLERANCE), "option tie_tolerance",
+                                          *TIE_TOLERANCE_RANGE)}
 
 
 def _fixed_price(problem: MultiTargetProblem, opts: Mapping[str, Any]) -> PlannerPolicy:
@@ -158,8 +174,8 @@ def _fixed_price(problem: MultiTargetProblem, opts: Mapping[str, Any]) -> Planne
     return PlannerPolicy(_planner(problem, opts, price))
 
 
-def _depth(opts: Mapping[str, Any], default: int) -> int:
-    return check_depth(opts.get("depth", default), "option depth", MAX_DEPTH_RANGE)
+def _depth(opts: Mapping[str, Any]) -> int:
+    return check_depth(opts.get("depth", DEFAULT_JOINT_DEPTH), "option depth", MAX_DEPTH_RANGE)
 
 
 @dataclass(frozen=True)
@@ -172,28 +188,29 @@ class JointPolicyEntry:
 
 
 _PLANNER_OPTIONS = ("search", "depth", "time_budget", "max_depth", "max_evaluations", "no_limit", "variant",
-                    "constant", "prune_without_guarantee")
+                    "constant", "prune_without_guarantee", "tie_break", "tie_tolerance")
 
 #: Every joint policy ``simulate --targets`` knows: name -> :class:`JointPolicyEntry`.
 JOINT_POLICIES: dict[str, JointPolicyEntry] = {
     "lagrangian": JointPolicyEntry(
         lambda p, o: PlannerPolicy(_planner(p, o, None)),
         "per-target search at a price, exact knapsack, price minimising the dual bound (options: search=bnb|"
-        "exhaustive, depth=3 | time_budget=S, max_depth, max_evaluations, no_limit=1, variant, constant, "
-        "prune_without_guarantee=1)", _PLANNER_OPTIONS),
+        f"exhaustive, depth={DEFAULT_JOINT_DEPTH} | time_budget=S, max_depth, max_evaluations, no_limit=1, variant, "
+        "constant, prune_without_guarantee=1, tie_break=knapsack|lower_bound, tie_tolerance)", _PLANNER_OPTIONS),
     "fixed_price": JointPolicyEntry(
         _fixed_price, "as lagrangian, at one price fixed before the run (option price; default: lagrangian's "
         "price at the initial beliefs; and lagrangian's options)", (*_PLANNER_OPTIONS, "price")),
     "greedy": JointPolicyEntry(lambda p, o: GreedyPolicy(p), "max sum_k rho_k(b_k, a_k) within the budget"),
     "equal_split": JointPolicyEntry(
-        lambda p, o: EqualSplitPolicy(p, {**_gate(o), "use_bounds": _search(o) == "bnb"}, _depth(o, 3)),
+        lambda p, o: EqualSplitPolicy(p, {**_gate(o), "use_bounds": _search(o) == "bnb"}, _depth(o)),
         "a fixed equal share of the budget per target, each planned alone (options: search=bnb|exhaustive, "
-        "depth=3, variant, constant, prune_without_guarantee=1)",
+        f"depth={DEFAULT_JOINT_DEPTH}, variant, constant, prune_without_guarantee=1)",
         ("search", "depth", "variant", "constant", "prune_without_guarantee")),
     "round_robin": JointPolicyEntry(lambda p, o: RoundRobinPolicy(p),
                                     "belief-blind turns: one target after another takes the most effort left"),
-    "exact_joint": JointPolicyEntry(lambda p, o: ExactJointPolicy(p, _depth(o, 2)),
-                                    "exact joint expectimax within the budget (small problems; option depth=2)",
+    "exact_joint": JointPolicyEntry(lambda p, o: ExactJointPolicy(p, _depth(o)),
+                                    f"exact joint expectimax within the budget (small problems; option "
+                                    f"depth={DEFAULT_JOINT_DEPTH})",
                                     ("depth",)),
 }
 
