@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import warnings
 from pathlib import Path
@@ -274,12 +275,21 @@ def test_comments_and_load_model_dispatch(tmp_path):
 
 # ------------------------------------------------------------------ export and round trips
 @pytest.mark.parametrize("path", MODELS, ids=[p.stem for p in MODELS])
-def test_shipped_models_round_trip_and_warn(path):
+def test_shipped_models_round_trip_with_their_uncertainty_term(path):
     model = load_model(path)
-    with pytest.warns(UserWarning, match="uncertainty term -w_a f\\(b\\).*cannot be expressed"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         text = export_pomdp(model)
-    assert "# WARNING:" in text and "cannot be expressed" in text
-    assert_same_model(parse_pomdp(text), model)
+    meta = json.loads(next(line for line in text.splitlines() if line.startswith("# pomdp_planner: "))[17:])
+    assert meta["uncertainty"] == {"function": model.uncertainty.name, "weights": model.w.tolist(),
+                                   "epsilon": model.epsilon}
+    assert "other readers see the linear reward r(s, a) only" in text
+    back = parse_pomdp(text)
+    assert_same_model(back, model)
+    assert back.uncertainty.name == model.uncertainty.name and back.epsilon == model.epsilon
+    np.testing.assert_array_equal(back.w, model.w)
+    b = np.random.default_rng(0).dirichlet(np.ones(model.S), size=5)
+    np.testing.assert_allclose(back.rho(b), model.rho(b), rtol=1e-12)
 
 
 def test_export_without_uncertainty_does_not_warn_and_writes_start(tmp_path):

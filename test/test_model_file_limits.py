@@ -262,12 +262,19 @@ def test_check_model_size_is_the_documented_budget():
     assert model_bytes(1600, 3, 1600) <= MAX_MODEL_BYTES < model_bytes(1700, 3, 1700)
 
 
-def test_pomdp_header_bomb_is_refused_at_the_header(tmp_path):
+def test_pomdp_header_bomb_is_refused_before_anything_of_its_size_exists(tmp_path):
+    # 20 000 states fit (stored sparse), but a uniform transition over them does not: refused at the
+    # entry, before it expands (4e8 cells, or 1e8 non-zeros of 12 bytes for 10 000 states)
     path = write(tmp_path, "bomb.POMDP", "discount: 0.9\nstates: 20000\nactions: 1\nobservations: 1\nT: * uniform\n")
     assert len(path.read_bytes()) < 80
-    refused(path, r"line 2: states: S=20000, A=1, Z=1 need 2.98 GiB .*MAX_MODEL_BYTES", max_peak=2**20)
+    refused(path, r"line 5: the T:, O: and R: entries so far write 400,000,000 matrix cells, more than the limit of "
+            r"100,000,000 \(MAX_ENTRY_CELLS\)", max_peak=2**20)
+    path = write(tmp_path, "bomb2.POMDP", "discount: 0.9\nstates: 10000\nactions: 1\nobservations: 1\nT: * uniform\n")
+    refused(path, r"line 5: the T: and O: entries so far: S=10000, A=1, Z=1 with 100,000,000 non-zeros need "
+            r"1.12 GiB .*MAX_MODEL_BYTES", max_peak=2**20)
+    # the smallest model the header allows (one non-zero per row of T and O) does not fit: at the header
     late = write(tmp_path, "late.POMDP", "discount: 0.9\nstates: 5\nactions: 10000000\nobservations: 5\n")
-    refused(late, r"line 3: actions: S=5, A=10000000, Z=1 need", max_peak=2**20)
+    refused(late, r"line 3: actions: S=5, A=10000000, Z=1 with 100,000,000 non-zeros need", max_peak=2**20)
 
 
 def test_pomdp_end_state_rewards_need_the_4d_array_within_budget(tmp_path, monkeypatch):
@@ -290,13 +297,12 @@ def test_pomdp_entries_cannot_keep_the_parser_busy(monkeypatch):
 
 def test_pomdp_long_tokens_and_bad_meta(tmp_path):
     model = load_model(MODELS / "tracking_s2_info.yaml")
-    with pytest.warns(UserWarning):
-        text = export_pomdp(model)
+    text = export_pomdp(model)
     refused(write(tmp_path, "long.POMDP", text.replace("values: reward", "values: " + "r" * 10**5)),
             r"line \d+: a word of 100000 characters \(at most 256\): 'rrrr")
     bomb = text + "# pomdp_planner: " + "[" * 10**5 + "\n"
     assert load_model(write(tmp_path, "meta.POMDP", bomb)).S == 2  # a broken meta comment is ignored
-    injected = text.replace('{"name": "tracking_s2_info"}', '{"name": "a\\nb"}')
+    injected = text.replace('{"name": "tracking_s2_info"', '{"name": "a\\nb"')
     assert load_model(write(tmp_path, "inj.POMDP", injected)).name == "inj"  # invalid name: the file's stem
 
 
@@ -306,3 +312,19 @@ def test_names_are_single_lines_so_export_cannot_inject_lines():
         model_from_dict({**model_to_dict(base), "name": "x\ndiscount: 0.1"})
     with pytest.raises(ModelError, match=rf"at most {MAX_NAME_CHARS}"):
         model_from_dict({**model_to_dict(base), "name": "x" * (MAX_NAME_CHARS + 1)})
+
+
+def test_pomdp_element_lines_are_bounded_by_their_own_count(monkeypatch):
+    """Element lines read in bulk count against MAX_ELEMENT_LINES (cheap lines), words against
+    MAX_TOKENS; both refusals name the line."""
+    head = "discount: 0.9\nstates: 2\nactions: 1\nobservations: 1\nO: 0 : * : 0 1.0\n"  # 20 words
+    text = head + "T: 0 : 0 : 1 0.5\n" * 30 + "T: 0 : 0 : 0 0.5\nT: 0 : 1 : 1 1.0\n"
+    assert parse_pomdp(text).P[0, 0, 0] == 0.5
+    monkeypatch.setattr(cassandra, "MAX_ELEMENT_LINES", 20)
+    with pytest.raises(ModelError, match=r"^<string>: line 26: more than 20 element lines \(MAX_ELEMENT_LINES\)$"):
+        parse_pomdp(text)
+    monkeypatch.setattr(cassandra, "MAX_ELEMENT_LINES", 10**6)
+    monkeypatch.setattr(cassandra, "MAX_TOKENS", 20)
+    assert parse_pomdp(text).S == 2  # the lines read in bulk are no words
+    with pytest.raises(ModelError, match=r"^<string>: line 6: more than 20 words \(MAX_TOKENS\)$"):
+        parse_pomdp(head + "T: 0 : 0 : 0 0.5 T: 0 : 1 : 1 1.0\n")  # two entries on a line: read word by word

@@ -270,7 +270,7 @@ def test_plan_info_carries_the_deadline_miss_flag():
         decode_plan_info(msg)
 
 
-@pytest.mark.parametrize("S", [1, 3, 256])
+@pytest.mark.parametrize("S", [1, 3, 256, 10_000])  # 10 000: a 100 x 100 grid model's beliefs
 def test_the_size_bound_of_each_topic_admits_every_message_the_loop_sends(S):
     """The bound a node drops samples by (``wire_bounds``) against rclpy's own CDR serialization:
     every message the loop's encoders make fits (epochs at ``MAX_EPOCH``, the longest labels), and

@@ -31,13 +31,14 @@ def _params(**kw):
 
 
 def start_loop(h, *, time_budget=0.02, max_depth=2, seed=3, sim_params=None, filter_params=None,
-               planner_params=None, obs_topics=("observation",)):
-    """The three nodes on the S = 3 model plus a recorder, spinning; returns (sim, filter, planner, rec)."""
+               planner_params=None, obs_topics=("observation",), model_file=S3):
+    """The three nodes on the S = 3 model (or ``model_file``) plus a recorder, spinning; returns (sim,
+    filter, planner, rec)."""
     sim = TargetSimulator(context=h.context, parameter_overrides=_params(
-        model_file=S3, seed=seed, **(sim_params or {})))
-    flt = BeliefFilter(context=h.context, parameter_overrides=_params(model_file=S3, **(filter_params or {})))
+        model_file=model_file, seed=seed, **(sim_params or {})))
+    flt = BeliefFilter(context=h.context, parameter_overrides=_params(model_file=model_file, **(filter_params or {})))
     planner = PlannerNode(context=h.context, parameter_overrides=_params(
-        model_file=S3, time_budget=time_budget, max_depth=max_depth, **(planner_params or {})))
+        model_file=model_file, time_budget=time_budget, max_depth=max_depth, **(planner_params or {})))
     rec = h.recorder(obs_topics)
     h.start()  # only the recorder spins so far: the loop cannot advance yet
     for pub, n in ((flt.belief_pub, 2), (planner.action_pub, 3), (sim.obs_pubs[0], 2), (sim.state_pub, 1)):
@@ -103,6 +104,28 @@ def test_closed_loop_timer_mode_pairs_by_carried_action(harness):
     b = np.full(model.S, 1.0 / model.S)
     for t in range(1, 41):
         b = update(model, b, obs[t][0] - 1, obs[t][1])
+        np.testing.assert_allclose(beliefs[t], b, rtol=1e-9, atol=1e-12)
+
+
+def test_closed_loop_on_a_sparse_grid_model(harness):
+    """The 40 x 40 grid (S = 1600, stored sparse): the simulator samples and the filter updates on
+    the sparse matrices and publishes beliefs of 1600 states, equal to the dense computation."""
+    h = harness
+    grid = str(Path(S3).parent / "grid_40x40.yaml")
+    model = load_model(grid)
+    assert model.sparse
+    *_, rec = start_loop(h, model_file=grid, time_budget=0.05, max_depth=1, sim_params={"step_period": 0.05})
+    assert h.wait_until(lambda: len(rec.beliefs) > 12, timeout=60)
+    with h.cond:
+        obs = {t: (p, z) for t, p, z in rec.observations["observation"]}
+    beliefs = {b.epoch: b.belief for b in rec.decoded_beliefs(model.S)}
+    P, O = model.P, model.O  # dense: an independent computation
+    b = np.full(model.S, 1.0 / model.S)
+    for t in range(1, 11):
+        a, z = obs[t][0] - 1, obs[t][1]
+        b = (b @ P[a]) * O[a, :, z]
+        b = b / b.sum()
+        assert beliefs[t].shape == (1600,)
         np.testing.assert_allclose(beliefs[t], b, rtol=1e-9, atol=1e-12)
 
 

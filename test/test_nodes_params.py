@@ -331,3 +331,36 @@ def test_plan_info_carries_the_root_bounds_as_priorities(harness):
     pub.publish(encode_belief(len(picks), B[picks[1]]))
     assert h.wait_until(lambda: len(infos) > len(picks), timeout=15)
     assert np.isnan(infos[-1]["bound_lower"]) and np.isnan(infos[-1]["bound_upper"])
+
+
+def test_max_setup_seconds_limits_the_configure_and_a_long_set_up_is_announced(harness, monkeypatch, capfd):
+    """The planner's ``max_setup_seconds`` is the gate's limit (0: none), as ``--no-limit`` on the
+    command line; a set-up expected to take long is announced in the log with its estimate."""
+    from pomdp_planner.core import gate
+
+    h = harness
+    with pytest.raises(NodeConfigError, match=r"more than the limit of 0.1 s \(MAX_SETUP_SECONDS\); the parameter "
+                       r"max_setup_seconds raises the limit \(0: no limit\)"):
+        PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
+                                                            Parameter("max_setup_seconds", value=1e-6)])
+    monkeypatch.setattr(gate, "SETUP_NOTICE_SECONDS", 0.0)  # every set-up is "long"
+    capfd.readouterr()
+    planner = h.add(PlannerNode(context=h.context, parameter_overrides=[Parameter("model_file", value=S3),
+                                                                        Parameter("max_setup_seconds", value=0.0)]))
+    assert planner.get_parameter("max_setup_seconds").value == 0.0
+    err = capfd.readouterr().err
+    assert "set-up for S=3, A=3, Z=3 is running, expected about" in err and "no time budget includes it" in err
+
+
+def test_the_grid10_parameter_files_run_the_grid_model_in_every_node_of_the_closed_loop():
+    """``closed_loop.launch.xml model_set:=grid10`` reads config/<node>_grid10.yaml for its three nodes
+    (docs/ros.md, "Parameter files"): each exists, applies in any namespace and names the 10 x 10 grid,
+    as does closed_loop_grid10.yaml; the launch file takes each node's file by that pattern."""
+    launch = (REPO / "launch" / "closed_loop.launch.xml").read_text()
+    for node in ("target_simulator", "belief_filter", "planner"):
+        assert f"config/{node}_$(var model_set).yaml" in launch
+        doc = yaml.safe_load((REPO / "config" / f"{node}_grid10.yaml").read_text())
+        assert node_parameters(doc, node)["model_file"] == "config/models/grid_10x10.yaml" and f"/**/{node}" in doc
+        closed = yaml.safe_load((REPO / "config" / "closed_loop_grid10.yaml").read_text())
+        assert node_parameters(closed, node)["model_file"] == "config/models/grid_10x10.yaml"
+    assert parameter_set_model("grid10").name == "grid_10x10.yaml"

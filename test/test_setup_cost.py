@@ -13,6 +13,7 @@ it is long (core/gate.py, core/structure.py, core/bounds.py, core/search.py; the
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,7 @@ from pomdp_planner.core.structure import check_assumptions, check_copositivity, 
 
 ROOT = Path(__file__).resolve().parents[1]
 S8 = str(ROOT / "config/models/tracking_s8_info.yaml")
+GRID10 = str(ROOT / "config/models/grid_10x10.yaml")
 GIB = 2**30
 
 
@@ -91,8 +93,7 @@ def big_generator(tmp_path_factory) -> str:
 @pytest.fixture(scope="module")
 def slow_check_model(tmp_path_factory) -> str:
     path = tmp_path_factory.mktemp("models") / "perimeter_s100.POMDP"  # reads faster than YAML
-    with pytest.warns(UserWarning, match="cannot be expressed in a .POMDP file"):
-        path.write_text(export_pomdp(perimeter(100)))
+    path.write_text(export_pomdp(perimeter(100)))
     return str(path)
 
 
@@ -186,3 +187,64 @@ def test_a_short_setup_says_nothing(capsys):
     assert main(["plan", S8, "--depth", "2"]) == 0
     assert main(["check", S8]) == 0
     assert capsys.readouterr().err == ""
+
+
+# ------------------------------------------------------------------ what the estimate counts
+def test_no_lp_is_counted_when_assumption_1_is_known_to_fail():
+    """A negative 2x2 minor found in one pass proves (A1) fails: no LP will be solved, none is counted
+    (it was counted before, refusing grid models that set up in seconds); forced pruning solves it."""
+    for model in (random_model(24, 4, 5), load_model(GRID10)):
+        gate._reports.clear()
+        est = gate.estimate_setup(model)
+        assert est.lp_seconds == 0.0 and est.lp_bytes == 0 and est.no_lp.startswith("(A1) fails: the ")
+        assert f"no bound LP ({est.no_lp})" in est.parts()
+        setup = gate.build_planner(model)
+        assert setup.mode == "exhaustive" and "bound LP" not in setup.seconds and not setup.report.holds
+        assert gate.estimate_setup(model, forced=True).lp_seconds > 0.0
+        cached = gate.estimate_setup(model)  # from the cached report now: no check, no LP
+        assert cached.check is None and cached.lp_seconds == 0.0 and cached.no_lp.startswith("Assumption 1 fails")
+    holds = load_model(S8)
+    gate._reports.clear()
+    est = gate.estimate_setup(holds)
+    assert est.no_lp == "" and est.lp_seconds > 0.0
+
+
+def test_sparse_check_estimate_bounds_its_memory_and_counts_frames():
+    model = load_model(ROOT / "config/models/grid_40x40.yaml")
+    assert model.sparse
+    est = estimate_check(model)
+    assert traced_peak(lambda: check_assumptions(model)) <= est.bytes < 2**28
+    rep = check_copositivity(model)
+    assert est.dirty == int(np.count_nonzero(
+        np.asarray(model.O_csr[0][1:].multiply(model.O_csr[1][:-1]).toarray()) > 0)) + int(np.count_nonzero(
+        np.asarray(model.O_csr[1][1:].multiply(model.O_csr[2][:-1]).toarray()) > 0))
+    assert rep.codes.size <= est.dirty  # the candidates (beta > 0) bound the matrices built
+    setup = gate.estimate_setup(model)
+    assert setup.dense_bytes == 8 * 3 * 1600 * (1600 + 1601)  # the dense P and O the search builds
+
+
+def test_a_sparse_model_too_large_for_the_dense_search_is_refused_before_the_check(monkeypatch):
+    no_check(monkeypatch)
+    from pomdp_planner.core.domains.grid import grid_model
+
+    model = grid_model(100, 100)
+    with pytest.raises(gate.SetupCostError, match=r"^model: the search takes the dense P and O of this sparse model "
+                       r"\(S=10000, A=3, Z=10001\): 2.24 GiB for the larger, more than the limit of 128 MiB "
+                       r"\(MAX_DENSE_BYTES\)$"):
+        gate.build_planner(model)
+
+
+def test_the_planner_loop_takes_the_set_up_limit_of_its_node():
+    from pomdp_planner.core.loop import Liveness, PlannerLoop
+    from pomdp_planner.core.loop.planner_loop import SETUP_HINT, setup_limit
+
+    assert setup_limit(0.0) is None and setup_limit(30.0) == 30.0
+    params = {"time_budget": 0.1, "max_depth": 2, "use_bounds": True, "bound_variant": "tight",
+              "bound_constant": "mlr", "deadline_slack": 0.02}
+    model = comparison_model(64, 16)
+    gate._reports.clear()
+    with pytest.raises(gate.SetupCostError, match=r"more than the limit of 0.1 s \(MAX_SETUP_SECONDS\); "
+                       + re.escape(SETUP_HINT) + "$"):
+        PlannerLoop(model, params, Liveness(), now=0.0, max_setup_seconds=1e-6)
+    loop = PlannerLoop(model, params, Liveness(), now=0.0, max_setup_seconds=None)
+    assert loop.setup.mode == "prune"

@@ -51,10 +51,16 @@ MAX_MESSAGE = 400
 # ------------------------------------------------------------------------------------ seeds
 
 
+#: Shipped models with more states seed the fuzzer as shipped only (a generator file).
+SEED_MAX_STATES = 200
+
+
 def seeds(models_dir: Path | None = None) -> list[tuple[str, str, bytes]]:
     """``(name, kind, content)`` of every seed: each shipped YAML model as shipped, in explicit
-    matrix form, and as a ``.POMDP`` export (``kind`` is ``"yaml"`` or ``"pomdp"``). The shipped
-    models are those of the folder the path resolver finds them in (installed or a checkout)."""
+    matrix form, and as a ``.POMDP`` export (``kind`` is ``"yaml"`` or ``"pomdp"``); a grid model
+    stored sparse, so that the YAML sparse form and ``.POMDP`` element lines are fuzzed too; models
+    over :data:`SEED_MAX_STATES` states as shipped only. The shipped models are those of the folder
+    the path resolver finds them in (installed or a checkout)."""
     from pomdp_planner.core.io.cassandra import export_pomdp
     from pomdp_planner.core.io.model_yaml import load_model, model_to_dict
     from pomdp_planner.core.io.paths import shipped_model_path
@@ -66,10 +72,14 @@ def seeds(models_dir: Path | None = None) -> list[tuple[str, str, bytes]]:
     for path in sorted(models_dir.glob("*.yaml")):
         model = load_model(path)
         out.append((path.stem, "yaml", path.read_bytes()))
+        if model.S > SEED_MAX_STATES:  # its generator file only: every case would parse a large file
+            continue
+        if "grid" in model.metadata:  # a grid stored sparse: the YAML sparse form, .POMDP element lines
+            model = model.replace(storage="sparse")
         explicit = yaml.safe_dump(model_to_dict(model), sort_keys=False, default_flow_style=None)
         out.append((path.stem + "_explicit", "yaml", explicit.encode()))
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the uncertainty term is not exported: expected here
+            warnings.simplefilter("ignore")
             out.append((path.stem, "pomdp", export_pomdp(model).encode()))
     return out
 

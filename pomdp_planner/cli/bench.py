@@ -1,4 +1,4 @@
-"""``pomdp-planner bench search|structure|configure|multitarget|all``: benchmarks and experiments.
+"""``pomdp-planner bench search|structure|configure|scale|multitarget|all``: benchmarks and experiments.
 
 ``bench search [--json FILE] [--quick]`` is the search benchmark (paper Table II, timings,
 throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.bench.search``).
@@ -6,6 +6,9 @@ throughput; ``pomdp_planner/bench/search.py``, also ``python -m pomdp_planner.be
 (``pomdp_planner/bench/structure.py``).
 ``bench configure`` times what the planner node's configure runs, stage by stage
 (``pomdp_planner/bench/configure.py``).
+``bench scale [--suite scale|setup] [--models ...]`` times loading, the set-up (estimate beside the
+stages) and decisions from S = 8 to a 100 x 100 grid, one process per model
+(``pomdp_planner/bench/scale.py``).
 ``bench multitarget [--quick] [--json FILE] [--plot FILE]`` is the multi-target benchmark (dual
 bound against the exact joint lookahead, closed-loop regret, decision time against K;
 ``pomdp_planner/bench/multitarget.py``).
@@ -20,6 +23,7 @@ import sys
 
 from ..bench import configure as configure_bench
 from ..bench import multitarget as multitarget_bench
+from ..bench import scale as scale_bench
 from ..bench import search as search_bench
 from ..bench import structure as structure_bench
 from . import experiments
@@ -43,6 +47,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        description=configure_bench.__doc__.split("\n\n")[0])
     configure_bench.add_arguments(c)
     c.set_defaults(func=lambda args: configure_bench.run_from_args(args, "pomdp-planner bench configure"))
+    sc = sub.add_parser("scale", help="load, set-up (estimate and stages), memory and decisions from S = 8 to 10 000",
+                        description=scale_bench.__doc__.split("\n\n")[0])
+    scale_bench.add_arguments(sc)
+    sc.set_defaults(func=lambda args: scale_bench.run_from_args(args, "pomdp-planner bench scale"))
     m = sub.add_parser("multitarget", help="several targets, one budget: dual bound, regret, scaling",
                        description=multitarget_bench.__doc__.split("\n\n")[0])
     multitarget_bench.add_arguments(m)

@@ -1,7 +1,8 @@
 """``pomdp-planner export MODEL --format pomdp|yaml [-o FILE]``: write a model in another format.
 
-``pomdp`` is Cassandra's ``.POMDP`` (linear reward only: the uncertainty term is dropped, with
-a warning on stderr); ``yaml`` is our explicit model file (matrices written out).
+``pomdp`` is Cassandra's ``.POMDP`` (the uncertainty term in its ``# pomdp_planner:`` comment, which
+other readers ignore); ``yaml`` is our explicit model file (matrices written out: nested lists, text
+blocks or the sparse form).
 """
 
 from __future__ import annotations
@@ -10,10 +11,8 @@ import argparse
 import sys
 import warnings
 
-import yaml
-
 from ..core.io.cassandra import export_pomdp
-from ..core.io.model_yaml import model_to_dict
+from ..core.io.model_yaml import dump_model
 from ..core.io.outputs import check_output_file, is_stdout, write_text_file
 from ._common import add_json_argument, add_model_argument, emit_json, load_model_arg
 
@@ -23,7 +22,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description=__doc__.split("\n\n")[0].replace("``", ""))
     add_model_argument(p)
     p.add_argument("--format", choices=("pomdp", "yaml"), default="pomdp",
-                   help="pomdp: Cassandra .POMDP (linear reward only); yaml: explicit model file")
+                   help="pomdp: Cassandra .POMDP (the uncertainty term in a comment); yaml: explicit model file")
     p.add_argument("-o", "--output", metavar="FILE",
                    help="write to FILE (a regular file, checked before any work) instead of stdout; '-' is stdout")
     add_json_argument(p)
@@ -41,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         if args.format == "pomdp":
             text = export_pomdp(model)
         else:
-            text = yaml.safe_dump(model_to_dict(model), sort_keys=False, default_flow_style=None)
+            text = dump_model(model)
     messages = [str(w.message) for w in caught]
     for m in messages:
         print(f"pomdp-planner: warning: {m}", file=sys.stderr)

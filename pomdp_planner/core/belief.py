@@ -8,6 +8,11 @@ Translation of the paper's formulas into our convention (``P[a, i, j] = P(j | i,
 * Eq. 2, update: ``tau(b, a, z)(s') = O(z, s', a) b^a(s') / eta(z | b, a)``
   ->  ``tau = b^a * O[a][:, z] / eta[z]``.
 
+A sparse model (``model.sparse``: ``P`` and ``O`` stored as one CSR matrix per action) takes the
+same functions: the products run over the non-zeros (``model.P_csr``, ``model.O_csr``), with the
+same values to rounding; :func:`observation_branches` gives the posteriors of the observations
+that can occur, with work proportional to the non-zeros involved.
+
 An observation with ``eta(z | b, a) <= ETA_MIN`` is impossible under the belief: the single
 update raises :class:`ImpossibleObservation`, which carries ``eta`` and the predicted belief.
 The per-epoch filter of the nodes and of ``simulate`` (``core/filter.py``) has the project's one
@@ -17,10 +22,12 @@ recovery rule for it.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from .checks import check_int
 from .errors import BeliefError
 from .model import POMDP, ModelError, short_repr
+from .sparse import row_sums, vecmat
 
 #: Observations whose probability under the belief is at most this are impossible.
 ETA_MIN = 1e-300
@@ -123,13 +130,27 @@ def uniform_belief(model: POMDP) -> np.ndarray:
 
 # ----------------------------------------------------------------- single belief
 def predict(model: POMDP, b: np.ndarray, a: int) -> np.ndarray:
-    """Eq. 1: predicted belief ``b^a = b @ P[a]``."""
-    return np.asarray(b, dtype=float) @ model.P[check_action(model, a)]
+    """Eq. 1: predicted belief ``b^a = b @ P[a]`` (``b`` of shape ``(S,)`` or ``(N, S)``)."""
+    a = check_action(model, a)
+    if model.sparse:
+        return vecmat(model.P_csr, a, b)
+    return np.asarray(b, dtype=float) @ model.P[a]
+
+
+def observation_column(model: POMDP, a: int, z: int) -> np.ndarray:
+    """``O[a][:, z]``: the likelihood of observation ``z`` in each next state, shape ``(S,)``."""
+    if model.sparse:
+        return model.O_csr.T.dense_row(a, z)
+    return model.O[a, :, z]
 
 
 def observation_probabilities(model: POMDP, b: np.ndarray, a: int) -> np.ndarray:
     """``eta(. | b, a)``, the distribution of the next observation, shape ``(Z,)``."""
-    return predict(model, b, a) @ model.O[check_action(model, a)]
+    a = check_action(model, a)
+    ba = predict(model, b, a)
+    if model.sparse:
+        return vecmat(model.O_csr, a, ba)
+    return ba @ model.O[a]
 
 
 def update(model: POMDP, b: np.ndarray, a: int, z: int) -> np.ndarray:
@@ -137,7 +158,7 @@ def update(model: POMDP, b: np.ndarray, a: int, z: int) -> np.ndarray:
     a = check_action(model, a)
     z = check_observation(model, z)
     ba = predict(model, b, a)
-    unnorm = ba * model.O[a, :, z]
+    unnorm = ba * observation_column(model, a, z)
     eta = float(unnorm.sum())
     if not eta > ETA_MIN:
         raise ImpossibleObservation(a, z, eta, ba)
@@ -148,6 +169,10 @@ def update(model: POMDP, b: np.ndarray, a: int, z: int) -> np.ndarray:
 def predict_all(model: POMDP, B: np.ndarray) -> np.ndarray:
     """Eq. 1 for every action and a batch of beliefs: ``B (..., S)`` -> ``(..., A, S)``."""
     B = np.asarray(B, dtype=float)
+    if model.sparse:
+        flat = B.reshape(-1, model.S)
+        out = np.stack([vecmat(model.P_csr, a, flat) for a in range(model.A)], axis=1)
+        return out.reshape((*B.shape[:-1], model.A, model.S))
     return np.einsum("...i,aij->...aj", B, model.P)
 
 
@@ -179,12 +204,59 @@ def update_batch(model: POMDP, B: np.ndarray, a: np.ndarray, z: np.ndarray) -> t
         raise BeliefError(f"action: indices out of range 0..{model.A - 1}")
     if np.any((z < 0) | (z >= model.Z)):
         raise BeliefError(f"observation: indices out of range 0..{model.Z - 1}")
-    ba = np.einsum("ni,nij->nj", B, model.P[a])
-    unnorm = ba * model.O[a, :, z]
+    if model.sparse:
+        ba = np.empty_like(B)
+        lik = np.empty_like(B)
+        for act in np.unique(a):
+            sel = np.flatnonzero(a == act)
+            ba[sel] = vecmat(model.P_csr, int(act), B[sel])
+            lik[sel] = model.O_csr.T[int(act)][z[sel]].toarray()
+        unnorm = ba * lik
+    else:
+        ba = np.einsum("ni,nij->nj", B, model.P[a])
+        unnorm = ba * model.O[a, :, z]
     eta = unnorm.sum(axis=-1)
     ok = eta > ETA_MIN
     post = np.where(ok[:, None], unnorm / np.where(ok, eta, 1.0)[:, None], ba)
     return post, eta
+
+
+def observation_branches(model: POMDP, b: np.ndarray, a: int) -> tuple[np.ndarray, np.ndarray, sp.csr_array]:
+    """The observations that can follow action ``a`` from belief ``b`` and their posteriors (Eqs. 1-2).
+
+    Returns ``(z, eta, tau)``: the observations with ``eta(z | b, a) > ETA_MIN`` in increasing
+    order, their probabilities, and their posteriors ``tau(b, a, z)`` as the rows of a
+    ``len(z) x S`` CSR matrix (the states outside a posterior's support are not stored). On a
+    sparse model the work is proportional to the non-zeros of the rows of ``P[a]`` on the support
+    of ``b`` and of ``O[a]`` on the support of ``b^a``; the values equal :func:`posteriors_all`'s
+    to rounding.
+    """
+    a = check_action(model, a)
+    b = np.asarray(b, dtype=float)
+    if model.sparse:
+        supp = np.flatnonzero(b)
+        ba_rows = model.P_csr[a][supp]  # rows of P[a] reachable from b
+        ba_sparse = sp.csr_array(b[supp][None, :]) @ ba_rows  # 1 x S
+        ba_sparse.sum_duplicates()
+        states, pred = ba_sparse.indices, ba_sparse.data
+        keep = pred != 0.0
+        states, pred = states[keep], pred[keep]
+        joint = (sp.diags_array(pred) @ model.O_csr[a][states]).T.tocsr()  # Z x |support|: pred_j O[a, j, z]
+        joint.sum_duplicates()
+        eta_all = row_sums(joint)
+        zs = np.flatnonzero(eta_all > ETA_MIN)
+        rows = joint[zs]
+        rows.sum_duplicates()
+        counts = np.diff(rows.indptr)
+        data = rows.data / np.repeat(eta_all[zs], counts)
+        tau = sp.csr_array((data, states[rows.indices], rows.indptr), shape=(zs.size, model.S))
+        tau.sort_indices()
+        return zs, eta_all[zs], tau
+    ba = b @ model.P[a]
+    unnorm = ba[None, :] * model.O[a].T  # (Z, S)
+    eta = unnorm.sum(axis=-1)
+    zs = np.flatnonzero(eta > ETA_MIN)
+    return zs, eta[zs], sp.csr_array(unnorm[zs] / eta[zs, None])
 
 
 def start_belief(model: POMDP) -> np.ndarray | None:
@@ -223,7 +295,12 @@ def posterior_floor(model: POMDP) -> float:
     positive denominator, so its minimum over the simplex is attained at a vertex ``e_i``: the
     minimum over the posteriors of the point-mass beliefs. If ``epsilon <= posterior_floor``,
     every posterior lies in ``B_epsilon``, which the Shannon bounds need (docs/THEORY.md).
+
+    On a sparse model a zero in a row of some ``P[a]`` makes the floor 0 (that state is absent
+    from every posterior of that point mass), found without building the posteriors.
     """
+    if model.sparse and model.S > 1 and np.any(model.P_csr.row_nnz() < model.S):
+        return 0.0
     tau, eta = posteriors_all(model, np.eye(model.S))  # (S, A, Z, S), (S, A, Z)
     mins = tau.min(axis=-1)[eta > ETA_MIN]
     return float(mins.min()) if mins.size else 0.0

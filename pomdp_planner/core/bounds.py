@@ -68,6 +68,12 @@ state pair, add the most violated action of each pair per round). ``"clarabel"``
 cross-checks and the LP benchmark (``pomdp_planner.bench.lp``): Clarabel's interior point for
 every LP, row generation over whole actions, hinge-LP tightening whatever the structure.
 
+**Sparse models** (``model.sparse``) take the same path with sparse arrays: the constraint
+matrices are sparse (``A (S-1) x S``, a few non-zeros per row), the structure test compares the
+tails of neighbouring rows where they change, and the least element multiplies by ``M_a``
+without forming it (``(M_a d)_i = (P[a] G)_{i+1} - (P[a] G)_i`` with ``G = [0, cumsum(d)]``),
+its policy-iteration steps solving a sparse system in ``G``.
+
 Every returned vector is re-checked against the exact constraints of the chosen constant; a
 vector is reported feasible only if its worst margin is ``>= -tol``
 (:func:`constraint_margins`). Infeasibility is quantified by a phase-1 LP (minimise the
@@ -91,6 +97,7 @@ from .belief import posterior_floor, update_batch
 from .checks import check_choice, check_int
 from .model import POMDP, frozen_copy, require_discount_below_one
 from .myopic import MyopicBounds
+from .sparse import vecmat
 
 #: Choices of ``g``/``h``; the first is the default of :func:`solve_bounds`.
 BOUND_VARIANTS = ("tight", "feasible")
@@ -255,18 +262,36 @@ def constraint_rhs(model: POMDP, which: str, *, constant: str = DEFAULT_CONSTANT
     return (-dr + kw) if which == "g" else (dr + kw)
 
 
+def _transition_matvec(model: POMDP, v: np.ndarray) -> np.ndarray:
+    """``P[a] @ v`` for every action, shape ``(A, S)`` (sparse products for a sparse model)."""
+    if model.sparse:
+        return np.stack([model.P_csr[a] @ v for a in range(model.A)])
+    return _matvec(model.P, v)
+
+
+def _mv(G: np.ndarray | sparse.csr_array, x: np.ndarray) -> np.ndarray:
+    """``G @ x`` for a dense (``einsum``, :func:`_matvec`) or sparse constraint matrix."""
+    return G @ x if sparse.issparse(G) else _matvec(G, x)
+
+
 def constraint_system(model: POMDP, which: str, *, constant: str = DEFAULT_CONSTANT
-                      ) -> tuple[np.ndarray, np.ndarray]:
+                      ) -> tuple[np.ndarray | sparse.csr_array, np.ndarray]:
     """``(G, rhs)`` with the constraints written ``G v >= rhs``, rows ordered ``(a, i)``.
 
     ``which="g"``: ``Delta_i (I - gamma P[a]) g >= -Delta_i r_a + |w_a| K_f``;
     ``which="h"``: ``-Delta_i (I - gamma P[a]) h >= Delta_i r_a + |w_a| K_f``;
     ``K_f = gradient_spread(model, constant)``.
-    Row ``a * (S-1) + i`` belongs to action ``a`` and the state pair ``(i, i+1)``.
+    Row ``a * (S-1) + i`` belongs to action ``a`` and the state pair ``(i, i+1)``. ``G`` is a sparse
+    CSR matrix for a sparse model.
     """
     _check_which(which)
     S, A = model.S, model.A
     rhs = constraint_rhs(model, which, constant=constant)
+    if model.sparse:
+        step = sparse.diags_array([-np.ones(S - 1), np.ones(S - 1)], offsets=[0, 1], shape=(S - 1, S))
+        eye = sparse.eye_array(S, format="csr")
+        G = sparse.vstack([step @ (eye - model.gamma * model.P_csr[a]) for a in range(A)], format="csr")
+        return (G if which == "g" else -G), rhs.reshape(-1).copy()
     M = np.diff(np.eye(S)[None, :, :] - model.gamma * model.P, axis=1)  # (A, S-1, S)
     G = M if which == "g" else -M
     return G.reshape(A * (S - 1), S), rhs.reshape(-1).copy()
@@ -275,7 +300,7 @@ def constraint_system(model: POMDP, which: str, *, constant: str = DEFAULT_CONST
 def _margins(model: POMDP, v: np.ndarray, which: str, rhs: np.ndarray) -> np.ndarray:
     """``(A, S-1)`` margins from the definition ``Delta_i (v - gamma P[a] v)``, without forming ``G``."""
     v = np.asarray(v, dtype=float)
-    steps = np.diff(v[None, :] - model.gamma * _matvec(model.P, v), axis=1)  # (A, S-1)
+    steps = np.diff(v[None, :] - model.gamma * _transition_matvec(model, v), axis=1)  # (A, S-1)
     return (steps if which == "g" else -steps) - rhs
 
 
@@ -332,11 +357,54 @@ class _System:
 
 
 # ---------------------------------------------------------------- structure: the least element
+class _DenseM:
+    """``M_a`` (tail differences, ``(A, S-1, S-1)``) as an array: its products and the dense solves
+    of policy iteration."""
+
+    def __init__(self, M: np.ndarray):
+        self.M = M
+        self.A, self.n = M.shape[:2]
+
+    def mv(self, d: np.ndarray) -> np.ndarray:
+        """``M_a d`` for every action, ``(A, S-1)``."""
+        return _matvec(self.M, d)
+
+    def solve(self, pol: np.ndarray, rhs: np.ndarray, gamma: float) -> np.ndarray:
+        """``d`` with ``d - gamma M_{pol(i)}[i] . d = rhs`` for every ``i``."""
+        idx = np.arange(self.n)
+        return np.linalg.solve(np.eye(self.n) - gamma * self.M[pol, idx], rhs)
+
+
+class _SparseM:
+    """``M_a`` of a sparse model without forming it (module docstring): ``(M_a d)_i = (P[a] G)_{i+1}
+    - (P[a] G)_i`` with ``G = [0, cumsum(d)]``; policy iteration solves the sparse system in ``G``."""
+
+    def __init__(self, model: POMDP):
+        self.model = model
+        self.A, self.n = model.A, model.S - 1
+
+    def mv(self, d: np.ndarray) -> np.ndarray:
+        G = np.concatenate([[0.0], np.cumsum(d)])
+        return np.stack([np.diff(self.model.P_csr[a] @ G) for a in range(self.model.A)])
+
+    def solve(self, pol: np.ndarray, rhs: np.ndarray, gamma: float) -> np.ndarray:
+        from scipy.sparse.linalg import spsolve
+
+        S, n = self.model.S, self.n
+        stacked = self.model.P_csr.stacked()
+        i = np.arange(n)
+        diff = stacked[pol * S + i + 1] - stacked[pol * S + i]  # (S-1, S): P[pol(i)][i+1] - P[pol(i)][i]
+        step = sparse.diags_array([-np.ones(n), np.ones(n)], offsets=[0, 1], shape=(n, S))
+        K = sparse.csc_array((step - gamma * diff)[:, 1:])
+        G = spsolve(K, rhs)
+        return np.diff(np.concatenate([[0.0], np.atleast_1d(G)]))
+
+
 @dataclass(frozen=True)
 class _Structure:
     """``M_a`` (tail differences) and the conditions of the least-element argument."""
 
-    M: np.ndarray  # (A, S-1, S-1): M[a, i, k] = sum_{j>k} (P[a, i+1, j] - P[a, i, j])
+    M: _DenseM | _SparseM  # M[a, i, k] = sum_{j>k} (P[a, i+1, j] - P[a, i, j])
     monotone: bool  # every M_a >= 0: each P[a] is stochastically monotone
     kappa: float  # contraction factor of T in a weighted sup norm (inf if none was found)
     ordered: bool  # P[a+1, i] >=_s P[a, i] for every a, i (actions ordered in first-order dominance)
@@ -351,36 +419,85 @@ class _Structure:
         return self.contraction and self.ordered
 
 
+def _tail_gap_min(X: sparse.csr_array, Y: sparse.csr_array) -> float:
+    """``min`` over rows ``r`` and ``k = 0..m-2`` of ``T_Y[r](k) - T_X[r](k)``, ``T[r](k) = sum_{j > k}
+    row_r[j]`` (each tail summed from the right, as a dense reversed ``cumsum``): the tails change
+    only where either row has a non-zero, so those points (and ``k = 0``) decide. ``inf`` when
+    ``m < 2``."""
+    n, m = X.shape
+    if m < 2 or n == 0:
+        return math.inf
+
+    def tails(M: sparse.csr_array) -> tuple[np.ndarray, np.ndarray]:
+        counts = np.diff(M.indptr)
+        rows = np.repeat(np.arange(n), counts)
+        keys = rows * m + M.indices.astype(np.int64)
+        if M.nnz == 0:
+            return keys, np.zeros(0)
+        width = int(counts.max())
+        back = np.repeat(M.indptr[1:], counts) - 1 - np.arange(M.nnz)  # position from the row's end
+        pad = np.zeros((n, width))
+        pad[rows, back] = M.data
+        return keys, np.cumsum(pad, axis=1)[rows, back]
+
+    def at(keys: np.ndarray, rc: np.ndarray, r: np.ndarray, k: np.ndarray) -> np.ndarray:
+        pos = np.searchsorted(keys, r * m + k, side="right")  # first stored entry with column > k
+        ok = (pos < keys.size) & ((keys[np.minimum(pos, keys.size - 1)] // m) == r) if keys.size else \
+            np.zeros(r.size, bool)
+        return np.where(ok, rc[np.minimum(pos, max(rc.size - 1, 0))] if rc.size else 0.0, 0.0)
+
+    kx, rx = tails(X)
+    ky, ry = tails(Y)
+    cols = np.concatenate([kx % m, ky % m])
+    rows = np.concatenate([kx // m, ky // m])
+    keep = cols <= m - 2
+    r = np.concatenate([rows[keep], np.arange(n)])
+    k = np.concatenate([cols[keep], np.zeros(n, dtype=np.int64)])
+    return float(np.min(at(ky, ry, r, k) - at(kx, rx, r, k)))
+
+
 def _structure(model: POMDP) -> _Structure:
     S = model.S
-    # tails[a, i, k] = sum_{j > k} P[a, i, j], k = 0..S-2
-    tails = np.ascontiguousarray(model.P[:, :, :0:-1]).cumsum(axis=2)[:, :, ::-1]
-    M = np.diff(tails, axis=1)
-    monotone = bool(M.min() >= -STRUCTURE_TOL) if M.size else True
-    ordered = bool(np.all(np.diff(tails, axis=0) >= -STRUCTURE_TOL)) if tails.size else True
-    # row sums of M_a: E[next | i+1, a] - E[next | i, a] in units of states
-    kappa1 = float(model.gamma * np.diff(_matvec(model.P, np.arange(S, dtype=float)), axis=1).max()) if M.size else 0.0
-    if not M.size:
+    kappa1 = float(model.gamma * np.diff(_transition_matvec(model, np.arange(S, dtype=float)), axis=1).max()) if S > 1 \
+        else 0.0
+    if model.sparse:
+        P = model.P_csr
+        monotone = bool(min((_tail_gap_min(P[a][:-1], P[a][1:]) for a in range(model.A)), default=math.inf)
+                        >= -STRUCTURE_TOL) if S > 1 else True
+        ordered = bool(min((_tail_gap_min(P[a], P[a + 1]) for a in range(model.A - 1)), default=math.inf)
+                       >= -STRUCTURE_TOL)
+        op: _DenseM | _SparseM = _SparseM(model)
+        empty = S < 2
+    else:
+        # tails[a, i, k] = sum_{j > k} P[a, i, j], k = 0..S-2
+        tails = np.ascontiguousarray(model.P[:, :, :0:-1]).cumsum(axis=2)[:, :, ::-1]
+        M = np.diff(tails, axis=1)
+        monotone = bool(M.min() >= -STRUCTURE_TOL) if M.size else True
+        ordered = bool(np.all(np.diff(tails, axis=0) >= -STRUCTURE_TOL)) if tails.size else True
+        op = _DenseM(M)
+        empty = not M.size
+        kappa1 = kappa1 if M.size else 0.0
+    if empty:
         kappa = 0.0
     else:
-        kappa = _contraction_factor(M, model.gamma, kappa1) if monotone else math.inf
-    return _Structure(M, monotone, kappa, ordered, kappa1)
+        kappa = _contraction_factor(op, model.gamma, kappa1) if monotone else math.inf
+    return _Structure(op, monotone, kappa, ordered, kappa1)
 
 
-def _contraction_factor(M: np.ndarray, gamma: float, kappa1: float) -> float:
+def _contraction_factor(M: _DenseM | _SparseM, gamma: float, kappa1: float) -> float:
     """``kappa = max_{a,i} gamma (M_a u)_i / u_i`` for weights ``u > 0`` (``M >= 0``): ``T`` is a
     ``kappa``-contraction in the ``u``-weighted sup norm. ``u = 1`` first (``kappa = kappa1``,
     gamma times the largest row sum of ``M_a``); if that is ``>= 1``, ``u`` = the least solution
     of ``u >= 1 + gamma M_a u`` (policy iteration), accepted only if it verifies ``kappa < 1``."""
     if kappa1 < 1.0:
         return kappa1
-    out = _least_element(M, np.ones(M.shape[:2]), gamma, kappa1)
+    out = _least_element(M, np.ones((M.A, M.n)), gamma, kappa1)
     if out is None:
         return math.inf
     u = out[0]
     if not (np.all(np.isfinite(u)) and u.min() > 0.0):
         return math.inf
-    return float(np.max(gamma * _matvec(M, u) / u))
+    return float(np.max(gamma * M.mv(u) / u))
 
 
 def _matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -396,7 +513,7 @@ def _matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
 VALUE_ITERATION_KAPPA = 0.5
 
 
-def _least_element(M: np.ndarray, beta: np.ndarray, gamma: float, kappa1: float, max_iter: int = 200
+def _least_element(M: _DenseM | _SparseM, beta: np.ndarray, gamma: float, kappa1: float, max_iter: int = 200
                    ) -> tuple[np.ndarray, np.ndarray] | None:
     """Least ``d`` with ``d >= beta_a + gamma M_a d`` for all ``a`` (``beta``: ``(A, S-1)``), the
     fixed point of ``T(d) = max_a (beta_a + gamma M_a d)``; ``(d, policy)`` or None.
@@ -404,30 +521,29 @@ def _least_element(M: np.ndarray, beta: np.ndarray, gamma: float, kappa1: float,
     With ``kappa_1 = gamma max_{a,i} sum_k M_a[i, k] < VALUE_ITERATION_KAPPA``, value iteration
     (``T`` is a ``kappa_1``-contraction in the sup norm; stop when the a-posteriori error bound
     ``kappa_1 / (1 - kappa_1) |d_{k+1} - d_k|`` is below ``1e-13 (1 + |d|)``); otherwise policy
-    iteration with dense solves. (The caller certifies the result: a contraction factor, or an
-    exact feasibility check.)"""
+    iteration (dense solves, or sparse ones for a sparse model). (The caller certifies the result:
+    a contraction factor, or an exact feasibility check.)"""
     n = beta.shape[1]
     idx = np.arange(n)
     d = beta.max(axis=0)  # T(0)
-    Q = beta + gamma * _matvec(M, d)
+    Q = beta + gamma * M.mv(d)
     if kappa1 < VALUE_ITERATION_KAPPA:
         for _ in range(10 * max_iter):
             d_new = Q.max(axis=0)
             step = float(np.max(np.abs(d_new - d)))
             d = d_new
-            Q = beta + gamma * _matvec(M, d)
+            Q = beta + gamma * M.mv(d)
             if kappa1 / (1.0 - kappa1) * step <= 1e-13 * (1.0 + float(np.max(np.abs(d)))):
                 return Q.max(axis=0), np.argmax(Q, axis=0)
     pol = np.argmax(Q, axis=0)
-    eye = np.eye(n)
     for _ in range(max_iter):
         try:
-            d = np.linalg.solve(eye - gamma * M[pol, idx], beta[pol, idx])
-        except np.linalg.LinAlgError:
+            d = M.solve(pol, beta[pol, idx], gamma)
+        except (np.linalg.LinAlgError, RuntimeError):
             return None
         if not np.all(np.isfinite(d)):
             return None
-        Q = beta + gamma * _matvec(M, d)
+        Q = beta + gamma * M.mv(d)
         best = Q.max(axis=0)
         improve = best > Q[pol, idx] + 1e-12 * (1.0 + np.abs(best))
         if not improve.any():
@@ -509,16 +625,25 @@ def _l1_lp(G: np.ndarray, rhs: np.ndarray, margin: float, backend: Callable[...,
     m, S = G.shape
     k = 0 if hinge is None else hinge[0].shape[0]
     c = np.concatenate([np.full(2 * S, l1_weight), np.ones(k)])
-    rows = [np.hstack([-G, G, np.zeros((m, k))])]
     b = [-(rhs + margin)]
-    if k:
-        H, d = hinge
-        rows.append(np.hstack([-H, H, -np.eye(k)]))
-        b.append(-d)
+    if sparse.issparse(G):
+        rows = [sparse.hstack([-G, G, sparse.csr_array((m, k))], format="csr")]
+        if k:
+            H, d = hinge
+            rows.append(sparse.hstack([sparse.csr_array(-H), sparse.csr_array(H), -sparse.eye_array(k)], format="csr"))
+            b.append(-d)
+        A_ub = sparse.vstack(rows, format="csr")
+    else:
+        rows = [np.hstack([-G, G, np.zeros((m, k))])]
+        if k:
+            H, d = hinge
+            rows.append(np.hstack([-H, H, -np.eye(k)]))
+            b.append(-d)
+        A_ub = np.vstack(rows)
     lb = np.zeros(2 * S + k)
     ub = np.full(2 * S + k, np.inf)
     ub[[0, S]] = 0.0  # v[0] = 0
-    res = backend(c, np.vstack(rows), np.concatenate(b), lb, ub)
+    res = backend(c, A_ub, np.concatenate(b), lb, ub)
     if res.x is not None:
         res.x = np.concatenate([res.x[:S] - res.x[S:2 * S], res.x[2 * S:]])
     return res
@@ -532,6 +657,8 @@ def _phase1(G: np.ndarray, rhs: np.ndarray, box: float, backend: Callable[..., _
     c[-1] = 1.0
     lb = np.concatenate([[0.0], np.full(S - 1, -box), [-1.0]])
     ub = np.concatenate([[0.0], np.full(S - 1, box), [np.inf]])
+    if sparse.issparse(G):
+        return backend(c, sparse.hstack([-G, -sparse.csr_array(np.ones((m, 1)))], format="csr"), -rhs, lb, ub)
     return backend(c, np.hstack([-G, -np.ones((m, 1))]), -rhs, lb, ub)
 
 
@@ -596,7 +723,7 @@ def _solve_l1(system: _System, margin: float, accept: float, solver: str,
     backend = _BACKENDS[solver]
     return _cutting_planes(
         G, rhs, lambda rows: _l1_lp(G[rows], rhs[rows], margin, backend, hinge=hinge, l1_weight=l1_weight),
-        lambda x: rhs + margin - accept - _matvec(G, x[:S]), by_pairs=solver != "clarabel", start=start)[0]
+        lambda x: rhs + margin - accept - _mv(G, x[:S]), by_pairs=solver != "clarabel", start=start)[0]
 
 
 @dataclass
@@ -656,13 +783,13 @@ def _infeasible_report(system: _System, solver: str) -> _VectorResult:
     tol = FEAS_RTOL * system.scale
     backend = _BACKENDS[solver]
     p1, rows = _cutting_planes(G, rhs, lambda rows: _phase1(G[rows], rhs[rows], box, backend),
-                               lambda x: rhs - _matvec(G, x[:S]) - x[S] - tol, by_pairs=solver != "clarabel")
+                               lambda x: rhs - _mv(G, x[:S]) - x[S] - tol, by_pairs=solver != "clarabel")
     if p1.x is None:
         return _VectorResult(False, None, f"{which}: LP solver failed ({p1.status}); treated as infeasible",
                              {"vector": which, "solver_status": p1.status}, None)
     v = p1.x[:S].copy()
     v[0] = 0.0
-    viol = rhs - _matvec(G, v)  # > 0 where violated
+    viol = rhs - _mv(G, v)  # > 0 where violated
     t_star = float(viol.max())
     if t_star <= _tolerance(system.scale, v):
         return _VectorResult(True, v, f"{which}: feasible only at the boundary (phase-1 vector)", None, -t_star)
@@ -713,8 +840,8 @@ def sample_beliefs(model: POMDP, n: int, seed: int = 0, horizon: int = 8) -> np.
     out = [B]
     for _ in range(horizon):
         a = rng.integers(0, A, size=n_traj)
-        s = _draw(rng, model.P[a, s])
-        z = _draw(rng, model.O[a, s])
+        s = _draw(rng, model.P_csr.dense_rows(a, s) if model.sparse else model.P[a, s])
+        z = _draw(rng, model.O_csr.dense_rows(a, s) if model.sparse else model.O[a, s])
         B, _ = update_batch(model, B, a, z)
         out.append(B)
     allB = np.concatenate(out, axis=0)
@@ -731,7 +858,7 @@ def _predicted_rows(model: POMDP, B: np.ndarray, k: np.ndarray, a: np.ndarray) -
     out = np.empty((k.size, model.S))
     for act in np.unique(a):
         sel = a == act
-        out[sel] = B[k[sel]] @ model.P[act]
+        out[sel] = vecmat(model.P_csr, int(act), B[k[sel]]) if model.sparse else B[k[sel]] @ model.P[act]
     return out
 
 
@@ -825,34 +952,68 @@ def _tighten(sg: _System, sh: _System, solver: str, g: np.ndarray, h: np.ndarray
     return best_g, best_h, {"method": "hinge LPs on the samples", "rounds": history}
 
 
-#: Unit costs (seconds) of :func:`estimate_solve_bounds`, measured on the development machine and
-#: rounded up: per ``A S^2`` entry on the least-element path (structure, iterations, samples),
-#: per ``S^3`` of its dense solves, and per ``S^3`` and ``A S^2`` of the HiGHS path.
-COST_LEAST = (2e-7, 1e-9)
+#: Unit costs (seconds) of :func:`estimate_solve_bounds`, CPU time measured on the development
+#: machine (``python -m pomdp_planner.bench.scale --suite setup`` compares estimate and set-up): the
+#: fixed part; per ``A S^2`` entry of the structure test; per ``S^2`` of the sampled beliefs (45
+#: trajectories of 8 steps); per ``A S^2`` entry and value-iteration step; per ``S^3`` of a
+#: policy-iteration solve; the HiGHS path per ``S^3`` and ``A S^2``; a sparse model's HiGHS path per
+#: ``S^1.7``, and its least element per stored non-zero and step.
+COST_LP_FIXED = 3e-3
+COST_STRUCTURE = 2e-8
+COST_SAMPLES = 8e-7
+COST_ITERATION = 5e-9
+COST_SOLVE = 1e-9
 COST_HIGHS = (3e-6, 3e-6)
+COST_SPARSE_HIGHS = 6e-6
+COST_SPARSE_ITERATION = 3e-8
+#: Policy-iteration steps counted for the least element.
+POLICY_STEPS = 5
 #: The tight variant without the least element adds hinge-LP rounds: about this many times the LP.
 TIGHTEN_FACTOR = 5.0
+
+
+def _iterations(kappa1: float) -> int:
+    """Value-iteration steps to the least element's stopping rule (error ``1e-13``) at factor ``kappa1``."""
+    return min(2000, math.ceil(math.log(1e-13) / math.log(min(max(kappa1, 1e-6), 0.999))) + 1)
 
 
 def estimate_solve_bounds(model: POMDP, variant: str = "tight") -> tuple[float, int]:
     """Rough ``(seconds, peak bytes)`` of :func:`solve_bounds` with the default solver, before it runs.
 
-    Runs the structure test the solver starts with (``O(A S^2)``): where the least element applies
-    (monotone transitions, a contraction) the cost is a few passes over the ``A (S-1)``
-    constraints and a few dense solves; otherwise the HiGHS path (the dense constraint matrices
-    of ``g`` and ``h``, ``A (S-1) x S`` each, and the solver's copies), and for ``tight`` the
-    hinge-LP rounds. Good to a factor of a few (the unit costs :data:`COST_LEAST`,
-    :data:`COST_HIGHS`)."""
+    Runs the structure test the solver starts with (``O(A S^2)``, ``O(non-zeros)`` sparse): where
+    the least element applies (monotone transitions, a contraction) the cost is the structure test,
+    the sampled beliefs and the value-iteration steps (``kappa_1`` sets their number) or a few
+    policy-iteration solves; otherwise the HiGHS path (the constraint matrices of ``g`` and ``h``,
+    ``A (S-1) x S`` each, and the solver's copies), and for ``tight`` the hinge-LP rounds. Good to a
+    factor of a few (the unit costs :data:`COST_LP_FIXED` ...)."""
     S, A = model.S, model.A
     if S < 2:
         return 0.0, 0
     st = _structure(model)
+    certified = variant == "tight" and st.certifies_tightest
+    if model.sparse:
+        nnz = model.P_csr.nnz
+        memory = 8 * 8 * (nnz + A * S) + 8 * 400 * S * 2
+        if st.contraction:
+            steps = _iterations(st.kappa1) if st.kappa1 < VALUE_ITERATION_KAPPA else POLICY_STEPS * 10
+            seconds = COST_LP_FIXED + COST_SPARSE_ITERATION * (nnz + A * S) * steps
+            if variant == "tight" and not certified:
+                seconds += COST_SPARSE_HIGHS * S**1.7 * A / 3 * TIGHTEN_FACTOR
+            return seconds, memory
+        return COST_LP_FIXED + COST_SPARSE_HIGHS * S**1.7 * A / 3 * (1.5 if variant == "tight" else 1.0), memory
     rows = A * S * S
     memory = 8 * 5 * rows + 8 * 400 * S * (A + 2)  # constraint matrices and copies; the sampled beliefs
+    base = COST_LP_FIXED + COST_STRUCTURE * rows + COST_SAMPLES * S * S
+    highs = COST_HIGHS[0] * S**3 + COST_HIGHS[1] * rows
     if st.contraction:
-        return COST_LEAST[0] * rows + COST_LEAST[1] * S**3, memory
-    seconds = COST_HIGHS[0] * S**3 + COST_HIGHS[1] * rows
-    return seconds * (TIGHTEN_FACTOR if variant == "tight" else 1.0), memory
+        if st.kappa1 < VALUE_ITERATION_KAPPA:
+            seconds = base + _iterations(st.kappa1) * COST_ITERATION * rows
+        else:
+            seconds = base + POLICY_STEPS * (COST_SOLVE * S**3 + COST_ITERATION * rows)
+        if variant == "tight" and not certified:
+            seconds += highs * TIGHTEN_FACTOR
+        return seconds, memory
+    return base + highs * (TIGHTEN_FACTOR if variant == "tight" else 1.0), memory
 
 
 # ---------------------------------------------------------------- public API

@@ -61,9 +61,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .belief import ETA_MIN, BeliefError, check_action, check_belief, check_likelihood
+from .belief import ETA_MIN, BeliefError, check_action, check_belief, check_likelihood, predict
 from .checks import check_int
 from .model import POMDP, ModelError
+from .sparse import SparseStack
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,23 +87,28 @@ class EpochFilter:
     """The per-epoch Bayes filter of ``model`` with one observation array per sensor, then
     ``likelihoods`` soft-evidence sensors.
 
-    ``sensors``: ``A x S x Z_k`` arrays ``O_k[a, j, z] = P(z | next j, a)``; default the model's
-    own ``O`` as the one sensor (none when the filter has soft-evidence sensors only: pass
+    ``sensors``: ``A x S x Z_k`` arrays ``O_k[a, j, z] = P(z | next j, a)``, dense or sparse
+    (:class:`~.sparse.SparseStack`); default the model's own ``O`` as the one sensor (its sparse
+    form for a sparse model) (none when the filter has soft-evidence sensors only: pass
     ``[]``). Loaders check them against the model with the field name of their source
     (``core.io.sensors.load_observation_models``); the shapes are checked here too, as the last
     guard. Sensor indices ``0 .. len(sensors) - 1`` take observation indices, the next
     ``likelihoods`` take a likelihood per state (module docstring).
     """
 
-    def __init__(self, model: POMDP, sensors: Sequence[np.ndarray] | None = None, likelihoods: int = 0):
+    def __init__(self, model: POMDP, sensors: Sequence[np.ndarray | SparseStack] | None = None,
+                 likelihoods: int = 0):
         self.model = model
-        sensors = [model.O] if sensors is None else [np.asarray(O, dtype=float) for O in sensors]
+        if sensors is None:
+            sensors = [model.O_csr if model.sparse else model.O]
+        else:
+            sensors = [O if isinstance(O, SparseStack) else np.asarray(O, dtype=float) for O in sensors]
         self.num_likelihoods = check_int(likelihoods, "likelihoods", 0, error=ModelError)
         if not sensors and not self.num_likelihoods:
             raise ModelError("sensors: at least one observation model is needed")
         for k, O in enumerate(sensors):
-            if O.ndim != 3 or O.shape[:2] != (model.A, model.S):
-                raise ModelError(f"sensors[{k}]: observation model has shape {O.shape}, expected "
+            if len(O.shape) != 3 or tuple(O.shape[:2]) != (model.A, model.S):
+                raise ModelError(f"sensors[{k}]: observation model has shape {tuple(O.shape)}, expected "
                                  f"{model.A} x {model.S} x Z")
         self.sensors = sensors
         self._uniform = np.full(model.S, 1.0 / model.S)
@@ -129,7 +135,8 @@ class EpochFilter:
             return lik / lik.max()
         z = check_int(reading, f"observation (sensor {sensor})", 0, self.num_observations(sensor) - 1,
                       error=BeliefError)
-        return self.sensors[sensor][a, :, z]
+        O = self.sensors[sensor]
+        return O.T.dense_row(a, z) if isinstance(O, SparseStack) else O[a, :, z]
 
     def step(self, belief: np.ndarray, action: int | None, readings: Mapping[int, int | Sequence[float]]
              ) -> EpochUpdate:
@@ -144,7 +151,7 @@ class EpochFilter:
             return EpochUpdate(b.copy(), predicted=False)
         a = check_action(self.model, action)
         ordered = [(k, self._likelihood(k, a, readings[k])) for k in sorted(readings)]
-        post = b @ self.model.P[a]                       # Eq. 1
+        post = predict(self.model, b, a)                 # Eq. 1
         applied = np.ones(self.model.S)                  # product of this epoch's applied likelihoods
         restarted: list[int] = []
         dropped: list[int] = []
@@ -152,7 +159,7 @@ class EpochFilter:
             unnorm = post * lik                          # Eq. 2 (soft evidence: l(s) b^a(s))
             eta = float(unnorm.sum())
             if not eta > ETA_MIN:                        # impossible under the belief: restart
-                unnorm = (self._uniform @ self.model.P[a]) * applied * lik
+                unnorm = predict(self.model, self._uniform, a) * applied * lik
                 eta = float(unnorm.sum())
                 if not eta > ETA_MIN:                    # impossible from any state: contradicts the model
                     dropped.append(k)

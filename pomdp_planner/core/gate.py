@@ -73,10 +73,17 @@ from .bounds import (
 )
 from .checks import check_choice
 from .errors import OptionError
-from .model import POMDP, array_digest, format_bytes, infinite_horizon_refusal
+from .model import MAX_DENSE_BYTES, POMDP, format_bytes, infinite_horizon_refusal, matrix_digest
 from .myopic import MyopicBounds
 from .search import DEFAULT_CHUNK_BYTES, DEFAULT_MEMORY_BUDGET, Planner, planner_table_bytes, uses_fused_table
-from .structure import AssumptionReport, CheckEstimate, check_assumptions, estimate_check, seconds_text
+from .structure import (
+    AssumptionReport,
+    CheckEstimate,
+    check_assumptions,
+    estimate_check,
+    quick_tp2_refutation,
+    seconds_text,
+)
 
 #: What :func:`build_planner` does when Assumption 1 fails or is unproven.
 ON_ASSUMPTION_FAILURE = ("exhaustive", "refuse")
@@ -95,7 +102,7 @@ def model_key(model: POMDP) -> bytes:
     """Digest of what Assumption 1 depends on: the shapes and values of ``P`` and ``O``."""
     key = _keys.get(model)
     if key is None:
-        key = _keys[model] = array_digest(model.P, model.O)
+        key = _keys[model] = matrix_digest(model)
     return key
 
 
@@ -120,6 +127,8 @@ SETUP_NOTICE_SECONDS = 2.0
 MAX_SETUP_SECONDS = 600.0
 #: Seconds per byte of the planner's tables (filling them: a few passes over memory).
 COST_TABLE_BYTE = 2e-9
+#: Seconds per byte of the dense ``P`` and ``O`` a sparse model builds for the search.
+COST_DENSE_BYTE = 3e-9
 
 
 def available_memory() -> int | None:
@@ -156,11 +165,14 @@ class SetupEstimate:
     """The predicted cost of :func:`build_planner` for one model (module docstring).
 
     ``check`` is ``None`` when no assumption check runs (bounds disabled, or its report is
-    already cached); ``lp_seconds``/``lp_bytes`` are zero when no LP is solved (bounds disabled, a
-    discount of 1; when the check fails no LP is solved either, but that is not known in advance). ``seconds``
-    is the expected total, ``seconds_max`` the most it may take (:class:`~.structure.CheckEstimate`),
-    ``bytes`` the peak of the temporaries and tables (they do not coexist: the check's and the
-    LP's are freed before the tables are built).
+    already cached); ``lp_seconds``/``lp_bytes`` are zero when no LP will be solved: bounds disabled,
+    a discount of 1, or Assumption 1 known to fail (``no_lp`` says why: the cached report, or a
+    negative 2x2 minor found in one pass, :func:`~.structure.quick_tp2_refutation`; the check may
+    still fail on (A2) or (A3), and the LP counted is then not solved). ``dense_bytes``: the dense
+    ``P`` and ``O`` the search builds for a sparse model. ``seconds`` is the expected total,
+    ``seconds_max`` the most it may take (:class:`~.structure.CheckEstimate`), ``bytes`` the peak of
+    the temporaries and tables (they do not coexist: the check's and the LP's are freed before the
+    tables are built).
     """
 
     S: int
@@ -170,10 +182,12 @@ class SetupEstimate:
     lp_seconds: float
     lp_bytes: int
     table_bytes: int
+    no_lp: str = ""
+    dense_bytes: int = 0
 
     @property
     def table_seconds(self) -> float:
-        return COST_TABLE_BYTE * self.table_bytes
+        return COST_TABLE_BYTE * self.table_bytes + COST_DENSE_BYTE * self.dense_bytes
 
     @property
     def seconds(self) -> float:
@@ -185,7 +199,7 @@ class SetupEstimate:
 
     @property
     def bytes(self) -> int:
-        return max(self.check.bytes if self.check else 0, self.lp_bytes, self.table_bytes)
+        return max(self.check.bytes if self.check else 0, self.lp_bytes, self.table_bytes + self.dense_bytes)
 
     def parts(self) -> str:
         """The stages with their figures, e.g. ``"assumption check about 2 s, 195 MiB; ..."``."""
@@ -194,6 +208,10 @@ class SetupEstimate:
             out.append(f"assumption check {self.check.describe()}, {format_bytes(self.check.bytes)}")
         if self.lp_bytes:
             out.append(f"bound LP about {seconds_text(self.lp_seconds)}, {format_bytes(self.lp_bytes)}")
+        elif self.no_lp:
+            out.append(f"no bound LP ({self.no_lp})")
+        if self.dense_bytes:
+            out.append(f"dense P and O for the search {format_bytes(self.dense_bytes)}")
         growth = "A^2 S Z" if uses_fused_table(self.S, self.A, self.Z) else "A S (S + Z)"
         out.append(f"planner tables {format_bytes(self.table_bytes)} (they grow like {growth})")
         return "; ".join(out)
@@ -203,20 +221,28 @@ _estimates: OrderedDict[tuple, SetupEstimate] = OrderedDict()
 
 
 def estimate_setup(model: POMDP, *, use_bounds: bool = True, variant: str = "tight",
-                   report: AssumptionReport | None = None) -> SetupEstimate:
+                   report: AssumptionReport | None = None, forced: bool = False) -> SetupEstimate:
     """Predict the time and memory of ``build_planner(model, use_bounds=..., variant=...)`` before it
     runs (module docstring; a few tenths of a second at S = 256, A = 64). ``report``: the
-    Assumption 1 report the call will be given (then no check runs). Cached for the last few
-    models, so an entry point may ask before the gate asks again."""
-    cached = report is not None or (use_bounds and model_key(model) in _reports)
-    key = (model_key(model), use_bounds, variant, cached)
+    Assumption 1 report the call will be given (then no check runs). ``forced``: the LP is solved
+    even where Assumption 1 fails (``prune_without_guarantee``). Cached for the last few models, so
+    an entry point may ask before the gate asks again."""
+    rep = report if report is not None else (_reports.get(model_key(model)) if use_bounds else None)
+    key = (model_key(model), use_bounds, variant, rep is not None, forced)
     est = _estimates.get(key)
     if est is None:
-        check = estimate_check(model) if use_bounds and not cached else None
-        solves_lp = use_bounds and not infinite_horizon_refusal(model, "the bound LP")
+        check = estimate_check(model) if use_bounds and rep is None else None
+        no_lp = ""
+        if use_bounds and not forced:
+            if rep is not None and not rep.holds:
+                no_lp = assumption_failure(rep)
+            elif rep is None:
+                no_lp = quick_tp2_refutation(model)
+        solves_lp = use_bounds and not infinite_horizon_refusal(model, "the bound LP") and not no_lp
         lp_seconds, lp_bytes = estimate_solve_bounds(model, variant) if solves_lp else (0.0, 0)
         est = SetupEstimate(model.S, model.A, model.Z, check, lp_seconds, lp_bytes,
-                            planner_table_bytes(model.S, model.A, model.Z))
+                            planner_table_bytes(model.S, model.A, model.Z), no_lp,
+                            8 * model.A * model.S * (model.S + model.Z) if model.sparse else 0)
         _estimates[key] = est
         while len(_estimates) > 4:
             _estimates.popitem(last=False)
@@ -230,6 +256,12 @@ def check_setup_cost(est: SetupEstimate, max_seconds: float | None = MAX_SETUP_S
     ``max_seconds`` (``None``: no time limit); ``time_hint`` (how the caller's user lifts the time
     limit) ends that message."""
     sizes = f"S={est.S}, A={est.A}, Z={est.Z}"
+    if est.dense_bytes:
+        stack = 8 * est.A * est.S * max(est.S, est.Z)
+        if stack > MAX_DENSE_BYTES:
+            raise SetupCostError(f"model: the search takes the dense P and O of this sparse model (S={est.S}, "
+                                 f"A={est.A}, Z={est.Z}): {format_bytes(stack)} for the larger, more than the limit "
+                                 f"of {format_bytes(MAX_DENSE_BYTES)} (MAX_DENSE_BYTES)")
     memory = available_memory() if memory is None else memory
     if memory is not None and est.bytes > memory:
         raise SetupCostError(f"model: the planner's set-up for {sizes} needs about {format_bytes(est.bytes)} "
@@ -448,7 +480,8 @@ def build_planner(model: POMDP, *, use_bounds: bool = True, variant: str = "tigh
 
     stages = SetupStages(progress)
     with stages.stage("estimate"):
-        est = estimate_setup(model, use_bounds=use_bounds, variant=variant, report=report)
+        est = estimate_setup(model, use_bounds=use_bounds, variant=variant, report=report,
+                             forced=prune_without_guarantee)
         check_setup_cost(est, max_setup_seconds, setup_hint)
     notice = setup_notice(est)
     if notice is not None and progress is not None:

@@ -8,6 +8,12 @@ every formula of the paper):
   as rows and sometimes as columns, we always use rows.
 * ``O[a, j, z] = P(z | next = j, a)`` (shape ``A x S x Z``). The paper's ``O^a_{z,j}``.
 * ``r[s, a]`` (shape ``S x A``), ``w[a]`` (shape ``A``), discount ``gamma``.
+* Storage (:attr:`POMDP.storage`): ``P`` and ``O`` are kept dense (numpy arrays) or sparse (one CSR
+  matrix per action, :class:`~.sparse.SparseStack`: ``model.P_csr[a]``, ``model.O_csr[a]``),
+  whichever :func:`~.sparse.choose_storage` finds smaller. ``model.P`` and ``model.O`` are always
+  the dense ``A x S x S`` and ``A x S x Z`` arrays: a sparse model builds them on first use, up to
+  :data:`MAX_DENSE_BYTES` each, and refuses larger ones in one line (code that can take a model of
+  any size reads ``P_csr``/``O_csr``, or asks :attr:`POMDP.sparse`).
 * States, actions and observations are 0-based. Action index ``a`` is the paper's tracking
   priority ``a + 1`` (1 = greatest priority); conversion happens only at user-facing edges
   (:func:`priority_of`, :func:`action_of_priority`).
@@ -23,21 +29,30 @@ import math
 import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from dataclasses import replace as dataclass_replace
 
 import numpy as np
+import scipy.sparse as sp
 
 from .checks import check_int, is_integer
 from .errors import MESSAGE_VALUE_CHARS as MESSAGE_VALUE_CHARS  # re-exported
 from .errors import BeliefError, ModelError, kind_of, short_repr
+from .sparse import STORAGES, SparseStack, choose_storage, csr_bytes, row_sums
 from .uncertainty import Uncertainty, get_uncertainty
 
 #: Rows of ``P`` and ``O`` must sum to one within this absolute tolerance.
 STOCHASTIC_ATOL = 1e-6
-#: Largest model a loader or generator builds: bytes of ``P``, ``O`` and ``r`` as float64
-#: (``8 (A S S + A S Z + S A)``), checked *before* anything is allocated
-#: (:func:`check_model_size`). Building a model needs a few times this transiently. 128 MiB
-#: holds e.g. S = Z = 1600 with A = 3, or S = Z = 256 with A = 64.
+#: Largest model a loader or generator builds: bytes of ``P``, ``O`` and ``r`` as they are stored,
+#: checked *before* anything is allocated (:func:`check_model_size`): dense, ``8 (A S S + A S Z +
+#: S A)``; sparse, 12 bytes per non-zero of ``P`` and ``O`` plus the row pointers and ``r``.
+#: Building a model needs a few times this transiently. 128 MiB holds e.g. a dense model with
+#: S = Z = 1600 and A = 3, or S = Z = 256 and A = 64, and a sparse one with ten million non-zeros
+#: (a 100 x 100 grid with A = 3 has about 200 000).
 MAX_MODEL_BYTES = 128 * 2**20
+#: Largest dense ``P`` or ``O`` (bytes, each) that a sparse model builds when a computation asks for
+#: :attr:`POMDP.P` or :attr:`POMDP.O` (a computation that has no sparse form); above it that
+#: computation is refused in one line naming the size.
+MAX_DENSE_BYTES = 128 * 2**20
 #: Longest model name; a name is one line of text (it is written into exported files).
 MAX_NAME_CHARS = 256
 #: Largest magnitude of a reward ``r(s, a)`` (and of every reward-generator parameter): a search
@@ -89,18 +104,26 @@ def as_count(value: object, field_name: str) -> int:
     return n
 
 
-def model_bytes(S: int, A: int, Z: int) -> int:
-    """Bytes of ``P`` (A x S x S), ``O`` (A x S x Z) and ``r`` (S x A) as float64."""
-    return 8 * (A * S * S + A * S * Z + S * A)
+def model_bytes(S: int, A: int, Z: int, nnz: int | None = None) -> int:
+    """Bytes of ``P`` (A x S x S), ``O`` (A x S x Z) and ``r`` (S x A) as float64, dense; or, given
+    ``nnz`` (the non-zeros of ``P`` and ``O`` together), stored sparse (:mod:`.sparse`: the CSR arrays
+    and the row pointers of the transposes, which bound ``S`` and ``Z`` too)."""
+    if nnz is None:
+        return 8 * (A * S * S + A * S * Z + S * A)
+    # the CSR arrays of P and O, the row pointers of their transposes (S + 1 and Z + 1 per action), r
+    return csr_bytes(nnz, 2 * A, S) + 4 * A * (S + Z + 2) + 8 * S * A
 
 
-def check_model_size(S: int, A: int, Z: int, field_name: str, limit: int | None = None) -> None:
+def check_model_size(S: int, A: int, Z: int, field_name: str, limit: int | None = None,
+                     nnz: int | None = None) -> None:
     """Refuse (``ModelError`` naming ``field_name``) a model whose matrices would exceed ``limit``
-    bytes (default :data:`MAX_MODEL_BYTES`); call it before allocating anything of that size."""
+    bytes (default :data:`MAX_MODEL_BYTES`) as stored: dense, or sparse with ``nnz`` non-zeros in
+    ``P`` and ``O`` (:func:`model_bytes`); call it before allocating anything of that size."""
     limit = MAX_MODEL_BYTES if limit is None else limit
-    need = model_bytes(S, A, Z)
+    need = model_bytes(S, A, Z, nnz)
     if need > limit:
-        raise ModelError(f"{field_name}: S={short_repr(S)}, A={short_repr(A)}, Z={short_repr(Z)} need "
+        form = "" if nnz is None else f" with {int(nnz):,} non-zeros"
+        raise ModelError(f"{field_name}: S={short_repr(S)}, A={short_repr(A)}, Z={short_repr(Z)}{form} need "
                          f"{format_bytes(need)} for the transition, observation and reward matrices; "
                          f"the limit is {format_bytes(limit)} (MAX_MODEL_BYTES)")
 
@@ -163,7 +186,17 @@ def model_digest(model: POMDP, digest_size: int = 20) -> bytes:
              "epsilon": repr(model.epsilon), "states": model.state_names, "actions": model.action_names,
              "observations": model.observation_names, "metadata": model.metadata}
     text = json.dumps(names, sort_keys=True, default=repr).encode()
-    return hashlib.blake2b(array_digest(model.P, model.O, model.r, model.w) + text, digest_size=digest_size).digest()
+    return hashlib.blake2b(matrix_digest(model) + array_digest(model.r, model.w) + text,
+                           digest_size=digest_size).digest()
+
+
+def matrix_digest(model: POMDP, digest_size: int = 20) -> bytes:
+    """A content digest of ``P`` and ``O`` as stored (their storage, shapes and values), without
+    building a dense form of a sparse model."""
+    if model.sparse:
+        parts = [np.array(model.P_csr.shape + model.O_csr.shape), *model.P_csr.arrays(), *model.O_csr.arrays()]
+        return b"sparse" + array_digest(*parts, digest_size=digest_size)
+    return array_digest(model.P, model.O, digest_size=digest_size)
 
 
 def frozen_copy(x: np.ndarray) -> np.ndarray:
@@ -191,6 +224,75 @@ def _check_stochastic(name: str, M: np.ndarray, row_label: str, col_label: str) 
             f"{name}[{a}][{i}]: row ({row_label} {i}, action {a}) sums to {sums[a, i]:.9g}, "
             f"not 1 (over {col_label}; tolerance {STOCHASTIC_ATOL:g})"
         )
+
+
+def _check_stochastic_sparse(name: str, M: SparseStack, row_label: str, col_label: str) -> None:
+    """:func:`_check_stochastic` for a sparse stack (its stored values; the others are 0)."""
+    for a in range(len(M)):
+        C = M[a]
+        bad = ~np.isfinite(C.data)
+        neg = C.data < 0.0
+        if np.any(bad) or np.any(neg):
+            k = int(np.argmax(bad | neg))
+            i = int(np.searchsorted(C.indptr, k, side="right") - 1)
+            j = int(C.indices[k])
+            if bad[k]:
+                raise ModelError(f"{name}[{a}][{i}][{j}]: value is not finite ({C.data[k]})")
+            raise ModelError(f"{name}[{a}][{i}][{j}]: probability is negative ({C.data[k]:.6g})")
+        sums = row_sums(C)
+        off = np.abs(sums - 1.0) > STOCHASTIC_ATOL
+        if np.any(off):
+            i = int(np.argmax(off))
+            raise ModelError(
+                f"{name}[{a}][{i}]: row ({row_label} {i}, action {a}) sums to {sums[i]:.9g}, "
+                f"not 1 (over {col_label}; tolerance {STOCHASTIC_ATOL:g})"
+            )
+
+
+def _is_sparse_input(M: object) -> bool:
+    """Whether a model matrix argument is given sparse: a :class:`SparseStack` or a sequence of
+    scipy sparse matrices (one per action)."""
+    if isinstance(M, SparseStack):
+        return True
+    return isinstance(M, (list, tuple)) and len(M) > 0 and all(sp.issparse(x) for x in M)
+
+
+def _sparse_input(M: object, rows: int, name: str, cols: int | None = None) -> SparseStack:
+    if isinstance(M, SparseStack):
+        stack = M
+    else:
+        try:
+            stack = SparseStack.from_matrices(list(M), rows, cols if cols is not None else M[0].shape[1])
+        except ValueError as exc:
+            raise ModelError(f"{name}: sparse matrices of inconsistent shape ({short_repr(str(exc), 80)})") from None
+    if stack.shape[1] != rows or (cols is not None and stack.shape[2] != cols):
+        want = f"{rows} x {cols}" if cols is not None else f"{rows} x ..."
+        raise ModelError(f"{name}: expected matrices of shape {want}, got {stack.shape[1]} x {stack.shape[2]}")
+    return stack
+
+
+class _DenseView:
+    """``model.P`` / ``model.O`` of a sparse model: the dense array, built on first use (up to
+    :data:`MAX_DENSE_BYTES`) and kept; refused in one line above it. A dense model holds the array
+    itself (an instance attribute, which takes precedence over this non-data descriptor)."""
+
+    def __init__(self, name: str, attr: str, label: str, dims: str):
+        self.name, self.attr, self.label, self.dims = name, attr, label, dims
+
+    def __get__(self, model, owner=None):
+        if model is None:
+            return self
+        stack = getattr(model, self.attr)
+        need = 8 * int(np.prod(stack.shape))
+        if need > MAX_DENSE_BYTES:
+            A, n, m = stack.shape
+            raise ModelError(f"{self.label}: this computation needs the dense {self.dims} array of a sparse model "
+                             f"(A={A}, S={n}, {self.dims[-1]}={m}, {stack.nnz:,} non-zeros): {format_bytes(need)}, "
+                             f"more than the limit of {format_bytes(MAX_DENSE_BYTES)} (MAX_DENSE_BYTES)")
+        dense = stack.to_dense()
+        dense.setflags(write=False)
+        model.__dict__[self.name] = dense
+        return dense
 
 
 def per_action_vector(field: str, value: object, A: int, noun: str = "value") -> np.ndarray:
@@ -248,7 +350,7 @@ def _names(field_name: str, names: Sequence[str] | None, n: int) -> tuple[str, .
     return names
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class POMDP:
     """An immutable information-acquisition POMDP (paper Sec. II).
 
@@ -257,6 +359,11 @@ class POMDP:
     ``0 <= gamma <= 1``, rewards and weights within :data:`MAX_REWARD_MAGNITUDE` and
     :data:`MAX_WEIGHT_MAGNITUDE`, ``0 < epsilon < 1/S`` (``None``: :func:`default_epsilon`).
     Errors are :class:`ModelError` naming the field.
+
+    ``P`` and ``O`` are dense ``A x S x S`` and ``A x S x Z`` arrays, or sparse: a
+    :class:`~.sparse.SparseStack`, or a sequence of ``A`` scipy sparse matrices. ``storage``
+    (:data:`~.sparse.STORAGES`): ``"auto"`` keeps the smaller form (:func:`~.sparse.choose_storage`),
+    ``"dense"`` or ``"sparse"`` force one; afterwards it is the form kept (module docstring).
 
     ``gamma = 1`` is valid for a finite horizon only (the paper, Sec. II: a depth-limited search,
     a simulation of finitely many steps, an export); what needs an infinite horizon (the bound LP
@@ -275,29 +382,50 @@ class POMDP:
     action_names: Sequence[str] | None = None
     observation_names: Sequence[str] | None = None
     metadata: dict = field(default_factory=dict)
+    storage: str = "auto"
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        if self.storage not in STORAGES:
+            raise ModelError(f"storage: must be one of {', '.join(STORAGES)}, got {short_repr(self.storage)}")
         try:
-            P = np.asarray(self.P, dtype=float)
-            O = np.asarray(self.O, dtype=float)
             r = np.asarray(self.r, dtype=float)
+            if _is_sparse_input(self.P):
+                rows = self.P.shape[1] if isinstance(self.P, SparseStack) else self.P[0].shape[0]
+                P = _sparse_input(self.P, rows, "transition", rows)
+            else:
+                P = np.asarray(self.P, dtype=float)
+            O = self.O if _is_sparse_input(self.O) else np.asarray(self.O, dtype=float)
         except (TypeError, ValueError, OverflowError) as exc:
             raise ModelError(f"model matrices must be numeric arrays of consistent shape: "
                              f"{short_repr(str(exc), 120)}") from None
-        if P.ndim != 3 or P.shape[1] != P.shape[2]:
-            raise ModelError(f"transition: expected shape A x S x S, got {P.shape}")
-        A, S, _ = P.shape
+        if isinstance(P, SparseStack):
+            A, S, S2 = P.shape
+            if S != S2:
+                raise ModelError(f"transition: expected shape A x S x S, got {P.shape}")
+        else:
+            if P.ndim != 3 or P.shape[1] != P.shape[2]:
+                raise ModelError(f"transition: expected shape A x S x S, got {P.shape}")
+            A, S, _ = P.shape
         if A < 1 or S < 1:
-            raise ModelError(f"transition: needs at least one action and one state, got shape {P.shape}")
-        if O.ndim != 3 or O.shape[0] != A or O.shape[1] != S:
+            raise ModelError(f"transition: needs at least one action and one state, got shape {tuple(P.shape)}")
+        if _is_sparse_input(O):
+            if len(O) != A:
+                raise ModelError(f"observation: expected {A} matrices (one per action), got {len(O)}")
+            O = _sparse_input(O, S, "observation")
+        elif O.ndim != 3 or O.shape[0] != A or O.shape[1] != S:
             raise ModelError(f"observation: expected shape {A} x {S} x Z (A x S x Z), got {O.shape}")
-        if O.shape[2] < 1:
+        Z = O.shape[2]
+        if Z < 1:
             raise ModelError("observation: needs at least one observation")
         if r.shape != (S, A):
             raise ModelError(f"reward: expected shape {S} x {A} (S x A), got {r.shape}")
-        _check_stochastic("transition", P, "previous state", "next states")
-        _check_stochastic("observation", O, "next state", "observations")
+        for name, M, rows, cols in (("transition", P, "previous state", "next states"),
+                                    ("observation", O, "next state", "observations")):
+            if isinstance(M, SparseStack):
+                _check_stochastic_sparse(name, M, rows, cols)
+            else:
+                _check_stochastic(name, M, rows, cols)
         if not np.all(np.isfinite(r)):
             s, a = np.argwhere(~np.isfinite(r))[0]
             raise ModelError(f"reward[{s}][{a}]: value is not finite ({r[s, a]})")
@@ -318,8 +446,20 @@ class POMDP:
         eps = default_epsilon(S) if self.epsilon is None else as_number(self.epsilon, "uncertainty.epsilon")
         if not (0.0 < eps < 1.0 / S or (S == 1 and 0.0 < eps <= 1.0)):
             raise ModelError(f"uncertainty.epsilon: must satisfy 0 < epsilon < 1/S = {1.0 / S:.6g}, got {eps}")
-        set_(self, "P", frozen_copy(P))
-        set_(self, "O", frozen_copy(O))
+        storage = self.storage
+        if storage == "auto":
+            nnz = [M.nnz if isinstance(M, SparseStack) else int(np.count_nonzero(M)) for M in (P, O)]
+            storage = choose_storage(A, S, Z, *nnz)
+        set_(self, "storage", storage)
+        set_(self, "_shape", (A, S, Z))
+        if storage == "sparse":
+            set_(self, "_P_csr", P if isinstance(P, SparseStack) else SparseStack.from_dense(P))
+            set_(self, "_O_csr", O if isinstance(O, SparseStack) else SparseStack.from_dense(O))
+            self.__dict__.pop("P", None)  # built on first use (_DenseView)
+            self.__dict__.pop("O", None)
+        else:
+            set_(self, "P", frozen_copy(P.to_dense() if isinstance(P, SparseStack) else P))
+            set_(self, "O", frozen_copy(O.to_dense() if isinstance(O, SparseStack) else O))
         set_(self, "r", frozen_copy(r))
         set_(self, "gamma", gamma)
         set_(self, "uncertainty", unc)
@@ -328,21 +468,78 @@ class POMDP:
         set_(self, "name", check_name(self.name))
         set_(self, "state_names", _names("states", self.state_names, S))
         set_(self, "action_names", _names("actions", self.action_names, A))
-        set_(self, "observation_names", _names("observations", self.observation_names, O.shape[2]))
+        set_(self, "observation_names", _names("observations", self.observation_names, Z))
         set_(self, "metadata", dict(self.metadata))
+
+    # ------------------------------------------------------------------ storage
+    @property
+    def sparse(self) -> bool:
+        """Whether ``P`` and ``O`` are stored sparse (``P_csr``, ``O_csr``; module docstring)."""
+        return self.storage == "sparse"
+
+    @property
+    def P_csr(self) -> SparseStack:  # noqa: N802 - the paper's name for the matrix
+        """``P`` as one CSR matrix per action (:class:`~.sparse.SparseStack`, ``S x S`` each): what is
+        stored for a sparse model, built once from the dense array for a dense one."""
+        return self._csr("P")
+
+    @property
+    def O_csr(self) -> SparseStack:  # noqa: N802
+        """``O`` as one CSR matrix per action (``S x Z`` each); as :attr:`P_csr`."""
+        return self._csr("O")
+
+    def _csr(self, name: str) -> SparseStack:
+        stack = self.__dict__.get(f"_{name}_csr")
+        if stack is None:
+            stack = SparseStack.from_dense(getattr(self, name))
+            object.__setattr__(self, f"_{name}_csr", stack)
+        return stack
+
+    @property
+    def stored_bytes(self) -> int:
+        """Bytes of ``P``, ``O`` and ``r`` as stored (dense arrays, or the CSR arrays)."""
+        A, S, Z = self._shape
+        if self.sparse:
+            return self.P_csr.nbytes + self.O_csr.nbytes + 8 * S * A
+        return model_bytes(S, A, Z)
+
+    def replace(self, **changes) -> POMDP:
+        """A copy with ``changes`` (fields of the constructor), keeping the storage and, for a sparse
+        model, its sparse matrices (``dataclasses.replace`` would pass the dense ``P`` and ``O``)."""
+        if self.sparse:
+            changes.setdefault("P", self.P_csr)
+            changes.setdefault("O", self.O_csr)
+        changes.setdefault("storage", self.storage)
+        return dataclass_replace(self, **changes)
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        if self.sparse:  # the dense views are rebuilt on use
+            state.pop("P", None)
+            state.pop("O", None)
+        else:
+            state.pop("_P_csr", None)
+            state.pop("_O_csr", None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+
+    def __repr__(self) -> str:
+        return f"POMDP({self.describe()})"
 
     # ------------------------------------------------------------------ sizes
     @property
     def num_states(self) -> int:
-        return self.P.shape[1]
+        return self._shape[1]
 
     @property
     def num_actions(self) -> int:
-        return self.P.shape[0]
+        return self._shape[0]
 
     @property
     def num_observations(self) -> int:
-        return self.O.shape[2]
+        return self._shape[2]
 
     S = num_states
     A = num_actions
@@ -372,7 +569,12 @@ class POMDP:
         return (
             f"{self.name}: S={self.S} A={self.A} Z={self.Z} gamma={self.gamma:g}{horizon} "
             f"uncertainty={self.uncertainty.name}"
+            + (f" storage=sparse ({self.P_csr.nnz + self.O_csr.nnz:,} non-zeros)" if self.sparse else "")
         )
+
+
+POMDP.P = _DenseView("P", "_P_csr", "transition", "A x S x S")  # type: ignore[assignment]
+POMDP.O = _DenseView("O", "_O_csr", "observation", "A x S x Z")  # type: ignore[assignment]
 
 
 def infinite_horizon_refusal(model: POMDP, what: str) -> str:

@@ -28,6 +28,8 @@ TIE_RTOL = 1e-12
 def transform_matrix(model: POMDP, v: np.ndarray) -> np.ndarray:
     """``C[a] = (I - gamma P[a]) v`` for all actions, shape ``(A, S)`` (Eq. 8, our convention)."""
     v = np.asarray(v, dtype=float)
+    if model.sparse:
+        return v[None, :] - model.gamma * np.stack([model.P_csr[a] @ v for a in range(model.A)])
     return v[None, :] - model.gamma * (model.P @ v)
 
 

@@ -37,6 +37,7 @@ from .filter import EpochFilter
 from .model import POMDP, short_repr
 from .options import STEPS_RANGE, check_seed
 from .policies import Policy, as_callable, make_policy
+from .sparse import sample_inverse_cdf
 from .uncertainty import SHANNON
 
 
@@ -261,6 +262,7 @@ class Simulation:
     def _run(self) -> Iterator[SimulationStep]:
         model, rng, act = self.model, self._rng, self._act
         epoch_filter = EpochFilter(model)
+        P, O = (model.P_csr, model.O_csr) if model.sparse else (model.P, model.O)
         b, s = self.initial_belief, self.initial_state
         for t in range(self.steps):
             a = act(b.copy())
@@ -270,8 +272,8 @@ class Simulation:
             a = int(a)
             reward = float(model.rho(b)[a])
             state_reward = float(model.r[s, a])
-            s_next = _sample(rng, model.P[a, s])
-            z = _sample(rng, model.O[a, s_next])
+            s_next = sample_inverse_cdf(rng, P, a, s)
+            z = sample_inverse_cdf(rng, O, a, s_next)
             epoch = epoch_filter.step(b, a, {0: z})
             b = epoch.belief
             yield SimulationStep(t, s, s_next, a, z, b, float(SHANNON.value(b)), reward, state_reward,

@@ -263,8 +263,9 @@ def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
     by a digest of their bytes, then compared). Large matrices use an exact reduced test
     (:func:`tp2_method`).
     """
-    worst = (np.inf, "transition", 0, (0, 0), (0, 0), 0.0)
-    total = 0
+    if model.sparse:
+        return _check_tp2_support(model, tol)
+    found: list[tuple[str, int, _Minor]] = []
     methods: set[str] = set()
     for label, stack in (("transition", model.P), ("observation", model.O)):
         seen: dict[bytes, list[tuple[np.ndarray, tuple]]] = {}
@@ -277,14 +278,39 @@ def check_tp2(model: POMDP, tol: float = 1e-9) -> TP2Report:
                 methods.add(method)
                 cached = worst_tp2_minor(M, tol, method)
                 seen.setdefault(key, []).append((M, cached))
-            value, rows, cols, count, rel = cached
-            total += count
-            if rel < worst[0]:
-                worst = (rel, label, a, rows, cols, value)
+            found.append((label, a, cached))
+    return _tp2_report(found, tol, tuple(sorted(methods)))
+
+
+def _tp2_report(found: list[tuple[str, int, _Minor]], tol: float, methods: tuple[str, ...]) -> TP2Report:
+    """The report of the worst minors ``(matrix label, action, minor)`` of every matrix."""
+    worst = (np.inf, "transition", 0, (0, 0), (0, 0), 0.0)
+    total = 0
+    for label, a, (value, rows, cols, count, rel) in found:
+        total += count
+        if rel < worst[0]:
+            worst = (rel, label, a, rows, cols, value)
     rel, label, a, rows, cols, value = worst
     rel = 0.0 if not np.isfinite(rel) else rel
     return TP2Report(holds=rel >= -tol, worst_minor=value, matrix=label, action=a, rows=rows, cols=cols,
-                     num_negative=total, tol=tol, methods=tuple(sorted(methods)), worst_relative=rel)
+                     num_negative=total, tol=tol, methods=methods, worst_relative=rel)
+
+
+def _check_tp2_support(model: POMDP, tol: float) -> TP2Report:
+    """:func:`check_tp2` of a sparse model: the candidate minors only (:mod:`.structure_sparse`);
+    identical matrices are checked once."""
+    from .structure_sparse import worst_minor_support
+
+    found: list[tuple[str, int, _Minor]] = []
+    for label, stack in (("transition", model.P_csr), ("observation", model.O_csr)):
+        done: list[tuple[int, _Minor]] = []
+        for a in range(len(stack)):
+            cached = next((res for b, res in done if stack.same(a, b)), None)
+            if cached is None:
+                cached = worst_minor_support(stack[a], tol)
+                done.append((a, cached))
+            found.append((label, a, cached))
+    return _tp2_report(found, tol, ("support",))
 
 
 # =============================================================================== (A2)
@@ -512,6 +538,10 @@ class CopositivityReport:
     smallest entry of each ``D`` (A2' margin; NaN where a ratio test proved ``D >= 0``);
     ``refutations`` maps ``(a, j, z)`` to ``(x, x^T D x)`` with ``x`` on the simplex (a belief
     at which Lemma 1 (L2) fails).
+
+    A *compact* report (a sparse model's, :mod:`.structure_sparse`) lists only the matrices it
+    built: ``index`` (``k x 3``, rows ``(a, j, z)``), their ``codes`` and ``min_entry`` (``k``
+    each), and ``shape``; every matrix not listed is proven elementwise without being built.
     """
 
     codes: np.ndarray
@@ -519,6 +549,21 @@ class CopositivityReport:
     refutations: dict = field(repr=False)
     sdp_max_states: int
     tol: float
+    index: np.ndarray | None = field(default=None, repr=False)
+    shape: tuple[int, int, int] | None = None
+
+    @property
+    def total(self) -> int:
+        """How many matrices ``D^{j,a,z}`` (A2) asks about."""
+        return int(np.prod(self.shape)) if self.index is not None else int(self.codes.size)
+
+    def _where(self, k: int) -> tuple[int, int, int]:
+        """``(a, j, z)`` of position ``k`` (flat) of :attr:`codes`."""
+        if self.index is not None:
+            a, j, z = self.index[k]
+        else:
+            a, j, z = np.unravel_index(k, self.codes.shape)
+        return int(a), int(j), int(z)
 
     @property
     def holds(self) -> bool:
@@ -536,7 +581,9 @@ class CopositivityReport:
         keys = {PROVEN_ELEMENTWISE: "proven_elementwise", PROVEN_SDP: "proven_sdp", PROVEN_EXACT: "proven_exact",
                 PROVEN_DOMINATED: "proven_dominated", REFUTED: "refuted", UNKNOWN: "unknown",
                 UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped"}
-        return {name: int(np.count_nonzero(self.codes == code)) for code, name in keys.items()}
+        out = {name: int(np.count_nonzero(self.codes == code)) for code, name in keys.items()}
+        out["proven_elementwise"] += self.total - int(self.codes.size)
+        return out
 
     def worst_refutation(self) -> tuple[tuple[int, int, int], np.ndarray, float] | None:
         if not self.refutations:
@@ -550,11 +597,17 @@ class CopositivityReport:
         when the ratio test proved every ``D`` elementwise non-negative without building it."""
         if self.min_entry.size == 0 or np.all(np.isnan(self.min_entry)):
             return None
-        a, j, z = np.unravel_index(int(np.nanargmin(self.min_entry)), self.min_entry.shape)
-        return float(self.min_entry[a, j, z]), int(a), int(j), int(z)
+        k = int(np.nanargmin(self.min_entry))
+        a, j, z = self._where(k)
+        return float(self.min_entry.flat[k]), a, j, z
 
     def status_of(self, a: int, j: int, z: int) -> str:
-        return STATUS_NAMES[int(self.codes[a, j, z])].format(cap=self.sdp_max_states)
+        if self.index is None:
+            code = int(self.codes[a, j, z])
+        else:
+            hit = np.flatnonzero((self.index[:, 0] == a) & (self.index[:, 1] == j) & (self.index[:, 2] == z))
+            code = int(self.codes[hit[0]]) if hit.size else PROVEN_ELEMENTWISE
+        return STATUS_NAMES[code].format(cap=self.sdp_max_states)
 
     def to_dict(self, max_listed: int = 50) -> dict:
         """JSON-ready: counts by verdict, the worst A2' entry and up to ``max_listed``
@@ -566,12 +619,16 @@ class CopositivityReport:
             value, a, j, z = worst
             out["worst_entry"] = {"value": value, "priorities": [a + 1, a + 2], "j": j, "z": z}
         listed = []
-        for a, j, z in np.argwhere(self.codes >= REFUTED)[:max_listed]:
-            item = {"priorities": [int(a) + 1, int(a) + 2], "j": int(j), "z": int(z),
-                    "verdict": self.status_of(a, j, z)}
+        for k in np.flatnonzero(self.codes.ravel() >= REFUTED)[:max_listed]:
+            a, j, z = self._where(int(k))
+            item = {"priorities": [a + 1, a + 2], "j": j, "z": z, "verdict": self.status_of(a, j, z)}
             if (a, j, z) in self.refutations:
                 x, val = self.refutations[(a, j, z)]
-                item["x"] = [float(v) for v in x]
+                if hasattr(x, "indices"):  # a counterexample stored on its support (a sparse model)
+                    item["x_support"] = [int(i) for i in x.indices]
+                    item["x_values"] = [float(v) for v in x.values]
+                else:
+                    item["x"] = [float(v) for v in x]
                 item["xDx"] = float(val)
             listed.append(item)
         out["not_proven"] = listed
@@ -771,6 +828,10 @@ def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SD
     ``reduce=False`` is the previous path (every ratio exact, every ``D`` classified alone),
     kept for the benchmark and the tests that compare both.
     """
+    if model.sparse:
+        from .structure_sparse import check_copositivity_support
+
+        return check_copositivity_support(model, tol, sdp_max_states, seed, search, exact_max_states, reduce)
     S, A, Z = model.S, model.A, model.Z
     shape = (max(A - 1, 0), max(S - 1, 0), Z)
     codes = np.full(shape, PROVEN_ELEMENTWISE, dtype=np.int8)
@@ -843,12 +904,17 @@ class DominanceReport:
     """(A3): ``margins[a, i, zbar] = CDF_a(zbar | e_i) - CDF_{a+1}(zbar | e_i)`` of the predicted
     observation, for ``zbar = 0..Z-2`` (at ``zbar = Z-1`` both CDFs are 1)."""
 
-    margins: np.ndarray
+    margins: np.ndarray | None
     tol: float
+    #: A sparse model's report keeps the smallest margin and the count, not the margins.
+    worst_margin: tuple[float, int, int, int] | None = None
+    violations: int | None = None
 
     @property
     def worst(self) -> tuple[float, int, int, int]:
         """``(margin, a, i, zbar)`` of the smallest margin (0-based)."""
+        if self.margins is None:
+            return self.worst_margin
         if self.margins.size == 0:
             return 0.0, 0, 0, 0
         a, i, z = np.unravel_index(int(np.argmin(self.margins)), self.margins.shape)
@@ -865,7 +931,14 @@ class DominanceReport:
     def to_dict(self) -> dict:
         m, a, i, z = self.worst
         return {"status": self.status, "worst_margin": m, "priorities": [a + 1, a + 2], "state": i, "zbar": z,
-                "num_violations": int(np.count_nonzero(self.margins < -self.tol)), "tol": self.tol}
+                "num_violations": self.num_violations, "tol": self.tol}
+
+    @property
+    def num_violations(self) -> int:
+        """How many ``(a, i, zbar)`` have a margin below ``-tol``."""
+        if self.margins is None:
+            return int(self.violations)
+        return int(np.count_nonzero(self.margins < -self.tol))
 
 
 def observation_cdf_margins(model: POMDP) -> np.ndarray:
@@ -885,6 +958,11 @@ def observation_cdf_margins(model: POMDP) -> np.ndarray:
 
 def check_dominance(model: POMDP, tol: float = 1e-9) -> DominanceReport:
     """(A3): from every state, ``eta(. | e_i, a+1)`` first-order dominates ``eta(. | e_i, a)``."""
+    if model.sparse:
+        from .structure_sparse import dominance_support
+
+        worst, violations = dominance_support(model, tol)
+        return DominanceReport(margins=None, tol=tol, worst_margin=worst, violations=violations)
     return DominanceReport(margins=observation_cdf_margins(model), tol=tol)
 
 
@@ -931,7 +1009,7 @@ class AssumptionReport:
                      + (f"; {t.num_negative} negative minors)" if not t.holds else ")"))
         c = self.copositivity
         n = c.counts()
-        total = int(c.codes.size)
+        total = c.total
         parts = [f"{n['proven_elementwise']} elementwise (A2')"]
         if n["proven_sdp"]:
             parts.append(f"{n['proven_sdp']} as PSD + N")
@@ -993,21 +1071,89 @@ def check_assumptions(model: POMDP, *, tol: float = 1e-9, sdp_max_states: int = 
                             dominance=dom, seconds={"A1": t1 - t0, "A2": t2 - t1, "A3": t3 - t2, "total": t3 - t0})
 
 
+# ====================================================================== quick (A1)
+def _quick_minor(M: np.ndarray | sp.csr_array, tol: float) -> tuple[tuple[int, int], tuple[int, int]] | None:
+    """A negative 2x2 minor of ``M`` found in one pass, or ``None``: an adjacent minor (consecutive
+    rows and columns) below ``-tol`` relative, or rows ``i, i+1`` with the last stored column ``l``
+    of row ``i`` right of the first stored column ``k`` of row ``i+1`` and ``M[i,k] M[i+1,l] = 0``
+    (then the minor on rows ``(i, i+1)`` and columns ``(k, l)`` is ``-M[i,l] M[i+1,k] < 0``)."""
+    n, m = M.shape
+    if n < 2 or m < 2:
+        return None
+    if sp.issparse(M):
+        counts = np.diff(M.indptr)
+        i = np.flatnonzero((counts[:-1] > 0) & (counts[1:] > 0))
+        last = M.indices[M.indptr[i + 1] - 1].astype(np.int64)
+        first = M.indices[M.indptr[i + 1]].astype(np.int64)
+        cand = np.flatnonzero(first < last)
+        if cand.size:
+            ii, k, l = i[cand], first[cand], last[cand]
+            ik = np.asarray(M[ii, k]).ravel()
+            jl = np.asarray(M[ii + 1, l]).ravel()
+            hit = np.flatnonzero((ik == 0) | (jl == 0))
+            if hit.size:
+                q = hit[0]
+                return (int(ii[q]), int(ii[q]) + 1), (int(k[q]), int(l[q]))
+        return None
+    M = np.asarray(M)
+    p1, p2 = M[:-1, :-1] * M[1:, 1:], M[:-1, 1:] * M[1:, :-1]
+    den = p1 + p2
+    bad = (p1 - p2) < -tol * den
+    if bad.any():
+        i, k = np.unravel_index(int(np.argmax(bad)), bad.shape)
+        return (int(i), int(i) + 1), (int(k), int(k) + 1)
+    nz = M > 0
+    has = nz.any(axis=1)
+    last = m - 1 - np.argmax(nz[:, ::-1], axis=1)
+    first = np.argmax(nz, axis=1)
+    i = np.flatnonzero(has[:-1] & has[1:] & (first[1:] < last[:-1]))
+    if i.size:
+        k, l = first[i + 1], last[i]
+        hit = np.flatnonzero((M[i, k] == 0) | (M[i + 1, l] == 0))
+        if hit.size:
+            q = i[hit[0]]
+            return (int(q), int(q) + 1), (int(first[q + 1]), int(last[q]))
+    return None
+
+
+def quick_tp2_refutation(model: POMDP, tol: float = 1e-9) -> str:
+    """``""``, or one line naming a negative 2x2 minor of some ``P[a]`` or ``O[a]`` found in one pass
+    over the matrices (:func:`_quick_minor`): proof that (A1) fails, so the bound LP will not be
+    solved (the set-up estimate leaves it out). Finding none proves nothing."""
+    for label, name in (("transition", "P"), ("observation", "O")):
+        stack = getattr(model, f"{name}_csr") if model.sparse else getattr(model, name)
+        for a in range(model.A):
+            same = stack.same(a, a - 1) if model.sparse else np.array_equal(stack[a], stack[a - 1])
+            if a and same:
+                continue
+            hit = _quick_minor(stack[a], tol)
+            if hit is not None:
+                (i, j), (k, l) = hit
+                return (f"(A1) fails: the {label} matrix of priority {a + 1} has a negative 2x2 minor "
+                        f"(rows {i}, {j}, columns {k}, {l})")
+    return ""
+
+
 # ==================================================================== cost estimate
-#: Unit costs (seconds) behind :func:`estimate_check`, measured on the development machine (two
-#: cores shared with other work) and rounded up: one array entry through one numpy pass; one
-#: entry of the exact ratio ``F1 / F2``; one multiply-add of a matrix product; ``eigvalsh`` per
-#: ``S^3``; one (matrix, 3-support) of the exact test; the counterexample search per matrix
-#: (fixed part, part per ``S^2``); one Clarabel SDP.
+#: Unit costs (seconds) behind :func:`estimate_check`, CPU time measured on the development machine
+#: (two cores shared with other work; ``python -m pomdp_planner.bench.scale --suite setup`` compares
+#: estimate and set-up): one array entry through one numpy pass; one entry of the exact ratio
+#: ``F1 / F2``; one multiply-add of a matrix product (BLAS); ``eigvalsh`` per ``S^3``; one
+#: (matrix, 3-support) of the exact test; the counterexample search per matrix (fixed part, part
+#: per ``S^2``); one Clarabel SDP.
 COST_ELEMENT = 3e-9
 COST_RATIO = 2e-8
-COST_FLOP = 1e-9
+COST_FLOP = 1.5e-10
 COST_EIG = 3e-9
 COST_TRIPLE = 5e-7
 COST_SEARCH = (0.05, 5e-6)
 COST_SDP = 0.1
 #: How many (j, a) pairs :func:`estimate_check` samples to predict how many ``D`` must be built.
 ESTIMATE_SAMPLE_PAIRS = 32
+#: How many of the sampled pairs' ``D`` it builds to measure the share the pair test refutes.
+ESTIMATE_SAMPLE_MATRICES = 64
+#: The fixed part of the check's time (reports, small arrays).
+COST_CHECK_FIXED = 1e-3
 #: Fixed part of the check's memory in :func:`estimate_check` (the reports, small temporaries).
 CHECK_OVERHEAD_BYTES = 256 * 2**10
 
@@ -1074,8 +1220,13 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
     stages' operation counts times the unit costs (:data:`COST_ELEMENT` ...); see
     :class:`CheckEstimate` for what ``seconds`` and ``seconds_max`` assume.
     """
+    if model.sparse:
+        from .structure_sparse import estimate_check_support
+
+        return estimate_check_support(model, sdp_max_states, search, exact_max_states, reduce)
     S, A, Z = model.S, model.A, model.Z
-    seconds, peak = 0.0, 8 * 4 * A * S * Z + CHECK_OVERHEAD_BYTES  # (A3): P @ O and its cumulative sums
+    tol_estimate = 1e-9
+    seconds, peak = COST_CHECK_FIXED, 8 * 4 * A * S * Z + CHECK_OVERHEAD_BYTES  # (A3): P @ O and its cumsums
     for stack in (model.P, model.O):  # (A1), one matrix per distinct action (identical ones are cached)
         for a in range(stack.shape[0]):
             if a and np.array_equal(stack[a], stack[a - 1]):
@@ -1104,17 +1255,27 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
     peak = max(peak, 8 * 5 * min(_D_BLOCK, pairs * 3 * S * S) + CHECK_OVERHEAD_BYTES)
     rng = np.random.default_rng(0)
     picked = [sample[k] for k in rng.choice(len(sample), min(ESTIMATE_SAMPLE_PAIRS, len(sample)), replace=False)]
-    dirty_z, dirty_j = 0, 0
+    dirty_z, dirty_j, tried, easy = 0, 0, 0, 0
     for a, j in picked:
         Oa, Ob = model.O[a], model.O[a + 1]
         js = np.array([j])
-        clean = _elementwise_clean(model, a, js, (Oa[:-1] * Ob[1:])[js], (Oa[1:] * Ob[:-1])[js], None)
-        dirty_z += int(np.count_nonzero(~clean))
-        dirty_j += bool(np.any(~clean))
+        alpha, beta = (Oa[:-1] * Ob[1:])[js], (Oa[1:] * Ob[:-1])[js]
+        clean = _elementwise_clean(model, a, js, alpha, beta, None)
+        zs = np.flatnonzero(~clean[0])
+        dirty_z += zs.size
+        dirty_j += bool(zs.size)
+        zs = zs[:max(0, ESTIMATE_SAMPLE_MATRICES - tried)]
+        if zs.size:  # the share of built D that the cheap pair test refutes (no expensive test then)
+            _, _, F1, F2 = _rank_factors(model, a, js)
+            D = alpha[0, zs, None, None] * F1 - beta[0, zs, None, None] * F2
+            scale = np.abs(D).max(axis=(1, 2))
+            easy += int(np.count_nonzero(_pair_counterexamples(D)[1] < -tol_estimate * scale))
+            tried += zs.size
     dirty = round(pairs * dirty_z / len(picked))
     worst = round(pairs * dirty_j / len(picked))
     if not dirty:
         return CheckEstimate(seconds, seconds, peak, pairs, 0)
+    hard_share = 1.0 - easy / tried if tried else 1.0
     build = 10 * S * S * COST_ELEMENT  # D, min, max|D|, the pair test
     kstep = max(1, _D_BLOCK // max(1, S * S))  # matrices per block
     hard = COST_EIG * S**3
@@ -1124,10 +1285,11 @@ def estimate_check(model: POMDP, *, sdp_max_states: int = SDP_MAX_STATES, search
         hard += COST_SDP if S <= sdp_max_states else 0.0
         hard += (COST_SEARCH[0] + COST_SEARCH[1] * S * S) if search else 0.0
     peak = max(peak, 8 * 6 * min(_D_BLOCK, dirty * S * S) + CHECK_OVERHEAD_BYTES)
-    # dominance needs a proven worst D: only the exact test (S <= exact_max_states) proves these
-    alone = dirty if not reduce or S > exact_max_states else worst
+    # dominance needs a proven worst D: only the exact test (S <= exact_max_states) proves these;
+    # a D the pair test refutes needs no expensive test
+    alone = hard_share * (dirty if not reduce or S > exact_max_states else worst)
     if S <= exact_max_states:  # one block of (matrix, triple) pairs: about 20 arrays of that size
-        peak = max(peak, 8 * 20 * min(_TRIPLE_BLOCK, min(alone, kstep) * (S * (S - 1) * (S - 2) // 6))
+        peak = max(peak, 8 * 20 * min(_TRIPLE_BLOCK, min(max(round(alone), 1), kstep) * (S * (S - 1) * (S - 2) // 6))
                    + CHECK_OVERHEAD_BYTES)
     expected = seconds + dirty * build + alone * hard
-    return CheckEstimate(expected, seconds + dirty * (build + hard), peak, pairs, dirty)
+    return CheckEstimate(expected, seconds + dirty * build + hard_share * dirty * hard, peak, pairs, dirty)

@@ -23,8 +23,9 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from std_msgs.msg import Float64MultiArray, Int64MultiArray
 
 from ..core.bounds import BOUND_CONSTANTS, BOUND_VARIANTS, DEFAULT_CONSTANT
-from ..core.gate import SetupStages
+from ..core.gate import MAX_SETUP_SECONDS, SetupStages
 from ..core.loop import TUNABLE, PlannerLoop, PlannerOutput, check_params
+from ..core.loop.planner_loop import setup_limit
 from ..core.options import MAX_DEPTH_RANGE, TIME_BUDGET_RANGE
 from .loop_node import ManagedLoopNode, OneShot
 from .messages import MessageError, decode_belief, encode_action, encode_plan_info, wire_bounds
@@ -60,6 +61,10 @@ class PlannerNode(ManagedLoopNode):
         declare_double(self, "deadline_slack", 0.02, d(
             "Allowed overhead (s) beyond time_budget before a decision counts as a deadline miss",
             float_range=(0.0, 10.0)))
+        declare_double(self, "max_setup_seconds", MAX_SETUP_SECONDS, d(
+            "Longest set-up accepted at configure (assumption check, bound LP, planner tables), as estimated "
+            "before it starts, in seconds; 0: no limit. A set-up expected to take more is refused in one line",
+            read_only=True, float_range=(0.0, 1e9)))
         self.declare_parameter("chunk_kib", 1024, d(
             "Memory per search chunk (KiB); the deadline is checked between chunks, so smaller = tighter "
             "deadlines",
@@ -74,7 +79,8 @@ class PlannerNode(ManagedLoopNode):
         model = self.load_model(stages)
         loop = PlannerLoop(model, {name: value(name).value for name in TUNABLE}, self.live, now=self.now(),
                            refuse=value("refuse_if_assumptions_fail").value,
-                           chunk_bytes=1024 * value("chunk_kib").value, progress=self.get_logger().info, active=False)
+                           chunk_bytes=1024 * value("chunk_kib").value, progress=self.get_logger().info, active=False,
+                           max_setup_seconds=setup_limit(value("max_setup_seconds").value))
         self.action_pub = self.create_lifecycle_publisher(Int64MultiArray, "action", STREAM_QOS)
         self.info_pub = self.create_lifecycle_publisher(Float64MultiArray, "plan_info", STREAM_QOS)
         plan_group = MutuallyExclusiveCallbackGroup()

@@ -12,8 +12,12 @@ Field names are fixed so that files written by others load::
     reward: [...]        # S x A
     uncertainty: {function: renyi2 | shannon | none, weights: [...], epsilon: 0.001}
 
-Instead of ``transition`` and ``observation``, ``generator: {domain: tracking, S, A, q, x, y}``;
-instead of ``reward``, ``reward_generator: {kind: tracking_comparison, c_a, c_p, c_d, k_r}``.
+``transition`` and ``observation`` may also be text blocks or the sparse form
+(:mod:`.matrix_text`). Instead of them, ``generator: {domain: tracking, S, A, q, x, y}`` or
+``generator: {domain: grid, rows, cols, A, ...}`` (:mod:`~pomdp_planner.core.domains.grid`);
+instead of ``reward``, ``reward_generator: {kind: tracking_comparison, c_a, c_p, c_d, k_r}`` or
+``{kind: effort, cost}``. ``grid: {rows, cols, obstacles}`` records the grid of a grid model
+(``metadata["grid"]``).
 Every error is a :class:`~pomdp_planner.core.model.ModelError` of one line that starts with the
 file name and the field.
 
@@ -35,8 +39,9 @@ A model file is untrusted input, so loading is bounded by design:
   (``discount: "0.5"`` is an error); a count (``states``, ``generator.S``) is an integer, never
   a float (``S: 3.9`` and ``S: 3.0`` are errors: counts are written as integers); NaN and
   infinity are refused wherever a number is expected;
-* sizes are checked against ``MAX_MODEL_BYTES`` *before* anything is generated, and the
-  declared ``states``/``actions``/``observations`` against the generator's ``S`` and ``A``;
+* sizes are checked against ``MAX_MODEL_BYTES`` *before* anything is generated (and the sparse
+  form's non-zeros before its matrices are built), and the declared
+  ``states``/``actions``/``observations`` against the generator's sizes;
 * an error message quotes at most ``MESSAGE_VALUE_CHARS`` characters of any value.
 """
 
@@ -64,6 +69,7 @@ from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from ..belief import start_belief
 from ..checks import is_integer
+from ..domains.grid import GridLayout, check_grid_size, effort_reward, grid_observations, grid_transitions
 from ..domains.tracking import comparison_reward, tracking_observations, tracking_transitions
 from ..errors import prefixed
 from ..model import (
@@ -76,15 +82,24 @@ from ..model import (
     kind_of,
     short_repr,
 )
+from ..sparse import SparseStack
 from .cassandra import load_pomdp_file
 from .file_text import read_model_text
+from .matrix_text import dense_block, dense_text, is_block_list, is_sparse_form, sparse_matrices, sparse_text
 
 KNOWN_FIELDS = {
     "name", "discount", "states", "actions", "observations", "transition", "observation",
-    "reward", "uncertainty", "generator", "reward_generator", "description", "start",
+    "reward", "uncertainty", "generator", "reward_generator", "description", "start", "grid",
 }
-GENERATOR_FIELDS = {"domain", "S", "A", "q", "x", "y"}
-REWARD_GENERATOR_FIELDS = {"kind", "c_a", "c_p", "c_d", "k_r"}
+#: The fields of each generator domain.
+GENERATOR_FIELDS = {"tracking": {"domain", "S", "A", "q", "x", "y"},
+                    "grid": {"domain", "rows", "cols", "A", "move", "detection", "accuracy", "obstacles", "sensor",
+                             "fov"}}
+#: The fields of each reward generator.
+REWARD_GENERATOR_FIELDS = {"tracking_comparison": {"kind", "c_a", "c_p", "c_d", "k_r"}, "effort": {"kind", "cost"}}
+GRID_FIELDS = {"rows", "cols", "obstacles"}
+#: A model with more matrix entries than this is exported with text blocks instead of nested lists.
+EXPORT_LIST_MAX_VALUES = 20_000
 UNCERTAINTY_FIELDS = {"function", "weights", "epsilon"}
 #: Deepest nesting of collections accepted in a model file (the schema needs 4).
 MAX_YAML_DEPTH = 16
@@ -377,14 +392,17 @@ def model_from_dict(doc: Any, source: str = "<dict>") -> POMDP:
         return _model_from_dict(doc)
 
 
-def _generated(doc: dict, S: int | None, A: int | None, Z: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """``P`` and ``O`` from ``generator``, after checking its fields and sizes (before allocating)."""
+def _generated(doc: dict, S: int | None, A: int | None, Z: int | None) -> tuple[Any, Any, dict]:
+    """``P``, ``O`` and metadata from ``generator``, after checking its fields and sizes (before allocating)."""
     if "transition" in doc or "observation" in doc:
         raise ModelError("generator: give either generator or transition/observation, not both")
-    gen = _mapping(doc["generator"], "generator", "domain, S, A, q, x, y")
-    _check_fields(gen, GENERATOR_FIELDS, "generator: ")
-    if gen.get("domain") != "tracking":
-        raise ModelError(f"generator.domain: only 'tracking' is known, got {kind_of(gen.get('domain'))}")
+    gen = _mapping(doc["generator"], "generator", "domain, ...")
+    domain = gen.get("domain")
+    if not isinstance(domain, str) or domain not in GENERATOR_FIELDS:
+        raise ModelError(f"generator.domain: one of {', '.join(sorted(GENERATOR_FIELDS))}, got {kind_of(domain)}")
+    _check_fields(gen, GENERATOR_FIELDS[domain], "generator: ")
+    if domain == "grid":
+        return _grid_generated(gen, S, A, Z)
     for key in ("S", "A", "q"):
         if key not in gen:
             raise ModelError(f"generator.{key}: missing")
@@ -396,7 +414,80 @@ def _generated(doc: dict, S: int | None, A: int | None, Z: int | None) -> tuple[
     check_model_size(gS, gA, gS, "generator")
     gx = None if gen.get("x") is None else _vector(gen["x"], "generator.x")
     gy = None if gen.get("y") is None else _vector(gen["y"], "generator.y")
-    return tracking_transitions(gS, gA, gx, gy), tracking_observations(gS, gA, q)
+    return tracking_transitions(gS, gA, gx, gy), tracking_observations(gS, gA, q), {}
+
+
+def _grid_generated(gen: dict, S: int | None, A: int | None, Z: int | None) -> tuple[Any, Any, dict]:
+    """The grid domain's ``P`` and ``O`` (:mod:`~pomdp_planner.core.domains.grid`)."""
+    for key in ("rows", "cols", "A"):
+        if key not in gen:
+            raise ModelError(f"generator.{key}: missing")
+    layout = GridLayout(gen["rows"], gen["cols"], gen.get("obstacles") or [])
+    gA = as_count(gen["A"], "generator.A")
+    for key, n, got in (("states", S, layout.S), ("actions", A, gA), ("observations", Z, layout.S + 1)):
+        if n is not None and n != got:
+            raise ModelError(f"{key}: declares {n} but the grid generator gives {got}")
+    check_grid_size(layout, gA)
+    kw = {k: gen[k] for k in ("detection", "accuracy", "sensor", "fov") if gen.get(k) is not None}
+    P = grid_transitions(layout, gA, gen.get("move", 0.2))
+    O = grid_observations(layout, gA, **kw)
+    return P, O, {"grid": layout.metadata()}
+
+
+def _matrix(doc: dict, key: str, A: int | None, rows: int | None, cols: int | None, rows_key: str,
+            cols_key: str) -> np.ndarray | SparseStack:
+    """``transition`` or ``observation`` in any of its forms (:mod:`.matrix_text`)."""
+    value = doc[key]
+    if is_sparse_form(value):
+        return sparse_matrices(value, key, A, rows, cols, rows_key, cols_key)
+    if is_block_list(value):
+        mats = [dense_block(x, f"{key}[{a}]", cols) if isinstance(x, str) else _numbers(x, f"{key}[{a}]", 2)
+                for a, x in enumerate(value)]
+        shapes = {m.shape for m in mats}
+        if len(shapes) != 1:
+            raise ModelError(f"{key}: the matrices of the actions have different shapes {sorted(shapes)}")
+        return np.stack(mats)
+    return _numbers(value, key, 3)
+
+
+def _grid_field(value: Any, S: int) -> dict:
+    """``grid: {rows, cols, obstacles}``: the grid of a grid model, whose free cells are its ``S`` states."""
+    grid = _mapping(value, "grid", "rows, cols, obstacles")
+    _check_fields(grid, GRID_FIELDS, "grid: ")
+    for key in ("rows", "cols"):
+        if key not in grid:
+            raise ModelError(f"grid.{key}: missing")
+    layout = GridLayout(grid["rows"], grid["cols"], grid.get("obstacles") or [])
+    if layout.S != S:
+        raise ModelError(f"grid: a {layout.rows} x {layout.cols} grid with {len(layout.obstacles())} obstacles has "
+                         f"{layout.S} free cells, but the model has {S} states")
+    return layout.metadata()
+
+
+def _reward(doc: dict, S: int, A: int, metadata: dict) -> np.ndarray:
+    if "reward_generator" in doc:
+        if "reward" in doc:
+            raise ModelError("reward_generator: give either reward or reward_generator, not both")
+        rg = _mapping(doc["reward_generator"], "reward_generator", "kind, ...")
+        kind = rg.get("kind")
+        if not isinstance(kind, str) or kind not in REWARD_GENERATOR_FIELDS:
+            raise ModelError(f"reward_generator.kind: one of {', '.join(sorted(REWARD_GENERATOR_FIELDS))}, "
+                             f"got {kind_of(kind)}")
+        _check_fields(rg, REWARD_GENERATOR_FIELDS[kind], "reward_generator: ")
+        metadata["reward_generator"] = dict(rg)
+        if kind == "effort":
+            cost = rg.get("cost")
+            if cost is not None:
+                cost = [_reward_parameter(c, f"reward_generator.cost[{k}]") for k, c in enumerate(cost)] \
+                    if isinstance(cost, list) else _reward_parameter(cost, "reward_generator.cost")
+            return effort_reward(S, A, cost)
+        kw = {k: _reward_parameter(v, f"reward_generator.{k}") for k, v in rg.items() if k != "kind"}
+        return comparison_reward(S, A, **kw)
+    if "reward" in doc:
+        if isinstance(doc["reward"], str):
+            return dense_block(doc["reward"], "reward", A)
+        return _numbers(doc["reward"], "reward", 2)
+    raise ModelError("reward: missing (give reward or reward_generator)")
 
 
 def _model_from_dict(doc: Any) -> POMDP:
@@ -410,32 +501,24 @@ def _model_from_dict(doc: Any) -> POMDP:
     Z, obs_names = _size(doc, "observations")
     metadata: dict = {}
     if "generator" in doc:
-        P, O = _generated(doc, S, A, Z)
+        P, O, extra = _generated(doc, S, A, Z)
         metadata["generator"] = dict(doc["generator"])
+        metadata.update(extra)
     else:
         for key in ("transition", "observation"):
             if key not in doc:
                 raise ModelError(f"{key}: missing (give transition and observation, or generator)")
-        P = _numbers(doc["transition"], "transition", 3)
-        O = _numbers(doc["observation"], "observation", 3)
+        P = _matrix(doc, "transition", A, S, S, "states", "states")
+        A_P, S_P = P.shape[0], P.shape[1]
+        O = _matrix(doc, "observation", A_P, S_P, Z, "states", "observations")
+        sparse_nnz = sum(M.nnz for M in (P, O) if isinstance(M, SparseStack))
+        if sparse_nnz:
+            check_model_size(S_P, A_P, O.shape[2], "model", nnz=sparse_nnz + sum(
+                int(np.prod(M.shape)) for M in (P, O) if not isinstance(M, SparseStack)))
     for key, n, got in (("states", S, P.shape[1]), ("actions", A, P.shape[0]), ("observations", Z, O.shape[2])):
         if n is not None and n != got:
             raise ModelError(f"{key}: declares {n} but the matrices have {got}")
-    if "reward_generator" in doc:
-        if "reward" in doc:
-            raise ModelError("reward_generator: give either reward or reward_generator, not both")
-        rg = _mapping(doc["reward_generator"], "reward_generator", "kind, c_a, c_p, c_d, k_r")
-        _check_fields(rg, REWARD_GENERATOR_FIELDS, "reward_generator: ")
-        if rg.get("kind") != "tracking_comparison":
-            raise ModelError("reward_generator.kind: only 'tracking_comparison' is known, "
-                             f"got {kind_of(rg.get('kind'))}")
-        kw = {k: _reward_parameter(v, f"reward_generator.{k}") for k, v in rg.items() if k != "kind"}
-        r = comparison_reward(P.shape[1], P.shape[0], **kw)
-        metadata["reward_generator"] = dict(rg)
-    elif "reward" in doc:
-        r = _numbers(doc["reward"], "reward", 2)
-    else:
-        raise ModelError("reward: missing (give reward or reward_generator)")
+    r = _reward(doc, P.shape[1], P.shape[0], metadata)
     unc = doc.get("uncertainty")
     unc = {"function": "none"} if unc is None else _mapping(unc, "uncertainty", "function, weights, epsilon")
     _check_fields(unc, UNCERTAINTY_FIELDS, "uncertainty: ")
@@ -447,6 +530,10 @@ def _model_from_dict(doc: Any) -> POMDP:
         metadata["start"] = _start(doc["start"], P.shape[1])
     if "description" in doc:
         metadata["description"] = _text(doc["description"], "description")
+    if "grid" in doc:
+        if "grid" in metadata:
+            raise ModelError("grid: the grid generator gives the grid; give grid only with explicit matrices")
+        metadata["grid"] = _grid_field(doc["grid"], P.shape[1])
     model = POMDP(
         P=P, O=O, r=r, gamma=doc["discount"], uncertainty=func, w=weights, epsilon=unc.get("epsilon"),
         name=doc.get("name", "pomdp"), state_names=state_names, action_names=action_names,
@@ -468,8 +555,25 @@ def load_model(path: str | Path, field: str | None = None) -> POMDP:
         return model_from_dict(parse_model_yaml(text, str(path)), source=str(path))
 
 
+class TextBlock(str):
+    """A string that :func:`dump_model` writes as a YAML literal block (``|``)."""
+
+
+def _matrices_out(model: POMDP, which: str) -> Any:
+    """``transition`` or ``observation`` as written by :func:`model_to_dict`: the sparse form for a
+    sparse model, text blocks for a large dense one, nested lists otherwise."""
+    if model.sparse:
+        stack = model.P_csr if which == "P" else model.O_csr
+        return {"sparse": [sparse_text(stack, a) for a in range(model.A)]}
+    M = model.P if which == "P" else model.O
+    if model.A * model.S * (model.S + model.Z) > EXPORT_LIST_MAX_VALUES:
+        return [dense_text(M[a]) for a in range(model.A)]
+    return M.tolist()
+
+
 def model_to_dict(model: POMDP) -> dict:
-    """The explicit (matrix) form of a model, ready for ``yaml.safe_dump``."""
+    """The explicit (matrix) form of a model (:func:`dump_model` writes it; ``yaml.safe_dump`` too,
+    the text blocks then as quoted strings)."""
     def names_or_count(names, n):
         return list(names) if names is not None else n
 
@@ -479,17 +583,41 @@ def model_to_dict(model: POMDP) -> dict:
         "states": names_or_count(model.state_names, model.S),
         "actions": names_or_count(model.action_names, model.A),
         "observations": names_or_count(model.observation_names, model.Z),
-        "transition": model.P.tolist(),
-        "observation": model.O.tolist(),
-        "reward": model.r.tolist(),
+        "transition": _matrices_out(model, "P"),
+        "observation": _matrices_out(model, "O"),
+        "reward": dense_text(model.r) if model.r.size > EXPORT_LIST_MAX_VALUES else model.r.tolist(),
         "uncertainty": {"function": model.uncertainty.name, "weights": model.w.tolist(),
                         "epsilon": model.epsilon},
     }
     if "start" in model.metadata:
         doc["start"] = model.metadata["start"]
+    if "grid" in model.metadata:
+        doc["grid"] = dict(model.metadata["grid"])
     return doc
+
+
+class _Dumper(getattr(yaml, "CSafeDumper", yaml.SafeDumper)):  # type: ignore[misc]
+    """``yaml.safe_dump`` with :class:`TextBlock` strings as literal blocks."""
+
+
+_Dumper.add_representer(TextBlock, lambda dumper, data: dumper.represent_scalar("tag:yaml.org,2002:str", str(data),
+                                                                                style="|"))
+
+
+def dump_model(model: POMDP) -> str:
+    """The YAML text of ``model`` in explicit form (:func:`model_to_dict`), text blocks as literal blocks."""
+    doc = model_to_dict(model)
+    if isinstance(doc["reward"], str):
+        doc["reward"] = TextBlock(doc["reward"])
+    for key in ("transition", "observation"):
+        value = doc[key]
+        if isinstance(value, dict):
+            value["sparse"] = [TextBlock(x) for x in value["sparse"]]
+        elif value and isinstance(value[0], str):
+            doc[key] = [TextBlock(x) for x in value]
+    return yaml.dump(doc, Dumper=_Dumper, sort_keys=False, default_flow_style=None)
 
 
 def save_model(model: POMDP, path: str | Path) -> None:
     """Write ``model`` as a YAML model file in explicit form."""
-    Path(path).write_text(yaml.safe_dump(model_to_dict(model), sort_keys=False, default_flow_style=None))
+    Path(path).write_text(dump_model(model))

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..belief import check_belief, start_belief, uniform_belief
 from ..model import POMDP, ModelError
+from ..sparse import SparseStack
 from .model_yaml import load_model
 from .paths import resolve_path
 
@@ -39,15 +40,16 @@ def load_observation_models(model: POMDP, files: Sequence[str] | None, num_senso
     return [load_observation_model(model, f, f"observation_model_files[{k}]") for k, f in enumerate(files)]
 
 
-def load_observation_model(model: POMDP, file: str, field: str) -> np.ndarray:
+def load_observation_model(model: POMDP, file: str, field: str) -> np.ndarray | SparseStack:
     """The observation array ``O`` (``A x S x Z``) of one sensor: the ``observation`` matrix of the
     model file ``file`` (``""``: the model's own), which must have the model's actions and states;
-    errors name ``field``."""
-    if not file:
-        return model.O
-    O = load_model_file(file, field).O
-    if O.shape[:2] != (model.A, model.S):
-        raise ModelError(f"{field}: observation model has shape {O.shape}, expected {model.A} x {model.S} x Z")
+    errors name ``field``. A sparse model's matrices come in their sparse form
+    (:class:`~pomdp_planner.core.sparse.SparseStack`)."""
+    other = model if not file else load_model_file(file, field)
+    O = other.O_csr if other.sparse else other.O
+    if tuple(O.shape[:2]) != (model.A, model.S):
+        raise ModelError(f"{field}: observation model has shape {tuple(O.shape)}, expected "
+                         f"{model.A} x {model.S} x Z")
     return O
 
 

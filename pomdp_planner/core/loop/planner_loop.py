@@ -26,7 +26,7 @@ import numpy as np
 
 from ..bounds import check_constant, check_variant
 from ..errors import OptionError
-from ..gate import PlannerSetup, build_planner
+from ..gate import MAX_SETUP_SECONDS, PlannerSetup, build_planner
 from ..model import POMDP, format_bytes, priority_of
 from ..search import DEFAULT_CHUNK_BYTES, SearchResult
 from .epochs import EpochLine, JoinWait, Liveness, Resender, belief_verdict, off_stream_belief
@@ -147,6 +147,15 @@ def check_params(values: Mapping[str, Any]) -> str:
     return ""
 
 
+#: How a node's user lifts the set-up time limit (the end of the gate's refusal).
+SETUP_HINT = "the parameter max_setup_seconds raises the limit (0: no limit)"
+
+
+def setup_limit(value: float) -> float | None:
+    """The node parameter ``max_setup_seconds`` as the gate's limit: ``None`` (no limit) for 0."""
+    return None if value == 0 else float(value)
+
+
 class PlannerLoop:
     """The planner's loop for ``model`` with the :data:`TUNABLE` parameters ``params``.
 
@@ -155,17 +164,21 @@ class PlannerLoop:
     search's chunk size (the deadline is checked between chunks). ``progress``: where the gate
     announces a set-up that will take a while, as it starts, and each stage over a second as it
     ends (log lines; the loop's other lines come with its outputs). ``active=False``: the loop
-    starts inactive (rule "Inactive"; :meth:`activate`).
+    starts inactive (rule "Inactive"; :meth:`activate`). ``max_setup_seconds``: the longest set-up
+    the gate accepts, as estimated before it starts (``None``: no limit; the node's parameter of
+    that name, 0 meaning no limit, :func:`setup_limit`).
     """
 
     def __init__(self, model: POMDP, params: Mapping[str, Any], live: Liveness, *, now: float,
                  refuse: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 progress: Callable[[str], None] | None = None, active: bool = True):
+                 progress: Callable[[str], None] | None = None, active: bool = True,
+                 max_setup_seconds: float | None = MAX_SETUP_SECONDS):
         self.params = checked_params(params, TUNABLE, check_params)
         self.model = model
         self.live = live
         self._on_failure = "refuse" if refuse else "exhaustive"
         self._chunk_bytes = chunk_bytes
+        self._max_setup_seconds = max_setup_seconds
         self._progress = progress
         self._planner_key: tuple[str, str] | None = None
         self._refused_setups: set[tuple[str, str]] = set()  # run-time choices the gate refused
@@ -244,7 +257,8 @@ class PlannerLoop:
         try:
             setup = build_planner(self.model, variant=variant, constant=constant,
                                   on_assumption_failure=self._on_failure, chunk_bytes=self._chunk_bytes,
-                                  progress=self._progress)
+                                  progress=self._progress, max_setup_seconds=self._max_setup_seconds,
+                                  setup_hint=SETUP_HINT)
         except OptionError as exc:  # a set-up the gate refuses (its cost): at start-up, the node's error
             if self._planner_key is None:
                 raise

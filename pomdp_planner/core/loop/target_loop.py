@@ -20,6 +20,7 @@ import numpy as np
 
 from ..checks import check_int
 from ..model import POMDP, action_of_priority
+from ..sparse import sample_choice
 from .epochs import DEFAULT_JOIN_TIMEOUT, EpochLine, JoinWait, Liveness, Resender
 from .health import InputWatch, Log, LoopHealth, Report
 from .samples import ActionSample
@@ -239,12 +240,13 @@ class TargetLoop:
     def _step(self, epoch: int, priority: int, now: float) -> None:
         """Simulate epoch ``epoch`` under ``priority``: transition, one reading per sensor."""
         a = action_of_priority(priority, self.model.A)
-        self.state = int(self.rng.choice(self.model.S, p=self.model.P[a, self.state]))
+        m = self.model
+        self.state = sample_choice(self.rng, m.P_csr if m.sparse else m.P, a, self.state)
         self.epoch = epoch
         self.last_priority = priority
         self.line.advance(epoch, now)
         self.health.count("steps")
-        self._last = Readings(epoch, priority, tuple(int(self.rng.choice(O.shape[2], p=O[a, self.state]))
+        self._last = Readings(epoch, priority, tuple(sample_choice(self.rng, O, a, self.state)
                                                      for O in self.sensors))
         self._out.readings.append(self._last)
         self._out.true_states.append((epoch, self.state))
