@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from pomdp_planner.core import structure
@@ -191,10 +191,11 @@ def test_separable_bound_is_below_the_exact_ratio(seed, S, zero_share):
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 10**6), st.integers(2, 5), st.floats(0.1, 0.6))
+@example(1127, 3, 0.5)  # products of subnormals computed as 0 hid a negative D: a "proof" of a refuted matrix
 def test_subnormal_transitions_give_sound_ratio_bounds_and_no_warning(seed, S, tiny_share):
     """Probabilities as small as the smallest subnormal make ``num / den`` overflow: the bound is
     still below the exact ratio (computed in rationals), the check warns nothing and keeps its
-    verdicts."""
+    verdicts, and it proves no ``D`` that ``x = e_m`` refutes in exact arithmetic."""
     import warnings
     from fractions import Fraction
 
@@ -209,8 +210,15 @@ def test_subnormal_transitions_give_sound_ratio_bounds_and_no_warning(seed, S, t
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         bound = separable_ratio_bound(model, 0)
-        assert_same_verdicts(model)
+        new, _ = assert_same_verdicts(model)
     F = [[[Fraction(x) for x in row] for row in Pa] for Pa in P]
+    Of = [[[Fraction(x) for x in row] for row in Oa] for Oa in model.O]
+    for j in range(S - 1):
+        for z in range(2):
+            al, be = Of[0][j][z] * Of[1][j + 1][z], Of[0][j + 1][z] * Of[1][j][z]
+            diagonal = [al * F[0][m][j] * F[1][m][j + 1] - be * F[0][m][j + 1] * F[1][m][j] for m in range(S)]
+            if min(diagonal) < 0:  # x = e_m gives x^T D x = 2 d[m, m] < 0
+                assert not structure.is_proven(new.codes[0, j, z]), (j, z, new.codes)
     for j in range(S - 1):
         ratios = [(F[0][m][j] * F[1][n][j + 1] + F[1][m][j + 1] * F[0][n][j])
                   / (F[0][m][j + 1] * F[1][n][j] + F[1][m][j] * F[0][n][j + 1])
@@ -219,6 +227,52 @@ def test_subnormal_transitions_give_sound_ratio_bounds_and_no_warning(seed, S, t
             assert Fraction(bound[j]) <= min(ratios) * Fraction(1 + 1e-12)  # float rounding of the products
         else:
             assert bound[j] == np.inf
+
+
+@pytest.mark.parametrize("storage", ["dense", "sparse"])
+def test_a_negative_minor_whose_products_underflow_fails_tp2(storage):
+    """Both products of the minor (rows 0, 1; columns 1, 2) are below the smallest subnormal, so
+    both are computed as 0; in exact arithmetic the minor is 1e-331 - 1e-330 < 0, relative
+    (1e-331 - 1e-330) / (1e-331 + 1e-330) = -9/11, and (A1) fails."""
+    from fractions import Fraction
+
+    r0, r1 = [1 - 1e-170 - 1e-165, 1e-170, 1e-165], [1 - 1e-165 - 1e-161, 1e-165, 1e-161]
+    P = np.array([[r0, r1, r1]] * 2)
+    O = np.array([[[0.9, 0.1], [0.5, 0.5], [0.1, 0.9]]] * 2)
+    model = POMDP(P=P, O=O, r=np.zeros((3, 2)), gamma=0.5, storage=storage)
+    assert P[0, 0, 1] * P[0, 1, 2] == 0.0 == P[0, 0, 2] * P[0, 1, 1]
+    p1, p2 = Fraction(P[0, 0, 1]) * Fraction(P[0, 1, 2]), Fraction(P[0, 0, 2]) * Fraction(P[0, 1, 1])
+    rep = structure.check_tp2(model)
+    assert not rep.holds and (rep.rows, rep.cols) == ((0, 1), (1, 2))
+    assert rep.worst_relative == pytest.approx(float((p1 - p2) / (p1 + p2)), rel=1e-9)
+
+
+@pytest.mark.parametrize("storage", ["dense", "sparse"])
+def test_no_copositivity_proof_where_products_of_four_probabilities_underflow(storage):
+    """A probability of 1e-100 in the frame of ``D^{j,a,z}`` (products of four can be 1e-400): the
+    check proves none of those matrices (unknown_underflow), proves the others as before, and
+    Assumption 1 is not reported to hold."""
+    base = load_model(ROOT / "config" / "models" / "tracking_s8_natural.yaml")
+    P = np.array(base.P)
+    P[0, 0, 0] += P[0, 0, 3] - 1e-100
+    P[0, 0, 3] = 1e-100
+    model = POMDP(P=P, O=base.O, r=base.r, gamma=base.gamma, storage=storage)
+    frames = structure.underflow_frames(model)
+    assert frames.tolist() == [[j in (2, 3) for j in range(7)], [False] * 7]
+    rep = check_copositivity(model)
+    codes = rep.codes if rep.index is None else None
+    if codes is None:  # a compact report: every matrix of the frames is listed
+        codes = np.zeros((2, 7, model.Z), dtype=int)
+        codes[tuple(rep.index.T)] = rep.codes
+    inside = codes[0, 2:4]
+    assert not is_proven(inside).any() and set(np.unique(inside)) <= {structure.UNKNOWN_UNDERFLOW, REFUTED}
+    assert rep.counts()["unknown_underflow"] == np.count_nonzero(inside == structure.UNKNOWN_UNDERFLOW) > 0
+    for (a, j, _z), (_, value) in rep.refutations.items():
+        assert not frames[a, j] or value < -(2.0**-900)  # a refutation there stands far beyond the underflow
+    assert is_proven(codes[1]).all() and not rep.holds
+    clean = check_copositivity(base)
+    assert clean.holds and structure.check_assumptions(base).holds
+    assert not structure.check_assumptions(model).holds
 
 
 @pytest.mark.parametrize("shared", [True, False], ids=["one O for all actions", "one O per action"])

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import combinations
 
 import clarabel
@@ -88,6 +88,7 @@ PROVEN_DOMINATED = 3
 REFUTED = 4
 UNKNOWN = 5
 UNKNOWN_SDP_SKIPPED = 6
+UNKNOWN_UNDERFLOW = 7
 STATUS_NAMES = {
     PROVEN_ELEMENTWISE: "proven (A2': elementwise non-negative)",
     PROVEN_SDP: "proven (certificate D = PSD + N, N >= 0: eigenvalues if N = 0, else SDP)",
@@ -97,7 +98,20 @@ STATUS_NAMES = {
     REFUTED: "refuted (x >= 0 with x^T D x < 0)",
     UNKNOWN: "unknown (no certificate, no counterexample found)",
     UNKNOWN_SDP_SKIPPED: "unknown (SDP skipped above S = {cap}; no counterexample found)",
+    UNKNOWN_UNDERFLOW: "unknown (a positive probability of its frame is below 2^-240: products of four "
+                       "leave the range where floating point keeps their sign)",
 }
+
+#: Products of two probabilities below this have lost relative precision (or underflowed to 0):
+#: the relative 2x2 minor of (A1) is then taken from logarithms (:func:`minor_relative`).
+_PRODUCT_SAFE = 2.0**-960
+#: (A2) multiplies four probabilities: with every positive one at least this, each product is at
+#: least 2^-960, a normal float with full relative precision. A ``D^{j,a,z}`` whose frame holds a
+#: smaller positive probability cannot be proven (:data:`UNKNOWN_UNDERFLOW`; :func:`underflow_frames`).
+SAFE_PROBABILITY = 2.0**-240
+#: A refutation of such a ``D`` stands only when ``x^T D x`` is below minus this, far beyond the
+#: absolute error of products that underflowed (a few times 2^-1074 per entry).
+_UNDERFLOW_REFUTATION = 2.0**-900
 
 
 def is_proven(codes: np.ndarray | int) -> np.ndarray | bool:
@@ -166,6 +180,26 @@ def _relative(minor: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
     return np.where(den > 0, minor / np.where(den > 0, den, 1.0), 0.0)
 
 
+def minor_relative(x1: np.ndarray, y1: np.ndarray, x2: np.ndarray, y2: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(p1, p2, relative)`` of minors ``p1 - p2`` with ``p1 = x1 y1``, ``p2 = x2 y2`` (non-negative
+    entries), ``relative = (p1 - p2) / (p1 + p2)`` (0 where both vanish). Where a product of
+    positive entries falls below :data:`_PRODUCT_SAFE` its computed value has lost its relative
+    precision (below 2^-1074 it is 0), so ``relative`` is taken there from logarithms,
+    ``tanh((log p1 - log p2) / 2)``, whose sign is the exact minor's."""
+    p1, p2 = x1 * y1, x2 * y2
+    rel = _relative(p1 - p2, p1, p2)
+    pos1, pos2 = (x1 > 0) & (y1 > 0), (x2 > 0) & (y2 > 0)
+    low = (pos1 & (p1 < _PRODUCT_SAFE)) | (pos2 & (p2 < _PRODUCT_SAFE))
+    if np.any(low):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s1 = np.where(pos1, np.log(np.where(pos1, x1, 1.0)) + np.log(np.where(pos1, y1, 1.0)), -np.inf)
+            s2 = np.where(pos2, np.log(np.where(pos2, x2, 1.0)) + np.log(np.where(pos2, y2, 1.0)), -np.inf)
+            exact = np.tanh((s1 - s2) / 2.0)
+        rel = np.where(low, np.nan_to_num(exact, nan=0.0), rel)
+    return p1, p2, rel
+
+
 def _worst_minor_full(M: np.ndarray, tol: float) -> _Minor:
     n, m = M.shape
     ri, rj = np.triu_indices(n, 1)
@@ -175,8 +209,7 @@ def _worst_minor_full(M: np.ndarray, tol: float) -> _Minor:
     best, where, count = (np.inf, 0.0), (0, 0, 0), 0
     for start in range(0, ri.size, step):
         i, j = ri[start:start + step], rj[start:start + step]
-        p1, p2 = Mk[i] * Ml[j], Ml[i] * Mk[j]  # (block, C)
-        rel = _relative(p1 - p2, p1, p2)
+        p1, p2, rel = minor_relative(Mk[i], Ml[j], Ml[i], Mk[j])  # (block, C)
         count += int(np.count_nonzero(rel < -tol))
         p, q = divmod(int(np.argmin(rel)), k.size)
         if rel[p, q] < best[0]:
@@ -189,8 +222,7 @@ def _worst_minor_adjacent(M: np.ndarray, tol: float) -> _Minor:
     """Contiguous minors only: for a matrix with positive entries, TP2 holds iff all
     ``M[i,k] M[i+1,k+1] - M[i,k+1] M[i+1,k] >= 0`` (the ratios ``M[i+1,k] / M[i,k]`` increase in
     ``k``, and ratios chain). The reported worst is the worst contiguous minor."""
-    p1, p2 = M[:-1, :-1] * M[1:, 1:], M[:-1, 1:] * M[1:, :-1]
-    rel = _relative(p1 - p2, p1, p2)
+    p1, p2, rel = minor_relative(M[:-1, :-1], M[1:, 1:], M[:-1, 1:], M[1:, :-1])
     i, k = np.unravel_index(int(np.argmin(rel)), rel.shape)
     return (float(p1[i, k] - p2[i, k]), (int(i), int(i) + 1), (int(k), int(k) + 1),
             int(np.count_nonzero(rel < -tol)), float(rel[i, k]))
@@ -201,8 +233,8 @@ def _worst_minor_sparse(M: np.ndarray, tol: float) -> _Minor:
     every other minor is ``M[i,k] M[j,l] >= 0``. Exact for negativity; when TP2 holds the
     reported worst is over these candidates (the minor on rows/cols (0, 1) if there are none)."""
     r, c = np.nonzero(M > 0)
-    p1, p2 = M[0, 0] * M[1, 1], M[0, 1] * M[1, 0]
-    best = (float(_relative(np.float64(p1 - p2), p1, p2)), float(p1 - p2))
+    p1, p2, rel0 = minor_relative(M[0, 0], M[1, 1], M[0, 1], M[1, 0])
+    best = (float(rel0), float(p1 - p2))
     where, count = (0, 1, 0, 1), 0
     step = max(1, _MINOR_BLOCK // max(1, r.size))
     first = True
@@ -213,8 +245,7 @@ def _worst_minor_sparse(M: np.ndarray, tol: float) -> _Minor:
         if bi.size == 0:
             continue
         ii, ll, jj, kk = i[bi, 0], l[bi, 0], r[bj], c[bj]
-        p1, p2 = M[ii, kk] * M[jj, ll], M[ii, ll] * M[jj, kk]
-        rel = _relative(p1 - p2, p1, p2)
+        p1, p2, rel = minor_relative(M[ii, kk], M[jj, ll], M[ii, ll], M[jj, kk])
         count += int(np.count_nonzero(rel < -tol))
         p = int(np.argmin(rel))
         if first or rel[p] < best[0]:
@@ -580,7 +611,7 @@ class CopositivityReport:
     def counts(self) -> dict[str, int]:
         keys = {PROVEN_ELEMENTWISE: "proven_elementwise", PROVEN_SDP: "proven_sdp", PROVEN_EXACT: "proven_exact",
                 PROVEN_DOMINATED: "proven_dominated", REFUTED: "refuted", UNKNOWN: "unknown",
-                UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped"}
+                UNKNOWN_SDP_SKIPPED: "unknown_sdp_skipped", UNKNOWN_UNDERFLOW: "unknown_underflow"}
         out = {name: int(np.count_nonzero(self.codes == code)) for code, name in keys.items()}
         out["proven_elementwise"] += self.total - int(self.codes.size)
         return out
@@ -827,11 +858,92 @@ def check_copositivity(model: POMDP, tol: float = 1e-9, sdp_max_states: int = SD
     refuted (except where the old path could only say "unknown": above ``exact_max_states``).
     ``reduce=False`` is the previous path (every ratio exact, every ``D`` classified alone),
     kept for the benchmark and the tests that compare both.
+
+    Floating point: where the frame of a ``D`` holds a positive probability below
+    :data:`SAFE_PROBABILITY` (2^-240), products of four probabilities may underflow and an entry
+    that is negative in exact arithmetic may be computed as 0; no proof of such a ``D`` is given
+    (:data:`UNKNOWN_UNDERFLOW`), and a refutation stands only where ``x^T D x`` is far below the
+    error of the underflowed products (:func:`_withdraw_underflow`).
     """
     if model.sparse:
         from .structure_sparse import check_copositivity_support
 
-        return check_copositivity_support(model, tol, sdp_max_states, seed, search, exact_max_states, reduce)
+        rep = check_copositivity_support(model, tol, sdp_max_states, seed, search, exact_max_states, reduce)
+    else:
+        rep = _check_copositivity_dense(model, tol, sdp_max_states, seed, search, exact_max_states, reduce)
+    return _withdraw_underflow(rep, underflow_frames(model))
+
+
+def _smallest_positive(M: np.ndarray | sp.csr_array, axis: int) -> np.ndarray:
+    """The smallest positive entry of each row (``axis=1``) or column (``axis=0``); ``inf`` if none."""
+    if sp.issparse(M):
+        C = sp.csr_array(M.T if axis == 0 else M)
+        out = np.full(C.shape[0], np.inf)
+        nz = np.flatnonzero(np.diff(C.indptr))
+        if nz.size:
+            out[nz] = np.minimum.reduceat(np.where(C.data > 0, C.data, np.inf), C.indptr[nz])
+        return out
+    return np.where(M > 0, M, np.inf).min(axis=axis)
+
+
+def underflow_frames(model: POMDP) -> np.ndarray:
+    """``(A-1, S-1)`` booleans: the frame of ``D^{j,a,z}`` (columns ``j, j+1`` of ``P[a]`` and
+    ``P[a+1]``, rows ``j, j+1`` of ``O[a]`` and ``O[a+1]``) holds a positive probability below
+    :data:`SAFE_PROBABILITY`, so a product of four may have left the range where floating point
+    keeps its sign (an entry that is negative in exact arithmetic can be computed as 0)."""
+    A, S = model.A, model.S
+    if A < 2 or S < 2:
+        return np.zeros((max(A - 1, 0), max(S - 1, 0)), dtype=bool)
+    stacks = (model.P_csr, model.O_csr) if model.sparse else (model.P, model.O)
+    low = np.stack([(_smallest_positive(stacks[0][a], 0) < SAFE_PROBABILITY)
+                    | (_smallest_positive(stacks[1][a], 1) < SAFE_PROBABILITY) for a in range(A)])  # (A, S)
+    pair = low[:-1] | low[1:]  # actions a, a+1
+    return pair[:, :-1] | pair[:, 1:]  # states j, j+1
+
+
+def _withdraw_underflow(rep: CopositivityReport, frames: np.ndarray) -> CopositivityReport:
+    """``rep`` with every proof of a ``D`` whose frame underflows (:func:`underflow_frames`) withdrawn
+    (:data:`UNKNOWN_UNDERFLOW`), and its refutations kept only where ``x^T D x`` is below
+    ``-``:data:`_UNDERFLOW_REFUTATION`; a compact report lists such matrices it had not built."""
+    if not frames.any():
+        return rep
+    codes, mins, refutations = rep.codes.copy(), rep.min_entry.copy(), dict(rep.refutations)
+    index = rep.index
+    if index is None:
+        at = np.broadcast_to(frames[:, :, None], codes.shape)
+        keys = [tuple(int(v) for v in k) for k in np.argwhere(at & (codes == REFUTED))]
+    else:
+        at = frames[index[:, 0], index[:, 1]]
+        keys = [tuple(int(v) for v in index[k]) for k in np.flatnonzero(at & (codes == REFUTED))]
+    weak = [k for k in keys if refutations[k][1] >= -_UNDERFLOW_REFUTATION]
+    for k in weak:
+        del refutations[k]
+    withdraw = at & (is_proven(codes) | np.isin(codes, [UNKNOWN, UNKNOWN_SDP_SKIPPED]))
+    if index is None:
+        codes[withdraw] = UNKNOWN_UNDERFLOW
+        for k in weak:
+            codes[k] = UNKNOWN_UNDERFLOW
+        return replace(rep, codes=codes, refutations=refutations)
+    where = {tuple(int(v) for v in index[k]): k for k in np.flatnonzero(at)}
+    codes[withdraw] = UNKNOWN_UNDERFLOW
+    for k in weak:
+        codes[where[k]] = UNKNOWN_UNDERFLOW
+    a, j = np.nonzero(frames)  # the matrices of these frames the report does not list: all z
+    Z = rep.shape[2]
+    extra = np.stack([np.repeat(a, Z), np.repeat(j, Z), np.tile(np.arange(Z), a.size)], axis=1).astype(np.int64)
+    listed = np.isin(extra[:, 0] * (rep.shape[1] * Z) + extra[:, 1] * Z + extra[:, 2],
+                     index[:, 0] * (rep.shape[1] * Z) + index[:, 1] * Z + index[:, 2])
+    extra = extra[~listed]
+    index = np.concatenate([index, extra])
+    codes = np.concatenate([codes, np.full(len(extra), UNKNOWN_UNDERFLOW, dtype=codes.dtype)])
+    mins = np.concatenate([mins, np.full(len(extra), np.nan)])
+    order = np.lexsort((index[:, 2], index[:, 1], index[:, 0]))
+    return replace(rep, codes=codes[order], min_entry=mins[order], refutations=refutations, index=index[order])
+
+
+def _check_copositivity_dense(model: POMDP, tol: float, sdp_max_states: int, seed: int, search: bool,
+                              exact_max_states: int, reduce: bool) -> CopositivityReport:
+    """:func:`check_copositivity` of a model stored dense (before :func:`_withdraw_underflow`)."""
     S, A, Z = model.S, model.A, model.Z
     shape = (max(A - 1, 0), max(S - 1, 0), Z)
     codes = np.full(shape, PROVEN_ELEMENTWISE, dtype=np.int8)

@@ -118,14 +118,11 @@ def _copairs(M: sp.csr_array) -> tuple[np.ndarray, ...]:
     return key[order], rows[order], M.data[left][order], M.data[right][order], left[order]
 
 
-def _relative(p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
-    den = np.abs(p1) + np.abs(p2)
-    return np.where(den > 0, (p1 - p2) / np.where(den > 0, den, 1.0), 0.0)
-
-
 def worst_minor_support(M: sp.csr_array, tol: float = 1e-9) -> tuple:
     """The worst 2x2 minor of the sparse matrix ``M``: ``(minor, (i, j), (k, l), count, relative)``
     as :func:`.structure.worst_tp2_minor` returns it (module docstring, (A1))."""
+    from .structure import minor_relative
+
     n, m = M.shape
     if n < 2 or m < 2:
         return 0.0, (0, 0), (0, 0), 0, 0.0
@@ -146,8 +143,7 @@ def worst_minor_support(M: sp.csr_array, tol: float = 1e-9) -> tuple:
             nb = partners[pos:stop]
             x = np.repeat(np.arange(pos, stop), nb)
             y = x + 1 + (np.arange(x.size) - np.repeat(np.cumsum(nb) - nb, nb))
-            p1, p2 = vk[x] * vl[y], vl[x] * vk[y]  # M[i,k] M[j,l], M[i,l] M[j,k]
-            rel = _relative(p1, p2)
+            p1, p2, rel = minor_relative(vk[x], vl[y], vl[x], vk[y])  # M[i,k] M[j,l], M[i,l] M[j,k]
             negative_rect += int(np.count_nonzero(rel < -tol))
             np.add.at(rect_at, ek[y], 1)
             if x.size:
@@ -176,9 +172,8 @@ def worst_minor_support(M: sp.csr_array, tol: float = 1e-9) -> tuple:
     if np.isfinite(best[0]):
         i, j, k, l = best[2]
         return best[1], (i, j), (k, l), count, best[0]
-    p1 = M[0, 0] * M[1, 1]
-    p2 = M[0, 1] * M[1, 0]
-    return float(p1 - p2), (0, 1), (0, 1), count, float(_relative(np.float64(p1), np.float64(p2)))
+    p1, p2, rel = minor_relative(np.float64(M[0, 0]), np.float64(M[1, 1]), np.float64(M[0, 1]), np.float64(M[1, 0]))
+    return float(p1 - p2), (0, 1), (0, 1), count, float(rel)
 
 
 # =============================================================================== (A2)
