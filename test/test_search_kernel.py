@@ -107,7 +107,7 @@ def random_model(seed: int, S: int, A: int, Z: int, uncertainty: str, zeros: flo
 
 
 # ------------------------------------------------------------------------- shipped models
-@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+@pytest.mark.parametrize("path", [p for p in SHIPPED if "grid" not in p.name], ids=lambda p: p.name)
 def test_shipped_models(path: Path) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -138,6 +138,20 @@ def test_tracking_model_for_every_uncertainty_function(uncertainty: str, fused: 
         for depth in (1, 2, 3, 4):
             for use_bounds in (True, False):
                 same(kernel.search(b, depth, use_bounds), reference.search(b, depth, use_bounds))
+
+
+@pytest.mark.parametrize("path", [p for p in SHIPPED if "grid" in p.name], ids=lambda p: p.name)
+def test_shipped_grid_models(path: Path) -> None:
+    """The grids (S = 100 and 1 600, stored sparse when that is smaller: the kernel searches their
+    non-zeros, the reference their dense form) at the depths a grid is planned at, from the uniform
+    belief and from a point belief."""
+    model = load_model(path)
+    kernel, reference = pair(model, None)
+    assert kernel._kernel.sparse == (model.sparse, model.sparse)
+    point = np.eye(model.S)[model.S // 2 + 3]
+    for b, depths in ((np.full(model.S, 1 / model.S), (1, 2) if model.S <= 100 else (1,)), (point, (1, 2))):
+        for depth in depths:
+            same(kernel.search(b, depth, False), reference.search(b, depth, False))
 
 
 # -------------------------------------------------------------------------- random models
@@ -255,6 +269,42 @@ def test_csr_transitions_and_observations_equal_dense(uncertainty: str) -> None:
             for depth in (1, 2, 3):
                 for use_bounds in (True, False):
                     same(sparse.search(b, depth, use_bounds), dense.search(b, depth, use_bounds))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10**6), S=st.integers(1, 6), A=st.integers(1, 3), Z=st.integers(1, 5),
+       uncertainty=st.sampled_from(["renyi2", "shannon", "none"]), depth=st.integers(1, 3),
+       zeros=st.sampled_from([0.5, 1.5, 3.0]))
+def test_models_stored_sparse_are_searched_through_their_non_zeros(seed: int, S: int, A: int, Z: int,
+                                                                   uncertainty: str, depth: int, zeros: float) -> None:
+    """A model stored sparse (``POMDP(storage="sparse")``) is searched by the kernel on its CSR rows
+    (no dense P or O is built) and agrees with the numpy reference on the dense form."""
+    dense = random_model(seed, S, A, Z, uncertainty, zeros)
+    model = POMDP(P=dense.P, O=dense.O, r=dense.r, gamma=dense.gamma, uncertainty=uncertainty, w=dense.w,
+                  storage="sparse")
+    rng = np.random.default_rng(seed)
+    bounds = MyopicBounds(model, rng.normal(0, 2, S), rng.normal(0, 2, S))
+    kernel = Planner(model, bounds)
+    assert kernel.kernel == "c" and kernel._kernel.sparse == (True, True) and not kernel.fused
+    assert "P" not in vars(model) and "O" not in vars(model)
+    reference = Planner(dense, MyopicBounds(dense, bounds.g, bounds.h), kernel="numpy")
+    for b in beliefs(S, seed)[:4]:
+        for use_bounds in (True, False):
+            same(kernel.search(b, depth, use_bounds), reference.search(b, depth, use_bounds))
+
+
+@pytest.mark.parametrize("uncertainty", ["renyi2", "shannon"])
+def test_a_sparse_grid_is_searched_as_the_reference_searches_its_dense_form(uncertainty: str) -> None:
+    from pomdp_planner.core.domains.grid import grid_model
+
+    model = grid_model(6, 7, uncertainty=uncertainty, storage="sparse")
+    dense = grid_model(6, 7, uncertainty=uncertainty, storage="dense")
+    kernel, reference = Planner(model), Planner(dense, kernel="numpy")
+    assert kernel._kernel.sparse == (True, True)
+    point = np.eye(model.S)[17]
+    for b, depths in ((np.full(model.S, 1 / model.S), (1, 2)), (point, (1, 2, 3))):
+        for depth in depths:
+            same(kernel.search(b, depth, False), reference.search(b, depth, False))
 
 
 def test_csr_rows_hold_the_non_zeros() -> None:

@@ -220,14 +220,31 @@ def test_sparse_check_estimate_bounds_its_memory_and_counts_frames():
         np.asarray(model.O_csr[1][1:].multiply(model.O_csr[2][:-1]).toarray()) > 0))
     assert rep.codes.size <= est.dirty  # the candidates (beta > 0) bound the matrices built
     setup = gate.estimate_setup(model)
-    assert setup.dense_bytes == 8 * 3 * 1600 * (1600 + 1601)  # the dense P and O the search builds
+    nnz = model.P_csr.nnz + model.O_csr.nnz
+    assert setup.dense_bytes == 0 and setup.sparse_search  # the kernel searches the non-zeros
+    assert setup.table_bytes < 30 * nnz + 2**20 < 8 * 3 * 1600 * 1600
+    assert "planner tables" in setup.parts() and "the non-zeros of P and O" in setup.parts()
 
 
-def test_a_sparse_model_too_large_for_the_dense_search_is_refused_before_the_check(monkeypatch):
+def test_the_kernel_searches_a_sparse_model_of_any_size_without_dense_matrices():
+    from pomdp_planner.core.domains.grid import grid_model
+
+    model = grid_model(100, 100)  # dense P and O would take 2.24 GiB
+    setup = gate.build_planner(model, use_bounds=False)
+    assert setup.planner.kernel == "c"
+    assert "P" not in vars(model) and "O" not in vars(model)  # no dense view was built
+    res = setup.planner.search(np.full(model.S, 1 / model.S), 1, use_bounds=False)
+    assert res.nodes_expanded == (1 + 3 * model.Z,) and np.all(np.isfinite(res.q_values))
+
+
+def test_without_the_kernel_a_sparse_model_too_large_for_the_dense_search_is_refused_before_the_check(monkeypatch):
     no_check(monkeypatch)
     from pomdp_planner.core.domains.grid import grid_model
 
+    monkeypatch.setattr(search_kernel, "searches", lambda model: False)
     model = grid_model(100, 100)
+    est = gate.estimate_setup(model)
+    assert est.dense_bytes == 8 * 3 * 10_000 * (10_000 + 10_001) and not est.sparse_search
     with pytest.raises(gate.SetupCostError, match=r"^model: the search takes the dense P and O of this sparse model "
                        r"\(S=10000, A=3, Z=10001\): 2.24 GiB for the larger, more than the limit of 128 MiB "
                        r"\(MAX_DENSE_BYTES\)$"):

@@ -63,6 +63,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 from weakref import WeakKeyDictionary
 
+from . import search_kernel
 from .bounds import (
     DEFAULT_CONSTANT,
     BoundsSolution,
@@ -169,7 +170,8 @@ class SetupEstimate:
     a discount of 1, or Assumption 1 known to fail (``no_lp`` says why: the cached report, or a
     negative 2x2 minor found in one pass, :func:`~.structure.quick_tp2_refutation`; the check may
     still fail on (A2) or (A3), and the LP counted is then not solved). ``dense_bytes``: the dense
-    ``P`` and ``O`` the search builds for a sparse model. ``seconds`` is the expected total,
+    ``P`` and ``O`` the search builds for a sparse model when the compiled kernel cannot search it
+    (``sparse_search``: it can, through the non-zeros, and builds no dense matrix). ``seconds`` is the expected total,
     ``seconds_max`` the most it may take (:class:`~.structure.CheckEstimate`), ``bytes`` the peak of
     the temporaries and tables (they do not coexist: the check's and the LP's are freed before the
     tables are built).
@@ -184,6 +186,7 @@ class SetupEstimate:
     table_bytes: int
     no_lp: str = ""
     dense_bytes: int = 0
+    sparse_search: bool = False
 
     @property
     def table_seconds(self) -> float:
@@ -212,7 +215,8 @@ class SetupEstimate:
             out.append(f"no bound LP ({self.no_lp})")
         if self.dense_bytes:
             out.append(f"dense P and O for the search {format_bytes(self.dense_bytes)}")
-        growth = "A^2 S Z" if uses_fused_table(self.S, self.A, self.Z) else "A S (S + Z)"
+        growth = ("the non-zeros of P and O" if self.sparse_search
+                  else "A^2 S Z" if uses_fused_table(self.S, self.A, self.Z) else "A S (S + Z)")
         out.append(f"planner tables {format_bytes(self.table_bytes)} (they grow like {growth})")
         return "; ".join(out)
 
@@ -240,9 +244,12 @@ def estimate_setup(model: POMDP, *, use_bounds: bool = True, variant: str = "tig
                 no_lp = quick_tp2_refutation(model)
         solves_lp = use_bounds and not infinite_horizon_refusal(model, "the bound LP") and not no_lp
         lp_seconds, lp_bytes = estimate_solve_bounds(model, variant) if solves_lp else (0.0, 0)
+        on_csr = model.sparse and search_kernel.searches(model)  # else the dense P and O (Planner)
+        nnz = model.P_csr.nnz + model.O_csr.nnz if on_csr else None
         est = SetupEstimate(model.S, model.A, model.Z, check, lp_seconds, lp_bytes,
-                            planner_table_bytes(model.S, model.A, model.Z), no_lp,
-                            8 * model.A * model.S * (model.S + model.Z) if model.sparse else 0)
+                            planner_table_bytes(model.S, model.A, model.Z, nnz=nnz), no_lp,
+                            8 * model.A * model.S * (model.S + model.Z) if model.sparse and not on_csr else 0,
+                            on_csr)
         _estimates[key] = est
         while len(_estimates) > 4:
             _estimates.popitem(last=False)

@@ -239,7 +239,8 @@ def uses_fused_table(S: int, A: int, Z: int, fused: bool | None = None) -> bool:
     return fused_table_bytes(S, A, Z) <= FUSED_TABLE_MAX_BYTES if fused is None else bool(fused)
 
 
-def planner_table_bytes(S: int, A: int, Z: int, fused: bool | None = None, engine: str | None = None) -> int:
+def planner_table_bytes(S: int, A: int, Z: int, fused: bool | None = None, engine: str | None = None,
+                        nnz: int | None = None) -> int:
     """Peak bytes :class:`Planner` allocates when it is built (its tables, before any search).
 
     ``engine``: ``"c"`` or ``"numpy"`` (``None``: the one a planner of this process uses, the
@@ -252,9 +253,13 @@ def planner_table_bytes(S: int, A: int, Z: int, fused: bool | None = None, engin
     ``P`` transposed (``A S^2``), ``r`` twice, and the action masks (``A^3`` bytes). Plus
     :data:`TABLE_OVERHEAD_BYTES`. Needs only the sizes, so an entry point can refuse before it
     builds anything. (The numpy engine's ``count_nodes`` builds two more ``(A, Z, S)`` tables on
-    its first call.)"""
+    its first call.) ``nnz``: the non-zeros of ``P`` and ``O`` of a sparse model, which the kernel
+    searches through them (:class:`Planner`): their CSR rows (an int64 index and a float each, the
+    leaf formula's table on ``O``'s pattern) and row offsets instead of every dense table."""
     if engine is None:
         engine = "c" if search_kernel.available() else "numpy"
+    if nnz is not None and engine == "c":
+        return 24 * int(nnz) + 16 * A * (S + 1) + 40 * S * A + TABLE_OVERHEAD_BYTES
     table = fused_table_bytes(S, A, Z) if uses_fused_table(S, A, Z, fused) else 0
     if engine == "c":
         return table + 17 * A * Z * S + 40 * S * A + TABLE_OVERHEAD_BYTES
@@ -419,7 +424,13 @@ class Planner:
         if kernel not in KERNELS:
             raise OptionError(f"kernel: must be one of {', '.join(KERNELS)}, got {short_repr(kernel)}")
         S, A, Z = model.S, model.A, model.Z
-        self.fused = uses_fused_table(S, A, Z, fused)
+        why = "" if kernel == "numpy" else (search_kernel.load()[1] or search_kernel.unsupported(model, self.bounds))
+        if kernel == "c" and why:
+            raise OptionError(f"kernel: the compiled kernel cannot be used: {why}")
+        # A sparse model is searched by the kernel through its non-zeros (no fused table: that is
+        # dense O); the numpy reference takes its dense P and O (model.P, up to MAX_DENSE_BYTES).
+        on_csr = model.sparse and kernel != "numpy" and not why
+        self.fused = False if on_csr else uses_fused_table(S, A, Z, fused)
         self._leaf_chunk, self._expand_chunk, _ = chunk_sizes(S, A, Z, chunk_bytes)
         self._cost = np.zeros(A)
         self._priced = False  # whether _cost holds a non-zero price
@@ -428,10 +439,10 @@ class Planner:
         self._complete = [1]
         self._reference: ReferenceEngine | None = None
         self._kernel: search_kernel.KernelEngine | None = None
-        why = "" if kernel == "numpy" else (search_kernel.load()[1] or search_kernel.unsupported(model, self.bounds))
-        if kernel == "c" and why:
-            raise OptionError(f"kernel: the compiled kernel cannot be used: {why}")
-        if kernel != "numpy" and not why:
+        if on_csr:
+            self._kernel = search_kernel.KernelEngine(model, self.bounds, False, P=search_kernel.csr_of(model.P_csr),
+                                                      O=search_kernel.csr_of(model.O_csr))
+        elif kernel != "numpy" and not why:
             self._kernel = search_kernel.KernelEngine(model, self.bounds, self.fused)
         else:
             if kernel == "auto" and not search_kernel.available():

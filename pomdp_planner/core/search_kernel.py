@@ -6,8 +6,9 @@ build). It computes what :mod:`.search_reference` computes, with the same traver
 same deadline readings), from the model's own ``P`` and ``O`` plus a few tables built here once
 per planner: ``O`` transposed, ``O^2`` (Renyi) or ``O log O`` (Shannon), ``r`` transposed and the
 bound matrices ``C_g``, ``C_h`` of Eq. 8. ``P`` and ``O`` may also be given as CSR rows per action
-(:func:`csr_rows`), for models with few non-zeros per row; the kernel then predicts and observes
-through their non-zeros only, with the same results up to rounding.
+(:func:`csr_of`: what a planner does for a model stored sparse), for models with few non-zeros per
+row; the kernel then predicts and observes through their non-zeros only, with the same results up
+to rounding, and no table of size ``S x S`` or ``S x Z`` exists.
 
 When the extension cannot be imported (installed without a C compiler) or is of another
 version than this file expects, :func:`load` says why and the planner falls back to the numpy
@@ -28,6 +29,7 @@ import numpy as np
 from .model import POMDP
 from .myopic import MyopicBounds, TrivialBounds, transform_matrix
 from .search_reference import ETA_FUSED_MIN, ETA_SKIP, _xlogx, uncertainty_kind
+from .sparse import SparseStack
 
 #: The extension module's name (top level: see the module docstring).
 MODULE_NAME = "_pomdp_planner_kernel"
@@ -76,6 +78,13 @@ def warn_fallback() -> None:
                       "slower", RuntimeWarning, stacklevel=3)
 
 
+def searches(model: POMDP) -> bool:
+    """Whether a planner of this process searches ``model`` with the kernel (installed, and the
+    model's uncertainty function one it values): what the set-up estimate needs before any bounds
+    exist (the gate's bounds are always of a type the kernel takes)."""
+    return available() and uncertainty_kind(model) in KINDS
+
+
 def unsupported(model: POMDP, bounds: Any) -> str:
     """Why the kernel cannot search ``model`` with ``bounds`` ("" when it can)."""
     if uncertainty_kind(model) not in KINDS:
@@ -114,15 +123,17 @@ class CSRRows:
 
 def csr_rows(M: np.ndarray) -> CSRRows:
     """The CSR rows of a dense per-action matrix ``M (A, rows, cols)`` (its non-zeros, row-major)."""
-    M = np.asarray(M, dtype=float)
-    A, rows, _ = M.shape
-    nz = M != 0.0
-    counts = nz.sum(axis=2).reshape(-1)
-    indptr = np.zeros(A * rows + 1, dtype=np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    full = indptr[np.arange(A)[:, None] * rows + np.arange(rows + 1)[None, :]]  # each action's rows + 1 offsets
-    a, i, j = np.nonzero(nz)
-    return CSRRows(np.ascontiguousarray(full.reshape(-1)), j.astype(np.int64), np.ascontiguousarray(M[a, i, j]))
+    return csr_of(SparseStack.from_dense(M))
+
+
+def csr_of(stack: SparseStack) -> CSRRows:
+    """The CSR rows of a model's sparse per-action matrices (``model.P_csr``, ``model.O_csr``):
+    their own non-zeros, with the row offsets made absolute over the actions."""
+    mats = list(stack)
+    starts = np.cumsum([0] + [M.nnz for M in mats[:-1]])
+    indptr = np.concatenate([M.indptr.astype(np.int64) + s for M, s in zip(mats, starts, strict=True)])
+    return CSRRows(indptr, np.concatenate([M.indices for M in mats]).astype(np.int64),
+                   np.ascontiguousarray(np.concatenate([M.data for M in mats]), dtype=np.float64))
 
 
 class KernelEngine:
