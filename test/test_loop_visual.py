@@ -96,3 +96,18 @@ def test_grid_scene_places_states_row_major(s3):
     scene = loop.scene()
     assert [(b.x, b.y) for b in scene.bars] == [(0.5, 0.5), (0.5, 1.5), (0.5, 2.5)]
     assert scene.grid == (3, 1) and scene.occupancy == (100, 50, 50)
+
+
+def test_a_grid_with_obstacles_shows_its_free_cells_and_marks_the_obstacles_unknown():
+    from pomdp_planner.core.domains.grid import grid_model
+
+    model = grid_model(2, 3, obstacles=[[0, 1], [1, 2]])  # free cells (0,0) (0,2) (1,0) (1,1): S = 4
+    assert model.S == 4 and grid_shape(model) == (2, 3)
+    loop = VisualLoop(model, grid_shape(model), now=0.0)
+    loop.belief(BeliefSample(0, np.array([0.1, 0.2, 0.3, 0.4])), 0.0)
+    scene = loop.scene()
+    assert [(b.x, b.y) for b in scene.bars] == [(0.5, 0.5), (2.5, 0.5), (0.5, 1.5), (1.5, 1.5)]
+    assert scene.occupancy == (25, -1, 50, 75, 100, -1)  # row-major; the obstacles (0,1) and (1,2) unknown
+    bad = replace(model, metadata={**model.metadata, "grid": {"rows": 2, "cols": 3, "obstacles": [[0, 1]]}})
+    with pytest.raises(GridError, match=r"^the model's grid: \[2, 3\] has 5 free cells, the model 4 states$"):
+        grid_shape(bad)

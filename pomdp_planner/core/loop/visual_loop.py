@@ -40,7 +40,8 @@ def grid_shape(model: POMDP, given: Sequence[int] | None = None) -> tuple[int, i
     """``(rows, cols)`` of a grid model, state ``s`` being the cell ``(s // cols, s % cols)``
     (row-major): the model's ``grid: {rows, cols}`` metadata, else its ``generator``'s ``rows`` and
     ``cols`` when its domain is ``grid``, else ``given`` (``[rows, cols]``; empty or ``None``: the
-    model is not a grid). ``rows * cols`` must be the number of states (:class:`GridError`)."""
+    model is not a grid). ``rows * cols`` minus the grid's obstacles must be the number of states
+    (:class:`GridError`; the states are the free cells in row-major order, :func:`grid_cells`)."""
     meta = model.metadata or {}
     source, shape = "grid_shape", None
     grid = meta.get("grid")
@@ -57,9 +58,25 @@ def grid_shape(model: POMDP, given: Sequence[int] | None = None) -> tuple[int, i
                                   for n in shape):
         raise GridError(f"{source}: must be [rows, cols], two positive integers, got {list(shape)}")
     rows, cols = int(shape[0]), int(shape[1])
-    if rows * cols != model.S:
-        raise GridError(f"{source}: [{rows}, {cols}] has {rows * cols} cells, the model {model.S} states")
+    blocked = len(_obstacles(model)) if source == "the model's grid" else 0
+    if rows * cols - blocked != model.S:
+        free = f"{rows * cols - blocked} free cells" if blocked else f"{rows * cols} cells"
+        raise GridError(f"{source}: [{rows}, {cols}] has {free}, the model {model.S} states")
     return rows, cols
+
+
+def _obstacles(model: POMDP) -> list:
+    grid = (model.metadata or {}).get("grid")
+    return list(grid.get("obstacles") or ()) if isinstance(grid, Mapping) else []
+
+
+def grid_cells(model: POMDP, shape: tuple[int, int]) -> np.ndarray:
+    """``(S, 2)``: the ``(row, col)`` of every state on the grid ``shape`` (:func:`grid_shape`): the
+    free cells in row-major order, the model's grid obstacles left out."""
+    rows, cols = shape
+    blocked = {(int(r), int(c)) for r, c in _obstacles(model)}
+    cells = [(r, c) for r in range(rows) for c in range(cols) if (r, c) not in blocked]
+    return np.array(cells, dtype=np.int64).reshape(-1, 2)
 
 
 @dataclass(frozen=True)
@@ -85,7 +102,8 @@ class Scene:
     text: str
     #: The text's position (above the bars, m).
     text_xyz: tuple[float, float, float]
-    #: Grid models: ``(rows, cols)`` and one occupancy value 0..100 per cell, row-major.
+    #: Grid models: ``(rows, cols)`` and one occupancy value per cell, row-major (0..100; -1 on an
+    #: obstacle).
     grid: tuple[int, int] | None = None
     occupancy: tuple[int, ...] = ()
 
@@ -123,6 +141,7 @@ class VisualLoop:
     def __init__(self, model: POMDP, grid: tuple[int, int] | None, *, now: float, spacing: float = 1.0,
                  bar_height: float = 1.0, stall: StallLimits | None = None):
         self.model, self.grid = model, grid
+        self.cells = None if grid is None else grid_cells(model, grid)
         self.spacing, self.bar_height = spacing, bar_height
         self.health = LoopHealth(COUNTERS, PROBLEMS, [InputWatch("belief", "belief", started=now)],
                                  stall or StallLimits(), streams=("plan_info", "true_state"))
@@ -170,7 +189,7 @@ class VisualLoop:
         ``((s + 1/2) * spacing, 0)``."""
         if self.grid is None:
             return (state + 0.5) * self.spacing, 0.0
-        r, c = divmod(state, self.grid[1])
+        r, c = self.cells[state]
         return (c + 0.5) * self.spacing, (r + 0.5) * self.spacing
 
     def scene(self) -> Scene | None:
@@ -194,7 +213,15 @@ class VisualLoop:
         text = f"belief of epoch {self.newest.epoch}; {decision_text(self.info, self.model)}"
         return Scene(epoch=self.newest.epoch, bars=tuple(bars), true_state=true, text=text,
                      text_xyz=(centre[0], centre[1] - self.spacing, self.bar_height + 0.3 * self.spacing),
-                     grid=self.grid, occupancy=occupancy(b) if self.grid is not None else ())
+                     grid=self.grid, occupancy=self.occupancy(b) if self.grid is not None else ())
+
+    def occupancy(self, belief: np.ndarray) -> tuple[int, ...]:
+        """One value per cell of the grid, row-major: :func:`occupancy` of the belief on the free
+        cells, -1 (unknown) on an obstacle."""
+        rows, cols = self.grid
+        out = np.full(rows * cols, -1, dtype=np.int64)
+        out[self.cells[:, 0] * cols + self.cells[:, 1]] = occupancy(belief)
+        return tuple(int(v) for v in out)
 
     def report(self, now: float) -> Report:
         """The diagnostics (rule "Report"): the newest belief's epoch and the counts."""
