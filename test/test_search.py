@@ -493,6 +493,20 @@ def test_stop_rule_predicts_from_the_growth_of_the_last_two_depths() -> None:
     assert next_depth_cannot_finish([0.0, 0.1], remaining=0.0)
 
 
+def test_the_next_depth_is_predicted_from_the_leaves_it_must_value() -> None:
+    # depth 1 of S = 1024, A = 4 took 30 ms for 1 024 children: depth 2 values at least one action
+    # of each child, at least about 1 024 / 4 / 8 times depth 1's time
+    assert next_depth_cannot_finish([0.03], remaining=0.07, level_sizes=(1, 1024), A=4)
+    assert not next_depth_cannot_finish([0.03], remaining=0.07)  # without the sizes: no prediction
+    # a small model: depth 1 in 20 us with 24 children of 3 actions: depth 2 about 160 us, well within
+    assert not next_depth_cannot_finish([2e-5], remaining=0.05, level_sizes=(1, 24), A=3)
+    # the larger of the two predictions counts: growth 2 gives 0.2 s, the leaves
+    # 0.1 * 4 000 / (3 * 24) / 8 = 0.69 s (0.069 s with 400 leaves); hopeless above 1.5 * 0.3 s
+    assert next_depth_cannot_finish([0.05, 0.1], remaining=0.3, level_sizes=(1, 24, 4000), A=3)
+    assert not next_depth_cannot_finish([0.05, 0.1], remaining=0.3, level_sizes=(1, 24, 400), A=3)
+    assert next_depth_cannot_finish([0.05, 0.1], remaining=0.1, level_sizes=(1, 24, 400), A=3)  # growth
+
+
 def test_predicted_stop_returns_the_same_decision_without_costing_depth() -> None:
     """Over a sweep of deadlines (deterministic clock), the predictive stop never returns a
     shallower depth than running into the deadline, returns the same decision, and when it

@@ -87,6 +87,11 @@ from .search_reference import DeadlineExceeded, ReferenceEngine, Traversal
 #: Anytime stop rule: depth ``d + 1`` is not started when its predicted time exceeds this many
 #: times the budget left (prediction: last depth's time times its growth over the depth before).
 PREDICT_MARGIN = 1.5
+#: The leaf prediction of the stop rule (:func:`next_depth_cannot_finish`) divides the measured time
+#: per (parent, action) pair by this: a depth's time includes fixed costs and shallower levels, and
+#: the kernel values the leaves of many parents together, so a pair of the next depth can cost
+#: several times less than the last depth's average (a lower bound, not an estimate).
+LEAF_PREDICTION_DISCOUNT = 8.0
 #: Default memory budget (bytes) for one chunk of the leaf level.
 DEFAULT_CHUNK_BYTES = 4 * 2**20
 #: Most multiply-adds of one step (a chunk's parents under one action): the deadline is read
@@ -158,18 +163,29 @@ def check_tree_size(A: int, Z: int, depth: int, field: str = "depth", limit: int
         f"{count_text(limit)} (MAX_TREE_NODES: minutes of search); {deepest}" + (f"; {hint}" if hint else ""))
 
 
-def next_depth_cannot_finish(depth_times: Sequence[float], remaining: float, margin: float = PREDICT_MARGIN) -> bool:
+def next_depth_cannot_finish(depth_times: Sequence[float], remaining: float, margin: float = PREDICT_MARGIN,
+                             level_sizes: Sequence[int] | None = None, A: int = 1) -> bool:
     """The anytime stop rule of :meth:`Planner.plan`: is the next depth hopeless?
 
-    ``depth_times`` are the times of the completed depths ``1..d``; the next depth is predicted
-    to take ``t_d * max(1, t_d / t_{d-1})`` and is hopeless when that exceeds ``margin *
-    remaining``. With fewer than two depths there is no growth to go by: never hopeless.
+    ``depth_times`` are the times of the completed depths ``1..d``. Two predictions of the next
+    depth's time, the larger counts: its growth, ``t_d * max(1, t_d / t_{d-1})`` (two depths
+    needed), and its leaves: ``level_sizes`` ``(n_0, ..., n_d)`` of depth ``d``, whose leaf level
+    valued at most ``A n_{d-1}`` (parent, action) pairs in ``t_d``, while the next depth values at
+    least one action of each of its ``n_d`` leaf parents, so it takes at least about
+    ``t_d n_d / (A n_{d-1})``, counted divided by :data:`LEAF_PREDICTION_DISCOUNT` (also after
+    depth 1: a model whose depth 1 takes a good part of the budget does not start a depth 2 that is
+    hundreds of times longer). Hopeless when the prediction exceeds ``margin * remaining``; with
+    one depth and no sizes, never.
     """
-    if len(depth_times) < 2:
-        return False
-    t_prev, t_last = float(depth_times[-2]), float(depth_times[-1])
-    growth = t_last / t_prev if t_prev > 0.0 else 1.0
-    return t_last * max(1.0, growth) > margin * max(remaining, 0.0)
+    t_last = float(depth_times[-1]) if len(depth_times) else 0.0
+    predicted = 0.0
+    if len(depth_times) >= 2:
+        t_prev = float(depth_times[-2])
+        predicted = t_last * max(1.0, t_last / t_prev if t_prev > 0.0 else 1.0)
+    if level_sizes is not None and len(level_sizes) >= 2 and level_sizes[-2] > 0:
+        leaves = t_last * level_sizes[-1] / (max(A, 1) * level_sizes[-2])
+        predicted = max(predicted, leaves / LEAF_PREDICTION_DISCOUNT)
+    return predicted > margin * max(remaining, 0.0)
 
 
 class SearchMemoryError(OptionError):
@@ -499,9 +515,9 @@ class Planner:
         after the (tiny) depth-1 search of that single action, so the other Q values are ``nan``.
         Bounds without the guarantee never stop it early (module docstring).
 
-        ``predict_stop``: after two completed depths, depth ``d + 1`` is not started when it
-        cannot finish: its predicted time (time of depth ``d`` times the growth ``t_d / t_{d-1}``)
-        exceeds :data:`PREDICT_MARGIN` times the budget left. An interrupted depth is discarded
+        ``predict_stop``: depth ``d + 1`` is not started when it cannot finish: its predicted time
+        (:func:`next_depth_cannot_finish`: the growth ``t_d / t_{d-1}``, and the leaves it must
+        value at least) exceeds :data:`PREDICT_MARGIN` times the budget left. An interrupted depth is discarded
         anyway, so this returns the same decision sooner (``deadline_hit`` and
         ``predicted_stop`` set); the growth measured at shallow depths underestimates the real
         one (fixed per-call costs), so the rule errs towards trying. ``checked``: see the class.
@@ -541,7 +557,7 @@ class Planner:
             if now >= deadline:
                 hit = True
                 break
-            if predict_stop and next_depth_cannot_finish(times, deadline - now):
+            if predict_stop and next_depth_cannot_finish(times, deadline - now, level_sizes=sizes, A=self._A):
                 hit = predicted = True
                 break
         assert best is not None  # depth 1 always finishes its first root action
