@@ -353,12 +353,12 @@ def test_max_setup_seconds_limits_the_configure_and_a_long_set_up_is_announced(h
 
 
 def test_the_grid10_parameter_files_run_the_grid_model_in_every_node_of_the_closed_loop():
-    """``closed_loop.launch.xml model_set:=grid10`` reads config/<node>_grid10.yaml for its three nodes
-    (docs/ros.md, "Parameter files"): each exists, applies in any namespace and names the 10 x 10 grid,
-    as does closed_loop_grid10.yaml; the launch file takes each node's file by that pattern."""
+    """``closed_loop.launch.xml model_set:=grid10`` reads config/closed_loop_grid10.yaml for its three
+    nodes (docs/ros.md, "Parameter files"): a section for each, in any namespace, naming the 10 x 10
+    grid, as does each node's own file config/<node>_grid10.yaml (``ros2 run``)."""
     launch = (REPO / "launch" / "closed_loop.launch.xml").read_text()
+    assert "config/closed_loop_$(var model_set).yaml" in launch
     for node in ("target_simulator", "belief_filter", "planner"):
-        assert f"config/{node}_$(var model_set).yaml" in launch
         doc = yaml.safe_load((REPO / "config" / f"{node}_grid10.yaml").read_text())
         assert node_parameters(doc, node)["model_file"] == "config/models/grid_10x10.yaml" and f"/**/{node}" in doc
         closed = yaml.safe_load((REPO / "config" / "closed_loop_grid10.yaml").read_text())
