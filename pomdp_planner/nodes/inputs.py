@@ -15,6 +15,7 @@ loop nodes (:mod:`.loop_node`) and the run recorder's inputs (:mod:`.run_recorde
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -32,6 +33,9 @@ from .take import subscribe
 
 #: Writers per input for which the node looked at the graph on their first sample (the oldest forgotten).
 GRAPH_ASKED = 64
+#: A writer the graph did not name yet (its node's discovery can arrive after its first samples) is
+#: looked up again on a later sample, at most this often (s).
+GRAPH_RETRY = 0.1
 
 
 @dataclass
@@ -52,7 +56,7 @@ class Input:
     topic: str = ""
     sub: object = None                      # the subscription
     held: tuple[bytes, dict] | None = None  # the newest foreign sample: handed in again at a takeover
-    asked: dict[str, None] = field(default_factory=dict)  # writers the graph was looked at for
+    asked: dict[str, float] = field(default_factory=dict)  # writers the graph was looked at for, and when
 
 
 class CheckedInputs:
@@ -121,8 +125,9 @@ class CheckedInputs:
         ww = health.writers[spec.name]
         if ww.expected is not spec.expected:
             ww.expected = spec.expected
-        if writer is not None and writer not in spec.asked and not ww.known(writer):
-            spec.asked[writer] = None  # its first sample: who is it? (once per writer)
+        if writer is not None and not ww.known(writer) and now - spec.asked.get(writer, -math.inf) >= GRAPH_RETRY:
+            spec.asked.pop(writer, None)  # who is it? On its first sample, again while the graph has no name
+            spec.asked[writer] = now
             while len(spec.asked) > GRAPH_ASKED:
                 del spec.asked[next(iter(spec.asked))]
             self.look_at_graph(spec)
